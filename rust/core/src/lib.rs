@@ -1,0 +1,11 @@
+//! Tegument's numerics, free of Python and Blender.
+//!
+//! Every public entry point validates what it is given and returns
+//! [`Result<_, Error>`]: callers (the Python bindings, benchmarks, tests) decide
+//! how to show a failure; nothing in here panics on user data.
+
+pub mod error;
+pub mod mesh;
+
+pub use error::{Error, Result};
+pub use mesh::{MeshInput, Topology, TopologyReport};

@@ -1,0 +1,17 @@
+//! Polygon mesh topology in Blender's own layout.
+//!
+//! A mesh arrives as Blender stores it: vertex positions, the vertex index of
+//! every face corner ("corner verts", Blender's `loops`), and the corner count
+//! of every polygon. [`validate`] checks those arrays; [`Topology`] derives
+//! what the deformers need: unique edges, one-rings ordered with the face
+//! orientation, boundaries, and everything that is not a clean 2-manifold.
+
+pub mod shapes;
+mod topology;
+mod validate;
+
+pub use topology::{Topology, TopologyReport};
+pub use validate::{as_vec3, validate_positions, MeshInput};
+
+#[cfg(test)]
+mod tests;

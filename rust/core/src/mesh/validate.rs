@@ -1,0 +1,85 @@
+//! Checks of raw mesh arrays, with messages that say where the problem is.
+
+use glam::Vec3;
+
+use crate::{Error, Result};
+
+/// Reinterprets a flat `[x0, y0, z0, x1, ...]` slice as vectors without copying.
+pub fn as_vec3(flat: &[f32]) -> Result<&[Vec3]> {
+    if flat.len() % 3 != 0 {
+        return Err(Error::invalid(format!(
+            "positions hold {} floats, which is not a multiple of 3 (x, y, z per vertex)",
+            flat.len()
+        )));
+    }
+    Ok(bytemuck::cast_slice(flat))
+}
+
+/// Fails on the first coordinate that is NaN or infinite, naming the vertex.
+pub fn validate_positions(what: &str, positions: &[Vec3]) -> Result<()> {
+    match positions.iter().position(|p| !p.is_finite()) {
+        None => Ok(()),
+        Some(vertex) => Err(Error::invalid(format!(
+            "{what}: vertex {vertex} is not finite ({:?})",
+            positions[vertex].to_array()
+        ))),
+    }
+}
+
+/// A mesh as Blender stores it, borrowed from the caller.
+#[derive(Debug, Clone, Copy)]
+pub struct MeshInput<'a> {
+    /// One position per vertex.
+    pub positions: &'a [Vec3],
+    /// The vertex index of every face corner, polygon after polygon.
+    pub corner_verts: &'a [i32],
+    /// The number of corners of every polygon.
+    pub polygon_sizes: &'a [i32],
+}
+
+impl<'a> MeshInput<'a> {
+    /// Checks every index and size and returns the offset of each polygon's
+    /// first corner (with the corner count appended).
+    pub fn validate(&self) -> Result<Vec<u32>> {
+        validate_positions("positions", self.positions)?;
+        let vertex_count = self.positions.len();
+        if vertex_count > u32::MAX as usize - 1 {
+            return Err(Error::invalid(format!("{vertex_count} vertices is more than Tegument supports")));
+        }
+        let mut offsets = Vec::with_capacity(self.polygon_sizes.len() + 1);
+        let mut total: u64 = 0;
+        offsets.push(0u32);
+        for (polygon, &size) in self.polygon_sizes.iter().enumerate() {
+            if size < 3 {
+                return Err(Error::invalid(format!(
+                    "polygon {polygon} has {size} corners; a polygon needs at least 3"
+                )));
+            }
+            total += size as u64;
+            if total > self.corner_verts.len() as u64 {
+                return Err(Error::invalid(format!(
+                    "polygon sizes add up to more corners than the {} given (already {total} at polygon {polygon})",
+                    self.corner_verts.len()
+                )));
+            }
+            offsets.push(total as u32);
+        }
+        if total != self.corner_verts.len() as u64 {
+            return Err(Error::invalid(format!(
+                "polygon sizes add up to {total} corners but {} corner vertex indices were given",
+                self.corner_verts.len()
+            )));
+        }
+        if let Some(corner) = self
+            .corner_verts
+            .iter()
+            .position(|&v| v < 0 || v as usize >= vertex_count)
+        {
+            return Err(Error::invalid(format!(
+                "corner {corner} refers to vertex {}, but the mesh has {vertex_count} vertices",
+                self.corner_verts[corner]
+            )));
+        }
+        Ok(offsets)
+    }
+}
