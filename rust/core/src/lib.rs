@@ -4,6 +4,7 @@
 //! [`Result<_, Error>`]: callers (the Python bindings, benchmarks, tests) decide
 //! how to show a failure; nothing in here panics on user data.
 
+pub mod collide;
 pub mod error;
 pub mod mesh;
 

@@ -1,0 +1,140 @@
+//! Zero false negatives on every sample query file, and the false-positive
+//! rate, printed (run with `--nocapture` to see it).
+
+use super::data::{read_bools, read_queries, require, Query};
+use crate::collide::ccd::{self, CcdParams};
+
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum PairKind {
+    VertexFace,
+    EdgeEdge,
+}
+
+pub fn run_query(kind: PairKind, q: &Query, params: &CcdParams) -> Option<ccd::CcdHit> {
+    let p = &q.points;
+    match kind {
+        PairKind::VertexFace => ccd::vertex_triangle(p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], params),
+        PairKind::EdgeEdge => ccd::edge_edge(p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], params),
+    }
+}
+
+/// Counts of one file.
+#[derive(Default, Debug, Clone, Copy)]
+pub struct Tally {
+    pub queries: usize,
+    pub positives: usize,
+    pub false_negatives: usize,
+    pub false_positives: usize,
+}
+
+impl Tally {
+    pub fn add(&mut self, truth: bool, predicted: bool) {
+        self.queries += 1;
+        self.positives += truth as usize;
+        self.false_negatives += (truth && !predicted) as usize;
+        self.false_positives += (!truth && predicted) as usize;
+    }
+    pub fn negatives(&self) -> usize {
+        self.queries - self.positives
+    }
+    pub fn fp_rate(&self) -> f64 {
+        if self.negatives() == 0 { 0.0 } else { self.false_positives as f64 / self.negatives() as f64 }
+    }
+}
+
+fn check_file(name: &str, kind: PairKind, queries: &[Query], truths: &[bool]) -> Tally {
+    check_file_with(name, kind, queries, truths, &CcdParams::default())
+}
+
+fn check_file_with(name: &str, kind: PairKind, queries: &[Query], truths: &[bool], params: &CcdParams) -> Tally {
+    assert_eq!(queries.len(), truths.len(), "{name}: queries and ground truth differ in length");
+    let mut tally = Tally::default();
+    let mut missed = Vec::new();
+    for (i, (q, &truth)) in queries.iter().zip(truths).enumerate() {
+        let predicted = run_query(kind, q, params).is_some();
+        if truth && !predicted {
+            missed.push(i);
+        }
+        tally.add(truth, predicted);
+    }
+    println!(
+        "{name:<48} tol {:.0e} {kind:?}: {} queries, {} positive, {} false negatives, {} false positives ({:.1}% of negatives)",
+        params.tolerance,
+        tally.queries,
+        tally.positives,
+        tally.false_negatives,
+        tally.false_positives,
+        100.0 * tally.fp_rate()
+    );
+    assert!(missed.is_empty(), "{name}: false negatives at queries {missed:?}");
+    tally
+}
+
+const SAMPLE_FILES: [(&str, PairKind); 7] = [
+    ("unit-tests/edge-edge/data_0_0.csv", PairKind::EdgeEdge),
+    ("unit-tests/edge-edge/data_0_1.csv", PairKind::EdgeEdge),
+    ("unit-tests/vertex-face/data_0_0.csv", PairKind::VertexFace),
+    ("unit-tests/vertex-face/data_0_1.csv", PairKind::VertexFace),
+    ("erleben-cube-cliff-edges/edge-edge/data_0_0.csv", PairKind::EdgeEdge),
+    ("erleben-cube-cliff-edges/vertex-face/data_0_0.csv", PairKind::VertexFace),
+    ("erleben-spike-wedge/edge-edge/data_0_0.csv", PairKind::EdgeEdge),
+];
+
+#[test]
+fn sample_queries_have_no_false_negatives() {
+    let Some(root) = require("ccd/sample-queries") else { return };
+    let mut total = Tally::default();
+    for (file, kind) in SAMPLE_FILES {
+        let path = root.join(file);
+        assert!(path.exists(), "{} is missing from the data set", path.display());
+        let queries = read_queries(&path);
+        let truths: Vec<bool> = queries.iter().map(|q| q.truth.expect("7-column file")).collect();
+        let tally = check_file(file, kind, &queries, &truths);
+        total.queries += tally.queries;
+        total.positives += tally.positives;
+        total.false_negatives += tally.false_negatives;
+        total.false_positives += tally.false_positives;
+    }
+    println!(
+        "sample-queries total: {} queries, {} positive, 0 false negatives, {} false positives ({:.1}% of negatives)",
+        total.queries,
+        total.positives,
+        total.false_positives,
+        100.0 * total.fp_rate()
+    );
+    assert!(total.positives > 0, "the sample files hold positives; none were read");
+}
+
+#[test]
+fn cloth_funnel_query_files_have_no_false_negatives() {
+    let Some(root) = require("ccd/scalable-ccd-cloth-funnel/cloth-funnel") else { return };
+    for (stem, kind) in [("227vf", PairKind::VertexFace), ("227ee", PairKind::EdgeEdge)] {
+        let queries = read_queries(&root.join(format!("queries/{stem}.csv")));
+        let truths = read_bools(&root.join(format!("mma_bool/{stem}_mma_bool.json")));
+        for tolerance in [1e-6, 1e-8, 1e-10] {
+            let params = CcdParams { tolerance, ..Default::default() };
+            let tally = check_file_with(&format!("cloth-funnel queries/{stem}.csv"), kind, &queries, &truths, &params);
+            assert!(tally.positives > 0);
+        }
+    }
+}
+
+/// Distances only shrink when a minimum separation is added, so every
+/// positive must stay positive, with a time of impact no later than the
+/// true one of the zero-separation problem's box it was found in.
+#[test]
+fn positives_stay_positive_with_separation() {
+    let Some(root) = require("ccd/sample-queries") else { return };
+    for (file, kind) in SAMPLE_FILES {
+        let queries = read_queries(&root.join(file));
+        for (i, q) in queries.iter().enumerate() {
+            if q.truth != Some(true) {
+                continue;
+            }
+            for min_separation in [1e-6, 1e-3, 0.1] {
+                let params = CcdParams { min_separation, ..Default::default() };
+                assert!(run_query(kind, q, &params).is_some(), "{file} query {i}: lost with separation {min_separation}");
+            }
+        }
+    }
+}
