@@ -4,3 +4,4 @@
 mod data;
 mod datasets;
 mod ccd_props;
+mod funnel;

@@ -1,0 +1,392 @@
+//! A bounding-volume hierarchy over axis-aligned boxes (`obvhs` BVH2, built by
+//! PLOC), with refitting and a quality figure that decides when to rebuild.
+//!
+//! `obvhs` 0.4 speaks glam 0.34 while the crate uses glam 0.30, so boxes cross
+//! the boundary as `[f32; 3]` arrays ([`Bounds`] is this crate's box).
+//!
+//! Quality is measured by the surface-area-heuristic cost of the tree,
+//! normalised by the root's area: `Σ_inner A(n)/A(root) + Σ_leaf count·A(n)/A(root)`.
+//! Rigid motion leaves it unchanged; deformation that makes refitted boxes
+//! overlap more raises it. [`BoxTree::update`] refits, then rebuilds when the
+//! cost exceeds [`BoxTree::rebuild_ratio`] times the cost right after the last
+//! build.
+
+use std::time::Duration;
+
+use glam::{DVec3, Vec3};
+use obvhs::aabb::Aabb;
+use obvhs::bvh2::builder::build_bvh2;
+use obvhs::bvh2::Bvh2;
+use obvhs::BvhBuildParams;
+use rayon::prelude::*;
+
+use crate::{Error, Result};
+
+/// An axis-aligned box, `min ≤ max` component-wise when valid.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Bounds {
+    pub min: Vec3,
+    pub max: Vec3,
+}
+
+impl Bounds {
+    /// The box that contains nothing (union identity).
+    pub const EMPTY: Bounds = Bounds { min: Vec3::splat(f32::INFINITY), max: Vec3::splat(f32::NEG_INFINITY) };
+
+    /// The smallest box holding all `points`.
+    pub fn of_points(points: &[Vec3]) -> Bounds {
+        let mut b = Bounds::EMPTY;
+        for &p in points {
+            b.min = b.min.min(p);
+            b.max = b.max.max(p);
+        }
+        b
+    }
+
+    /// A box holding all f64 `points`, rounded outward to f32 so that it
+    /// contains them exactly.
+    pub fn of_points_f64(points: &[DVec3]) -> Bounds {
+        let mut lo = DVec3::splat(f64::INFINITY);
+        let mut hi = DVec3::splat(f64::NEG_INFINITY);
+        for &p in points {
+            lo = lo.min(p);
+            hi = hi.max(p);
+        }
+        Bounds {
+            min: Vec3::new(round_down(lo.x), round_down(lo.y), round_down(lo.z)),
+            max: Vec3::new(round_up(hi.x), round_up(hi.y), round_up(hi.z)),
+        }
+    }
+
+    /// This box grown by `margin` on every side.
+    pub fn inflated(self, margin: f32) -> Bounds {
+        Bounds { min: self.min - Vec3::splat(margin), max: self.max + Vec3::splat(margin) }
+    }
+
+    pub fn union(self, other: Bounds) -> Bounds {
+        Bounds { min: self.min.min(other.min), max: self.max.max(other.max) }
+    }
+
+    /// True when the closed boxes share a point.
+    pub fn overlaps(&self, other: &Bounds) -> bool {
+        self.min.cmple(other.max).all() && other.min.cmple(self.max).all()
+    }
+
+    pub fn contains(&self, p: Vec3) -> bool {
+        self.min.cmple(p).all() && p.cmple(self.max).all()
+    }
+
+    pub fn is_valid(&self) -> bool {
+        self.min.is_finite() && self.max.is_finite() && self.min.cmple(self.max).all()
+    }
+
+    fn half_area(&self) -> f64 {
+        let d = (self.max - self.min).max(Vec3::ZERO).as_dvec3();
+        d.x * d.y + d.y * d.z + d.z * d.x
+    }
+
+    fn to_aabb(self) -> Aabb {
+        Aabb::new(self.min.to_array().into(), self.max.to_array().into())
+    }
+
+    fn from_aabb(aabb: &Aabb) -> Bounds {
+        Bounds { min: Vec3::from_array(aabb.min.to_array()), max: Vec3::from_array(aabb.max.to_array()) }
+    }
+}
+
+/// Largest f32 not above `x`.
+pub fn round_down(x: f64) -> f32 {
+    let f = x as f32;
+    if (f as f64) > x { next_toward_neg_inf(f) } else { f }
+}
+
+/// Smallest f32 not below `x`.
+pub fn round_up(x: f64) -> f32 {
+    let f = x as f32;
+    if (f as f64) < x { -next_toward_neg_inf(-f) } else { f }
+}
+
+fn next_toward_neg_inf(f: f32) -> f32 {
+    if f.is_nan() || f == f32::NEG_INFINITY {
+        return f;
+    }
+    if f == 0.0 {
+        return -f32::from_bits(1);
+    }
+    let bits = f.to_bits();
+    if f > 0.0 { f32::from_bits(bits - 1) } else { f32::from_bits(bits + 1) }
+}
+
+/// What one [`BoxTree::update`] did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UpdateReport {
+    /// SAH cost after refitting divided by the cost after the last build.
+    pub cost_ratio: f64,
+    /// Whether the tree was rebuilt.
+    pub rebuilt: bool,
+}
+
+/// A BVH over a fixed number of boxes whose extents change over time.
+#[derive(Clone)]
+pub struct BoxTree {
+    bvh: Option<Bvh2>,
+    /// The primitive boxes (leaves hold up to 8, each tested on its own).
+    boxes: Vec<Bounds>,
+    count: usize,
+    build_cost: f64,
+    /// Rebuild when the SAH cost grows past this multiple of the built cost.
+    pub rebuild_ratio: f64,
+    rebuilds: usize,
+    refits: usize,
+}
+
+fn check_boxes(boxes: &[Bounds]) -> Result<()> {
+    if let Some(i) = boxes.iter().position(|b| !b.is_valid()) {
+        return Err(Error::invalid(format!(
+            "bounding box {i} is not finite or has min > max ({:?} .. {:?})",
+            boxes[i].min.to_array(),
+            boxes[i].max.to_array()
+        )));
+    }
+    if boxes.len() >= u32::MAX as usize {
+        return Err(Error::invalid(format!("{} boxes is more than a BVH supports", boxes.len())));
+    }
+    Ok(())
+}
+
+impl std::fmt::Debug for BoxTree {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("BoxTree")
+            .field("count", &self.count)
+            .field("nodes", &self.bvh.as_ref().map_or(0, |b| b.nodes.len()))
+            .field("build_cost", &self.build_cost)
+            .field("rebuilds", &self.rebuilds)
+            .field("refits", &self.refits)
+            .finish()
+    }
+}
+
+impl BoxTree {
+    /// Default for [`BoxTree::rebuild_ratio`].
+    pub const DEFAULT_REBUILD_RATIO: f64 = 1.4;
+
+    /// Builds a tree over `boxes` (primitive `i` is `boxes[i]`).
+    pub fn build(boxes: &[Bounds]) -> Result<Self> {
+        check_boxes(boxes)?;
+        let mut tree = BoxTree {
+            bvh: None,
+            boxes: boxes.to_vec(),
+            count: boxes.len(),
+            build_cost: 0.0,
+            rebuild_ratio: Self::DEFAULT_REBUILD_RATIO,
+            rebuilds: 0,
+            refits: 0,
+        };
+        tree.rebuild(boxes);
+        Ok(tree)
+    }
+
+    fn rebuild(&mut self, boxes: &[Bounds]) {
+        if boxes.is_empty() {
+            self.bvh = None;
+            self.build_cost = 0.0;
+            return;
+        }
+        let aabbs: Vec<Aabb> = boxes.iter().map(|b| b.to_aabb()).collect();
+        let mut time = Duration::ZERO;
+        let bvh = build_bvh2(&aabbs, BvhBuildParams::fast_build(), &mut time);
+        self.bvh = Some(bvh);
+        self.build_cost = self.sah_cost();
+    }
+
+    /// Number of boxes the tree was built over.
+    pub fn len(&self) -> usize {
+        self.count
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    /// How many times [`update`](Self::update) rebuilt / refitted.
+    pub fn rebuild_count(&self) -> usize {
+        self.rebuilds
+    }
+    pub fn refit_count(&self) -> usize {
+        self.refits
+    }
+
+    /// Normalised SAH cost (see the module doc); 0 for an empty tree.
+    pub fn sah_cost(&self) -> f64 {
+        let Some(bvh) = &self.bvh else { return 0.0 };
+        let root = Bounds::from_aabb(bvh.nodes[0].aabb()).half_area();
+        if root <= 0.0 {
+            return 1.0;
+        }
+        let total: f64 = bvh
+            .nodes
+            .par_iter()
+            .map(|n| {
+                let a = Bounds::from_aabb(n.aabb()).half_area();
+                if n.is_leaf() { a * n.prim_count as f64 } else { a }
+            })
+            .sum();
+        total / root
+    }
+
+    /// Cost now divided by the cost right after the last build.
+    pub fn cost_ratio(&self) -> f64 {
+        if self.build_cost > 0.0 { self.sah_cost() / self.build_cost } else { 1.0 }
+    }
+
+    /// Replaces the boxes (same count, same order): refits, and rebuilds if
+    /// the refitted tree's cost ratio exceeds [`rebuild_ratio`](Self::rebuild_ratio).
+    pub fn update(&mut self, boxes: &[Bounds]) -> Result<UpdateReport> {
+        if boxes.len() != self.count {
+            return Err(Error::Topology(format!(
+                "the BVH was built over {} boxes, the update gave {}",
+                self.count,
+                boxes.len()
+            )));
+        }
+        check_boxes(boxes)?;
+        self.boxes.copy_from_slice(boxes);
+        self.refit(boxes);
+        let cost_ratio = self.cost_ratio();
+        let rebuilt = cost_ratio > self.rebuild_ratio;
+        if rebuilt {
+            self.rebuild(boxes);
+            self.rebuilds += 1;
+        }
+        Ok(UpdateReport { cost_ratio, rebuilt })
+    }
+
+    /// Refits the leaves to the union of their boxes, then the inner nodes.
+    fn refit(&mut self, boxes: &[Bounds]) {
+        let Some(bvh) = &mut self.bvh else { return };
+        let indices = &bvh.primitive_indices;
+        bvh.nodes.par_iter_mut().filter(|n| n.is_leaf()).for_each(|node| {
+            let mut b = Bounds::EMPTY;
+            for k in node.first_index..node.first_index + node.prim_count {
+                b = b.union(boxes[indices[k as usize] as usize]);
+            }
+            node.set_aabb(b.to_aabb());
+        });
+        bvh.refit_all();
+        self.refits += 1;
+    }
+
+    /// Calls `visit(primitive)` for every box overlapping `query` (closed
+    /// intervals: touching counts). Return false from `visit` to stop.
+    pub fn query(&self, query: &Bounds, mut visit: impl FnMut(usize) -> bool) {
+        let Some(bvh) = &self.bvh else { return };
+        bvh.aabb_traverse(query.to_aabb(), |bvh, node_id| {
+            let node = &bvh.nodes[node_id as usize];
+            for k in node.first_index..node.first_index + node.prim_count {
+                let prim = bvh.primitive_indices[k as usize] as usize;
+                if self.boxes[prim].overlaps(query) && !visit(prim) {
+                    return false;
+                }
+            }
+            true
+        });
+    }
+
+    /// The box of primitive `i` as last given.
+    pub fn primitive_bounds(&self, i: usize) -> Bounds {
+        self.boxes[i]
+    }
+
+    /// Box of the whole tree (EMPTY when there are no boxes).
+    pub fn bounds(&self) -> Bounds {
+        match &self.bvh {
+            Some(bvh) => Bounds::from_aabb(bvh.nodes[0].aabb()),
+            None => Bounds::EMPTY,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid_boxes(n: usize, offset: f32) -> Vec<Bounds> {
+        let mut boxes = Vec::new();
+        for i in 0..n {
+            for j in 0..n {
+                let p = Vec3::new(i as f32 + offset * j as f32, j as f32, 0.0);
+                boxes.push(Bounds { min: p, max: p + Vec3::splat(0.5) });
+            }
+        }
+        boxes
+    }
+
+    fn brute(boxes: &[Bounds], q: &Bounds) -> Vec<usize> {
+        (0..boxes.len()).filter(|&i| boxes[i].overlaps(q)).collect()
+    }
+
+    fn found(tree: &BoxTree, q: &Bounds) -> Vec<usize> {
+        let mut out = Vec::new();
+        tree.query(q, |i| {
+            out.push(i);
+            true
+        });
+        out.sort();
+        out
+    }
+
+    #[test]
+    fn query_matches_brute_force_before_and_after_refit_and_rebuild() {
+        let boxes = grid_boxes(40, 0.0);
+        let mut tree = BoxTree::build(&boxes).unwrap();
+        let queries = [
+            Bounds { min: Vec3::new(3.2, 4.1, -1.0), max: Vec3::new(7.7, 5.0, 1.0) },
+            Bounds { min: Vec3::new(-5.0, -5.0, -5.0), max: Vec3::new(0.5, 0.5, 0.0) },
+            Bounds { min: Vec3::new(100.0, 0.0, 0.0), max: Vec3::new(101.0, 1.0, 1.0) },
+        ];
+        for q in &queries {
+            assert_eq!(found(&tree, q), brute(&boxes, q));
+        }
+        // Small shear: refit only, still exact.
+        let moved = grid_boxes(40, 0.01);
+        let report = tree.update(&moved).unwrap();
+        assert!(!report.rebuilt, "{report:?}");
+        for q in &queries {
+            assert_eq!(found(&tree, q), brute(&moved, q));
+        }
+        // Scramble: every box jumps far from its neighbours -> degraded, rebuilt.
+        let scrambled: Vec<Bounds> = moved
+            .iter()
+            .enumerate()
+            .map(|(i, b)| {
+                let shift = Vec3::new(((i * 7919) % 40) as f32, ((i * 104729) % 40) as f32, 0.0);
+                Bounds { min: b.min * 0.0 + shift, max: b.min * 0.0 + shift + Vec3::splat(0.5) }
+            })
+            .collect();
+        let report = tree.update(&scrambled).unwrap();
+        assert!(report.cost_ratio > BoxTree::DEFAULT_REBUILD_RATIO && report.rebuilt, "{report:?}");
+        assert!(tree.cost_ratio() < 1.0 + 1e-9);
+        for q in &queries {
+            assert_eq!(found(&tree, q), brute(&scrambled, q));
+        }
+    }
+
+    #[test]
+    fn bad_boxes_and_count_changes_are_errors() {
+        let mut boxes = grid_boxes(3, 0.0);
+        let mut tree = BoxTree::build(&boxes).unwrap();
+        assert!(matches!(tree.update(&boxes[..5]), Err(Error::Topology(_))));
+        boxes[4].min.x = f32::NAN;
+        let err = tree.update(&boxes).unwrap_err().to_string();
+        assert!(err.contains("bounding box 4"), "{err}");
+        let empty = BoxTree::build(&[]).unwrap();
+        assert!(found(&empty, &boxes[0]).is_empty());
+    }
+
+    #[test]
+    fn outward_rounding_contains_the_f64_points() {
+        for &x in &[0.1f64, -0.1, 1e-30, -1e-30, 0.0, 3.0, 1.0 / 3.0, -7.0 / 3.0] {
+            assert!((round_down(x) as f64) <= x && (round_up(x) as f64) >= x, "{x}");
+        }
+    }
+}

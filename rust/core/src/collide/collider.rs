@@ -1,0 +1,310 @@
+//! A kinematic collider: a triangle mesh with last-frame and this-frame world
+//! positions (same topology), a thickness, static and kinetic friction, and a
+//! BVH over its swept triangle bounds.
+
+use glam::Vec3;
+
+use super::bvh::{BoxTree, Bounds, UpdateReport};
+use crate::mesh::validate_positions;
+use crate::{Error, Result};
+
+/// Thickness and friction of a collider.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ColliderSettings {
+    /// Minimum distance kept between the skin and the collider's surface.
+    pub thickness: f32,
+    /// Static friction coefficient μs (Bender et al. 2015): a contact with
+    /// tangential slip below μs · penetration depth sticks.
+    pub static_friction: f32,
+    /// Kinetic friction coefficient μk: otherwise the slip is reduced by
+    /// μk · penetration depth.
+    pub kinetic_friction: f32,
+}
+
+impl Default for ColliderSettings {
+    fn default() -> Self {
+        ColliderSettings { thickness: 0.0, static_friction: 0.0, kinetic_friction: 0.0 }
+    }
+}
+
+impl ColliderSettings {
+    /// Same coefficient for static and kinetic friction.
+    pub fn new(thickness: f32, friction: f32) -> Self {
+        ColliderSettings { thickness, static_friction: friction, kinetic_friction: friction }
+    }
+
+    fn validate(&self) -> Result<()> {
+        for (name, value) in [
+            ("thickness", self.thickness),
+            ("static friction", self.static_friction),
+            ("kinetic friction", self.kinetic_friction),
+        ] {
+            if !value.is_finite() || value < 0.0 {
+                return Err(Error::invalid(format!("collider {name} must be finite and ≥ 0, got {value}")));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A triangle mesh moving from `previous` to `current` over the frame.
+#[derive(Debug, Clone)]
+pub struct Collider {
+    triangles: Vec<[u32; 3]>,
+    /// Unique undirected edges, `[min, max]`, sorted.
+    edges: Vec<[u32; 2]>,
+    /// The three edge ids of every triangle (edges of corners 0-1, 1-2, 2-0).
+    triangle_edges: Vec<[u32; 3]>,
+    /// Every edge is shared by exactly two triangles (the inside test applies).
+    closed: bool,
+    previous: Vec<Vec3>,
+    current: Vec<Vec3>,
+    settings: ColliderSettings,
+    tree: BoxTree,
+    last_update: Option<UpdateReport>,
+}
+
+impl Collider {
+    /// A collider at rest at `positions` (previous = current).
+    pub fn new(positions: &[Vec3], triangles: &[[u32; 3]], settings: ColliderSettings) -> Result<Self> {
+        settings.validate()?;
+        validate_positions("collider positions", positions)?;
+        if positions.len() >= u32::MAX as usize {
+            return Err(Error::invalid(format!("a collider with {} vertices is too large", positions.len())));
+        }
+        for (t, tri) in triangles.iter().enumerate() {
+            if let Some(&v) = tri.iter().find(|&&v| v as usize >= positions.len()) {
+                return Err(Error::invalid(format!(
+                    "collider triangle {t} refers to vertex {v}, but the collider has {} vertices",
+                    positions.len()
+                )));
+            }
+        }
+        let (edges, triangle_edges, closed) = edges_of(triangles);
+        let mut collider = Collider {
+            triangles: triangles.to_vec(),
+            edges,
+            triangle_edges,
+            closed,
+            previous: positions.to_vec(),
+            current: positions.to_vec(),
+            settings,
+            tree: BoxTree::build(&[])?,
+            last_update: None,
+        };
+        collider.tree = BoxTree::build(&collider.swept_boxes())?;
+        Ok(collider)
+    }
+
+    /// Next frame: the current positions become the previous ones, `positions`
+    /// the current ones; the BVH is refitted (and rebuilt if degraded).
+    pub fn update(&mut self, positions: &[Vec3]) -> Result<UpdateReport> {
+        self.check_count(positions.len())?;
+        validate_positions("collider positions", positions)?;
+        std::mem::swap(&mut self.previous, &mut self.current);
+        self.current.copy_from_slice(positions);
+        self.refresh()
+    }
+
+    /// Sets both ends of the frame explicitly (e.g. after a jump in time).
+    pub fn set_positions(&mut self, previous: &[Vec3], current: &[Vec3]) -> Result<UpdateReport> {
+        self.check_count(previous.len())?;
+        self.check_count(current.len())?;
+        validate_positions("collider previous positions", previous)?;
+        validate_positions("collider positions", current)?;
+        self.previous.copy_from_slice(previous);
+        self.current.copy_from_slice(current);
+        self.refresh()
+    }
+
+    /// Forgets the motion: previous = current (a teleport, or the first frame).
+    pub fn hold(&mut self) -> Result<UpdateReport> {
+        self.previous.copy_from_slice(&self.current);
+        self.refresh()
+    }
+
+    pub fn set_settings(&mut self, settings: ColliderSettings) -> Result<()> {
+        settings.validate()?;
+        self.settings = settings;
+        self.refresh().map(|_| ())
+    }
+
+    fn check_count(&self, given: usize) -> Result<()> {
+        if given != self.current.len() {
+            return Err(Error::Topology(format!(
+                "collider had {} vertices, update gave {given}",
+                self.current.len()
+            )));
+        }
+        Ok(())
+    }
+
+    fn refresh(&mut self) -> Result<UpdateReport> {
+        let boxes = self.swept_boxes();
+        let report = self.tree.update(&boxes)?;
+        self.last_update = Some(report);
+        Ok(report)
+    }
+
+    /// Box of triangle `t` over the whole frame, grown by the thickness.
+    pub fn swept_box(&self, t: usize) -> Bounds {
+        let [a, b, c] = self.triangles[t].map(|v| v as usize);
+        Bounds::of_points(&[
+            self.previous[a],
+            self.previous[b],
+            self.previous[c],
+            self.current[a],
+            self.current[b],
+            self.current[c],
+        ])
+        .inflated(self.settings.thickness)
+    }
+
+    fn swept_boxes(&self) -> Vec<Bounds> {
+        use rayon::prelude::*;
+        (0..self.triangles.len()).into_par_iter().map(|t| self.swept_box(t)).collect()
+    }
+
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+    pub fn edges(&self) -> &[[u32; 2]] {
+        &self.edges
+    }
+    pub fn triangle_edges(&self) -> &[[u32; 3]] {
+        &self.triangle_edges
+    }
+    pub fn previous(&self) -> &[Vec3] {
+        &self.previous
+    }
+    pub fn current(&self) -> &[Vec3] {
+        &self.current
+    }
+    pub fn vertex_count(&self) -> usize {
+        self.current.len()
+    }
+    pub fn settings(&self) -> ColliderSettings {
+        self.settings
+    }
+    /// Whether every edge has exactly two triangles (a closed surface).
+    pub fn is_closed(&self) -> bool {
+        self.closed
+    }
+    /// The BVH over swept, thickened triangle boxes.
+    pub fn tree(&self) -> &BoxTree {
+        &self.tree
+    }
+    /// What the last update of the BVH did.
+    pub fn last_update(&self) -> Option<UpdateReport> {
+        self.last_update
+    }
+}
+
+/// Unique edges, the edge ids of every triangle, and whether every edge has
+/// exactly two triangles.
+fn edges_of(triangles: &[[u32; 3]]) -> (Vec<[u32; 2]>, Vec<[u32; 3]>, bool) {
+    let mut keyed: Vec<([u32; 2], u32)> = Vec::with_capacity(triangles.len() * 3);
+    for (t, tri) in triangles.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (tri[k], tri[(k + 1) % 3]);
+            keyed.push(([a.min(b), a.max(b)], (t * 3 + k) as u32));
+        }
+    }
+    keyed.sort_unstable();
+    let mut edges = Vec::new();
+    let mut triangle_edges = vec![[0u32; 3]; triangles.len()];
+    let mut closed = !triangles.is_empty();
+    let mut i = 0;
+    while i < keyed.len() {
+        let mut j = i;
+        while j < keyed.len() && keyed[j].0 == keyed[i].0 {
+            let slot = keyed[j].1 as usize;
+            triangle_edges[slot / 3][slot % 3] = edges.len() as u32;
+            j += 1;
+        }
+        if j - i != 2 || keyed[i].0[0] == keyed[i].0[1] {
+            closed = false;
+        }
+        edges.push(keyed[i].0);
+        i = j;
+    }
+    (edges, triangle_edges, closed)
+}
+
+/// Triangles of a flat `[a0, b0, c0, a1, …]` index array, checked.
+pub fn triangles_from_flat(indices: &[i32]) -> Result<Vec<[u32; 3]>> {
+    if indices.len() % 3 != 0 {
+        return Err(Error::invalid(format!(
+            "triangle indices hold {} values, which is not a multiple of 3",
+            indices.len()
+        )));
+    }
+    indices
+        .chunks_exact(3)
+        .enumerate()
+        .map(|(t, c)| {
+            if let Some(&v) = c.iter().find(|&&v| v < 0) {
+                return Err(Error::invalid(format!("triangle {t} has a negative vertex index {v}")));
+            }
+            Ok([c[0] as u32, c[1] as u32, c[2] as u32])
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tetra() -> (Vec<Vec3>, Vec<[u32; 3]>) {
+        (
+            vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
+            vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+        )
+    }
+
+    #[test]
+    fn edges_and_closedness() {
+        let (p, t) = tetra();
+        let c = Collider::new(&p, &t, ColliderSettings::default()).unwrap();
+        assert_eq!(c.edges().len(), 6);
+        assert!(c.is_closed());
+        for (tri, ids) in c.triangles().iter().zip(c.triangle_edges()) {
+            for k in 0..3 {
+                let e = c.edges()[ids[k] as usize];
+                let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                assert_eq!(e, [a.min(b), a.max(b)]);
+            }
+        }
+        let open = Collider::new(&p, &t[..3], ColliderSettings::default()).unwrap();
+        assert!(!open.is_closed());
+    }
+
+    #[test]
+    fn update_keeps_last_frame_and_checks_topology() {
+        let (p, t) = tetra();
+        let mut c = Collider::new(&p, &t, ColliderSettings::new(0.1, 0.5)).unwrap();
+        let moved: Vec<Vec3> = p.iter().map(|&v| v + Vec3::new(2.0, 0.0, 0.0)).collect();
+        c.update(&moved).unwrap();
+        assert_eq!(c.previous(), &p[..]);
+        assert_eq!(c.current(), &moved[..]);
+        // The swept box of a triangle covers both frames plus the thickness.
+        let b = c.swept_box(0);
+        assert!(b.min.x <= -0.1 + 1e-6 && b.max.x >= 3.1 - 1e-6);
+        let err = c.update(&moved[..3]).unwrap_err().to_string();
+        assert_eq!(err, "collider had 4 vertices, update gave 3");
+    }
+
+    #[test]
+    fn bad_input_is_named() {
+        let (mut p, t) = tetra();
+        let err = Collider::new(&p, &[[0, 1, 9]], ColliderSettings::default()).unwrap_err().to_string();
+        assert!(err.contains("triangle 0 refers to vertex 9"), "{err}");
+        let err = Collider::new(&p, &t, ColliderSettings::new(-1.0, 0.0)).unwrap_err().to_string();
+        assert!(err.contains("thickness"), "{err}");
+        p[2].y = f32::NAN;
+        let err = Collider::new(&p, &t, ColliderSettings::default()).unwrap_err().to_string();
+        assert!(err.contains("vertex 2"), "{err}");
+        assert!(triangles_from_flat(&[0, 1]).is_err());
+        assert!(triangles_from_flat(&[0, -1, 2]).unwrap_err().to_string().contains("negative"));
+    }
+}
