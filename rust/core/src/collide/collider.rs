@@ -55,6 +55,8 @@ pub struct Collider {
     edges: Vec<[u32; 2]>,
     /// The three edge ids of every triangle (edges of corners 0-1, 1-2, 2-0).
     triangle_edges: Vec<[u32; 3]>,
+    /// Up to two triangles of every edge (`u32::MAX` where there is none).
+    edge_faces: Vec<[u32; 2]>,
     /// Every edge is shared by exactly two triangles (the inside test applies).
     closed: bool,
     previous: Vec<Vec3>,
@@ -81,10 +83,22 @@ impl Collider {
             }
         }
         let (edges, triangle_edges, closed) = edges_of(triangles);
+        let mut edge_faces = vec![[u32::MAX; 2]; edges.len()];
+        for (t, ids) in triangle_edges.iter().enumerate() {
+            for &e in ids {
+                let slot = &mut edge_faces[e as usize];
+                if slot[0] == u32::MAX {
+                    slot[0] = t as u32;
+                } else if slot[1] == u32::MAX {
+                    slot[1] = t as u32;
+                }
+            }
+        }
         let mut collider = Collider {
             triangles: triangles.to_vec(),
             edges,
             triangle_edges,
+            edge_faces,
             closed,
             previous: positions.to_vec(),
             current: positions.to_vec(),
@@ -173,6 +187,12 @@ impl Collider {
     }
     pub fn triangle_edges(&self) -> &[[u32; 3]] {
         &self.triangle_edges
+    }
+    /// The (up to two) triangles of edge `e`.
+    pub fn edge_triangles(&self, e: usize) -> &[u32] {
+        let faces = &self.edge_faces[e];
+        let count = faces.iter().take_while(|&&f| f != u32::MAX).count();
+        &faces[..count]
     }
     pub fn previous(&self) -> &[Vec3] {
         &self.previous

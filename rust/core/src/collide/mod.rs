@@ -7,14 +7,25 @@
 //!   refitting has degraded it (SAH cost ratio).
 //! * [`collider`]: a triangle mesh moving from last frame to this frame, with
 //!   thickness, friction and a BVH over its swept triangles.
+//! * [`geometry`]: f64 helpers (normals, distances, crossing tests).
+//! * [`response`]: [`ColliderSet::resolve_path`], the building block of both
+//!   collision passes (projection, friction, pinched vertices); its module doc
+//!   shows the intended use in seed 000's Algorithm 2.
+//! * [`audit`]: penetration audit (vertices inside closed colliders, edges
+//!   crossing in both directions), independent of the solver.
 
+pub mod audit;
 pub mod bvh;
 pub mod ccd;
 pub mod collider;
+pub mod geometry;
+pub mod response;
 
+pub use audit::{audit, AuditParams, AuditReport};
 pub use bvh::{BoxTree, Bounds, UpdateReport};
 pub use ccd::{CcdHit, CcdParams};
 pub use collider::{Collider, ColliderSettings};
+pub use response::{ColliderMotion, ColliderSet, ContactStats, ResolveParams};
 
 #[cfg(test)]
 mod tests;

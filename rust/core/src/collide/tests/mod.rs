@@ -5,3 +5,4 @@ mod data;
 mod datasets;
 mod ccd_props;
 mod funnel;
+mod response;
