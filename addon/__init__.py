@@ -1,0 +1,21 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Tegument for Blender: the thin Blender layer over the ``tegument`` wheel.
+
+Blender knowledge lives here and only here: reading and writing Blender data
+with whole-array ``foreach_get``/``foreach_set``, operators, panels. All
+per-vertex work happens in the wheel.
+"""
+
+from . import operators, ui
+
+_modules = (operators, ui)
+
+
+def register() -> None:
+    for module in _modules:
+        module.register()
+
+
+def unregister() -> None:
+    for module in reversed(_modules):
+        module.unregister()

@@ -1,0 +1,57 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Blender mesh data as numpy arrays in the wheel's layout, whole arrays at a time."""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+
+def positions(mesh: bpy.types.Mesh) -> np.ndarray:
+    """Vertex positions, float32 ``(N, 3)``, in object space."""
+    out = np.empty((len(mesh.vertices), 3), dtype=np.float32)
+    mesh.vertices.foreach_get("co", out.ravel())
+    return out
+
+
+def corner_verts(mesh: bpy.types.Mesh) -> np.ndarray:
+    """The vertex of every face corner, int32 ``(L,)``."""
+    out = np.empty(len(mesh.loops), dtype=np.int32)
+    mesh.loops.foreach_get("vertex_index", out)
+    return out
+
+
+def polygon_sizes(mesh: bpy.types.Mesh) -> np.ndarray:
+    """The corner count of every polygon, int32 ``(P,)``."""
+    out = np.empty(len(mesh.polygons), dtype=np.int32)
+    mesh.polygons.foreach_get("loop_total", out)
+    return out
+
+
+def set_vertex_selection(mesh: bpy.types.Mesh, indices: np.ndarray) -> None:
+    """Selects exactly ``indices`` (and the edges and faces between them)."""
+    selected = np.zeros(len(mesh.vertices), dtype=bool)
+    selected[indices] = True
+    edge_verts = np.empty(len(mesh.edges) * 2, dtype=np.int32)
+    mesh.edges.foreach_get("vertices", edge_verts)
+    corners = corner_verts(mesh)
+    starts = np.concatenate(([0], np.cumsum(polygon_sizes(mesh))[:-1])).astype(np.intp)
+    _set_bool_attribute(mesh, ".select_vert", "POINT", selected)
+    _set_bool_attribute(mesh, ".select_edge", "EDGE", selected[edge_verts].reshape(-1, 2).all(axis=1))
+    if len(starts):
+        _set_bool_attribute(mesh, ".select_poly", "FACE", np.logical_and.reduceat(selected[corners], starts))
+    mesh.update()
+
+
+def _set_bool_attribute(mesh: bpy.types.Mesh, name: str, domain: str, values: np.ndarray) -> None:
+    # Selection lives in internal boolean attributes. Meshes built with
+    # `Mesh.from_pydata` in Blender 5.0 can carry a `.select_edge` of the wrong
+    # type (INT32_2D), on which `MeshEdges.foreach_set("select")` crashes
+    # Blender; such an attribute holds no usable selection and is replaced.
+    attribute = mesh.attributes.get(name)
+    if attribute is not None and (attribute.data_type != "BOOLEAN" or attribute.domain != domain):
+        mesh.attributes.remove(attribute)
+        attribute = None
+    if attribute is None:
+        attribute = mesh.attributes.new(name, "BOOLEAN", domain)
+    attribute.data.foreach_set("value", values)

@@ -1,0 +1,69 @@
+"""Real Blender (the PyPI ``bpy`` module) with the *built* Tegument extension.
+
+The extension zip is installed exactly as a user's Blender would install it
+(``extensions.package_install_files``), into a user folder that exists only
+for this test session: ``BLENDER_USER_RESOURCES`` must point there before
+``bpy`` is imported, which is why it is set at the top of this file.
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import pathlib
+import shutil
+import tempfile
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+SHARED_DATA = ROOT.parent / "shared" / "data"
+
+_user_resources = tempfile.mkdtemp(prefix="tegument-blender-user-")
+os.environ["BLENDER_USER_RESOURCES"] = _user_resources
+atexit.register(shutil.rmtree, _user_resources, ignore_errors=True)
+
+import bpy  # noqa: E402  (must follow BLENDER_USER_RESOURCES)
+import pytest  # noqa: E402
+
+ADDON_MODULE = "bl_ext.user_default.tegument"
+
+
+def _extension_zip() -> pathlib.Path:
+    given = os.environ.get("TEGUMENT_EXTENSION_ZIP")
+    candidates = [pathlib.Path(given)] if given else sorted((ROOT / "dist").glob("tegument-*-linux_x64.zip"))
+    if not candidates or not candidates[-1].is_file():
+        pytest.exit("no built extension zip: run `make extension` (or `make test`, which builds it)", returncode=2)
+    return candidates[-1].resolve()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def installed_extension() -> str:
+    """Installs the built zip once per session and returns the add-on module name."""
+    zip_path = _extension_zip()
+    result = bpy.ops.extensions.package_install_files(
+        filepath=str(zip_path), repo="user_default", enable_on_install=True
+    )
+    assert result == {"FINISHED"}, f"installing {zip_path} failed: {result}"
+    assert ADDON_MODULE in bpy.context.preferences.addons, "the extension installed but is not enabled"
+    installed = pathlib.Path(_user_resources, "extensions", "user_default", "tegument")
+    assert (installed / "blender_manifest.toml").is_file(), f"not installed into the isolated user folder {installed}"
+    return ADDON_MODULE
+
+
+@pytest.fixture(autouse=True)
+def factory_scene(installed_extension):
+    """Every test starts from factory settings, with the extension enabled."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    result = bpy.ops.preferences.addon_enable(module=installed_extension)
+    assert result == {"FINISHED"}
+    yield bpy.context.scene
+
+
+def shared_data(*parts: str) -> pathlib.Path:
+    """A path under ``../shared/data``; skips the test where it is absent, fails under CI."""
+    path = SHARED_DATA.joinpath(*parts)
+    if not path.exists():
+        message = f"{path} is absent: the shared test data sits beside the checkout in ../shared/data"
+        if os.environ.get("CI") == "true":
+            pytest.fail(message + " (required under CI)")
+        pytest.skip(message)
+    return path
