@@ -17,7 +17,7 @@ EXTENSION_ZIP := dist/tegument-$(VERSION)-linux_x64.zip
 RUST_SOURCES := $(shell find rust -name '*.rs' -o -name 'Cargo.toml' -o -name 'pyproject.toml' -o -name '*.py' -o -name '*.pyi') Cargo.toml
 ADDON_SOURCES := $(shell find addon -name '*.py' -o -name '*.toml')
 
-.PHONY: all demo test test-rust test-wheel test-blender extension wheel bench venv clean fuzz
+.PHONY: all demo test test-rust test-wheel test-blender extension wheel bench venv clean fuzz api-docs
 
 all: extension
 
@@ -62,6 +62,9 @@ bench: $(EXTENSION_ZIP)
 
 fuzz:
 	@echo "cargo-fuzz targets arrive with the robustness work (issue 10)"; exit 1
+
+api-docs: $(WHEEL_DIR)/.stamp
+	$(PY) tools/gen_api_docs.py --out docs/python-api.md
 
 clean:
 	rm -rf dist out target addon/wheels
