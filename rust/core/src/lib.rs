@@ -7,6 +7,8 @@
 pub mod collide;
 pub mod error;
 pub mod mesh;
+pub mod pyramid;
+pub mod solve;
 
 pub use error::{Error, Result};
 pub use mesh::{MeshInput, Topology, TopologyReport};

@@ -1,0 +1,108 @@
+//! The two formulations of the pyramid constraint, as solver constraints.
+//!
+//! * [`PyramidTargets`] (the seed's): one identity row per vertex projecting
+//!   to its full target `m + s n`. Together with closeness the global matrix
+//!   is diagonal: each iteration is a Jacobi sweep, cheap but local (a change
+//!   travels one ring per iteration).
+//! * [`PyramidLaplacian`]: the constant mean-value Laplacian row
+//!   `x_i − Σ w_j x_j` projecting to `s n`. The matrix couples neighbours and
+//!   is prefactored; each iteration is a global solve that propagates
+//!   everywhere at once, at the price of back-substitutions.
+
+use std::sync::Arc;
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::encode::Encoding;
+use super::project::frame;
+use crate::solve::{Constraint, Context, Rows};
+
+/// Rows per rayon task: enough work to amortise scheduling.
+const CHUNK: usize = 512;
+
+/// Per-vertex targets: row `e_i`, projection `m + s n`.
+pub struct PyramidTargets {
+    encoding: Arc<Encoding>,
+    rows: Rows,
+}
+
+impl PyramidTargets {
+    pub fn new(encoding: Arc<Encoding>) -> Self {
+        let rows = Rows::identity(encoding.vertices());
+        PyramidTargets { encoding, rows }
+    }
+}
+
+impl Constraint for PyramidTargets {
+    fn name(&self) -> &str {
+        "pyramid (per-vertex targets)"
+    }
+
+    fn rows(&self) -> &Rows {
+        &self.rows
+    }
+
+    fn project(&self, context: &Context<'_>, out: &mut [Vec3]) {
+        let (encoding, x) = (&*self.encoding, context.positions);
+        out.par_iter_mut()
+            .enumerate()
+            .with_min_len(CHUNK)
+            .for_each(|(e, o)| {
+                // No frame: stay put, which makes the row neutral.
+                *o = frame(encoding, e, x)
+                    .map_or(x[encoding.vertices()[e] as usize], |f| f.target());
+            });
+    }
+}
+
+/// Linearised: row `e_i − Σ w_j e_j`, projection `s n`.
+pub struct PyramidLaplacian {
+    encoding: Arc<Encoding>,
+    rows: Rows,
+}
+
+impl PyramidLaplacian {
+    pub fn new(encoding: Arc<Encoding>) -> Self {
+        let mut rows = Rows::new();
+        for (e, &v) in encoding.vertices().iter().enumerate() {
+            let neighbours = encoding
+                .ring(e)
+                .iter()
+                .zip(encoding.weights(e))
+                .map(|(&j, &w)| (j, -w));
+            rows.push(std::iter::once((v, 1.0)).chain(neighbours));
+        }
+        PyramidLaplacian { encoding, rows }
+    }
+}
+
+impl Constraint for PyramidLaplacian {
+    fn name(&self) -> &str {
+        "pyramid (linearised Laplacian rows)"
+    }
+
+    fn rows(&self) -> &Rows {
+        &self.rows
+    }
+
+    fn project(&self, context: &Context<'_>, out: &mut [Vec3]) {
+        let (encoding, x) = (&*self.encoding, context.positions);
+        out.par_iter_mut()
+            .enumerate()
+            .with_min_len(CHUNK)
+            .for_each(|(e, o)| {
+                *o = match frame(encoding, e, x) {
+                    Some(f) => f.offset * f.normal,
+                    // Neutral: the row's current value.
+                    None => {
+                        let mut mean = Vec3::ZERO;
+                        for (&j, &w) in encoding.ring(e).iter().zip(encoding.weights(e)) {
+                            mean += w * x[j as usize];
+                        }
+                        x[encoding.vertices()[e] as usize] - mean
+                    }
+                };
+            });
+    }
+}

@@ -1,0 +1,281 @@
+//! Pyramid Deform as one object: bind once, solve every frame.
+//!
+//! Energy per vertex `i`, with closeness `c_i ∈ [0, 1]`:
+//! `(1 − c_i)·‖pyramid row_i‖² + c_i·‖x_i − input_i‖²`. So `c = 1` follows the
+//! input exactly and `c = 0` keeps only the local shape; with per-vertex
+//! targets the fixed point is literally `x_i = (1 − c_i)·target_i + c_i·input_i`.
+//! Pinned vertices (see [`PinReason`]) have no pyramid row and `c = 1`: they
+//! follow the input, and their neighbours reconstruct around them.
+
+use std::sync::Arc;
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::constraint::{PyramidLaplacian, PyramidTargets};
+use super::encode::{encode, Encoding, PinReason};
+use super::project::residual;
+use crate::mesh::{validate_positions, MeshInput, Topology};
+use crate::solve::{self, ConstraintId, IterationHook, Solver, SystemKind};
+use crate::{Error, Result};
+
+/// Closeness used when the caller gives none. Low enough that the local shape
+/// wins against candy-wrapper collapse, high enough that the result stays
+/// anchored to the rig (see docs/design/pyramid-solver.md).
+pub const DEFAULT_CLOSENESS: f32 = 0.1;
+
+/// Closeness weights are raised to at least this, so that the linearised
+/// global matrix (whose pyramid rows sum to zero) stays positive definite on
+/// a closed mesh with zero closeness. It biases the linearised solution by
+/// about `MIN_CLOSENESS / λ_min(AᵀA)` times the displacement, and λ_min of a
+/// squared Laplacian is small on long meshes: 1e-6 measurably moved the fixed
+/// point (2e-3 of the diagonal on a 10-ring cylinder), 1e-8 does not.
+pub const MIN_CLOSENESS: f32 = 1e-8;
+
+/// Closeness weight of pinned vertices. In the linearised formulation their
+/// neighbours' rows reach them, so a weight of 1 would let those rows drag
+/// them off the input; a large weight makes "follow the input" hard in both
+/// formulations (the diagonal formulation normalises it away).
+pub const PINNED_CLOSENESS: f32 = 1e4;
+
+/// Most iterations one solve accepts; more is certainly a mistake.
+pub const MAX_ITERATIONS: usize = 100_000;
+
+/// Which form of the pyramid constraint the solver runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Formulation {
+    /// Per-vertex target row `e_i → m + s n` (seed 000): diagonal global step.
+    #[default]
+    VertexTargets,
+    /// Linearised mean-value Laplacian row `x_i − Σ w_j x_j → s n`: prefactored
+    /// sparse Cholesky global step.
+    Laplacian,
+}
+
+impl Formulation {
+    pub fn name(self) -> &'static str {
+        match self {
+            Formulation::VertexTargets => "targets",
+            Formulation::Laplacian => "laplacian",
+        }
+    }
+}
+
+/// Bind-time settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DeformerOptions {
+    /// Store edge elevation angles instead of plain heights: the offset then
+    /// scales with the neighbours (uniform scale is reproduced exactly).
+    pub scale_safe: bool,
+    pub formulation: Formulation,
+}
+
+impl Default for DeformerOptions {
+    fn default() -> Self {
+        DeformerOptions {
+            scale_safe: true,
+            formulation: Formulation::default(),
+        }
+    }
+}
+
+/// Closeness of one solve.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Closeness<'a> {
+    /// [`DEFAULT_CLOSENESS`] everywhere.
+    Default,
+    /// The same weight everywhere, in `[0, 1]`.
+    Uniform(f32),
+    /// One weight per vertex, each in `[0, 1]` (a painted vertex group).
+    PerVertex(&'a [f32]),
+}
+
+/// A bound mesh, ready to solve frames.
+pub struct PyramidDeformer {
+    encoding: Arc<Encoding>,
+    formulation: Formulation,
+    pinned_mask: Vec<bool>,
+    solver: Solver,
+    pyramid: ConstraintId,
+    closeness: ConstraintId,
+}
+
+impl PyramidDeformer {
+    /// Builds the topology and the encoding of a mesh at rest.
+    pub fn bind(mesh: MeshInput<'_>, options: DeformerOptions) -> Result<Self> {
+        let topology = Topology::build(mesh)?;
+        let encoding = Arc::new(encode(&topology, mesh.positions, options.scale_safe)?);
+        Self::from_encoding(encoding, options.formulation)
+    }
+
+    /// A deformer over an existing encoding (shared, e.g. to compare formulations).
+    pub fn from_encoding(encoding: Arc<Encoding>, formulation: Formulation) -> Result<Self> {
+        let n = encoding.vertex_count();
+        let mut pinned_mask = vec![false; n];
+        for &(v, _) in encoding.pinned() {
+            pinned_mask[v as usize] = true;
+        }
+        let mut solver = Solver::new(n);
+        let pyramid_rows = encoding.len();
+        let constraint: Box<dyn solve::Constraint> = match formulation {
+            Formulation::VertexTargets => Box::new(PyramidTargets::new(encoding.clone())),
+            Formulation::Laplacian => Box::new(PyramidLaplacian::new(encoding.clone())),
+        };
+        let pyramid = solver.add(constraint, vec![1.0; pyramid_rows])?;
+        let closeness = solver.add(Box::new(solve::Closeness::all(n)), vec![1.0; n])?;
+        let mut deformer = PyramidDeformer {
+            encoding,
+            formulation,
+            pinned_mask,
+            solver,
+            pyramid,
+            closeness,
+        };
+        deformer.set_closeness(Closeness::Default)?;
+        Ok(deformer)
+    }
+
+    pub fn vertex_count(&self) -> usize {
+        self.encoding.vertex_count()
+    }
+
+    pub fn encoding(&self) -> &Arc<Encoding> {
+        &self.encoding
+    }
+
+    pub fn formulation(&self) -> Formulation {
+        self.formulation
+    }
+
+    /// Vertices the bind could not encode; they follow the input.
+    pub fn pinned_vertices(&self) -> Vec<u32> {
+        self.encoding.pinned_vertices()
+    }
+
+    /// Pinned vertices with the reason.
+    pub fn pinned(&self) -> &[(u32, PinReason)] {
+        self.encoding.pinned()
+    }
+
+    /// Factorises the global system now (otherwise the first solve does).
+    pub fn prepare(&mut self) -> Result<SystemKind> {
+        self.solver.prepare()
+    }
+
+    /// Entries of the global Cholesky factor (0 for the diagonal formulation).
+    pub fn factor_nnz(&mut self) -> Result<usize> {
+        self.solver.factor_nnz()
+    }
+
+    /// Sets the closeness weights; refactorises lazily only if they changed.
+    pub fn set_closeness(&mut self, closeness: Closeness<'_>) -> Result<()> {
+        let n = self.vertex_count();
+        let mut per_vertex = match closeness {
+            Closeness::Default => vec![DEFAULT_CLOSENESS; n],
+            Closeness::Uniform(c) => {
+                if !(0.0..=1.0).contains(&c) {
+                    return Err(Error::invalid(format!(
+                        "closeness is {c}; it must be between 0 and 1"
+                    )));
+                }
+                vec![c; n]
+            }
+            Closeness::PerVertex(weights) => {
+                if weights.len() != n {
+                    return Err(Error::invalid(format!(
+                        "closeness has {} weights but the mesh has {n} vertices",
+                        weights.len()
+                    )));
+                }
+                if let Some(v) = weights.iter().position(|c| !(0.0..=1.0).contains(c)) {
+                    return Err(Error::invalid(format!(
+                        "closeness of vertex {v} is {}; it must be between 0 and 1",
+                        weights[v]
+                    )));
+                }
+                weights.to_vec()
+            }
+        };
+        for (c, &pinned) in per_vertex.iter_mut().zip(&self.pinned_mask) {
+            *c = if pinned {
+                PINNED_CLOSENESS
+            } else {
+                c.max(MIN_CLOSENESS)
+            };
+        }
+        let pyramid: Vec<f32> = self
+            .encoding
+            .vertices()
+            .iter()
+            .map(|&v| 1.0 - per_vertex[v as usize].min(1.0))
+            .collect();
+        self.solver.set_weights(self.pyramid, &pyramid)?;
+        self.solver.set_weights(self.closeness, &per_vertex)?;
+        Ok(())
+    }
+
+    /// Solves one frame starting from `input` and returns the result.
+    pub fn solve(
+        &mut self,
+        input: &[Vec3],
+        iterations: usize,
+        closeness: Closeness<'_>,
+    ) -> Result<Vec<Vec3>> {
+        let mut out = input.to_vec();
+        self.solve_into(input, &mut out, iterations, closeness, None)?;
+        Ok(out)
+    }
+
+    /// Solves one frame from the start positions already in `positions`
+    /// (usually the input), with an optional hook after every iteration.
+    pub fn solve_into(
+        &mut self,
+        input: &[Vec3],
+        positions: &mut [Vec3],
+        iterations: usize,
+        closeness: Closeness<'_>,
+        hook: Option<&mut dyn IterationHook>,
+    ) -> Result<()> {
+        if iterations > MAX_ITERATIONS {
+            return Err(Error::invalid(format!(
+                "iterations is {iterations}; at most {MAX_ITERATIONS} are allowed"
+            )));
+        }
+        self.set_closeness(closeness)?;
+        self.solver.solve(input, positions, iterations, hook)
+    }
+
+    /// Mean pyramid residual `|x_v − target_v|` over the encoded vertices,
+    /// relative to the mean rest edge length (0 when nothing is encoded).
+    pub fn residual(&self, positions: &[Vec3]) -> Result<f32> {
+        mean_residual(&self.encoding, positions)
+    }
+}
+
+/// [`PyramidDeformer::residual`] for an encoding.
+pub fn mean_residual(encoding: &Encoding, positions: &[Vec3]) -> Result<f32> {
+    if positions.len() != encoding.vertex_count() {
+        return Err(Error::invalid(format!(
+            "positions: {} vertices given, the mesh has {}",
+            positions.len(),
+            encoding.vertex_count()
+        )));
+    }
+    validate_positions("positions", positions)?;
+    let count = encoding.len();
+    if count == 0 || encoding.mean_edge_length() <= 0.0 {
+        return Ok(0.0);
+    }
+    // Fixed chunks summed in order: the same figure on any thread count.
+    const CHUNK: usize = 4096;
+    let partial: Vec<f64> = (0..count.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            (c * CHUNK..((c + 1) * CHUNK).min(count))
+                .map(|e| residual(encoding, e, positions) as f64)
+                .sum()
+        })
+        .collect();
+    let mean = partial.iter().sum::<f64>() / count as f64;
+    Ok((mean / encoding.mean_edge_length() as f64) as f32)
+}

@@ -1,0 +1,30 @@
+//! Pyramid coordinates (Sheffer & Kraevoy 2004) as projective constraints
+//! (seed 000 §2).
+//!
+//! * [`encode`]: at bind time, each interior vertex is described relative to
+//!   its ordered one-ring: mean-value weights of its projection on the ring's
+//!   plane, and a normal offset (a plain height, or per-neighbour edge
+//!   elevation tangents in scale-safe mode). Vertices that cannot be encoded
+//!   are pinned and listed with the reason.
+//! * [`project`]: Algorithm 1 of the seed, the target of one vertex given the
+//!   current positions of its neighbours.
+//! * [`constraint`]: the two formulations as [`crate::solve::Constraint`]s.
+//! * [`deformer`]: bind + solve + residual, what the bindings call.
+//!
+//! The design and the measurements behind the default formulation are in
+//! `docs/design/pyramid-solver.md`.
+
+pub mod constraint;
+pub mod deformer;
+pub mod encode;
+pub mod project;
+
+pub use constraint::{PyramidLaplacian, PyramidTargets};
+pub use deformer::{
+    mean_residual, Closeness, DeformerOptions, Formulation, PyramidDeformer, DEFAULT_CLOSENESS,
+    MAX_ITERATIONS, MIN_CLOSENESS,
+};
+pub use encode::{encode, Encoding, PinReason, MAX_VALENCE};
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,291 @@
+//! The iteration loop: local step, global step, hooks.
+
+use std::sync::Arc;
+
+use faer::sparse::linalg::cholesky::SymbolicCholesky;
+use glam::Vec3;
+
+use super::constraint::{Constraint, Context};
+use super::system::{RowBlock, System, SystemKind};
+use crate::mesh::validate_positions;
+use crate::{Error, Result};
+
+/// Handle of a constraint inside its [`Solver`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ConstraintId(usize);
+
+/// Runs after every iteration with the positions before and after it; may move
+/// vertices of `after`. This is where the second collision pass (seed 000,
+/// Algorithm 2) plugs in: detect and resolve along the path `before → after`.
+pub trait IterationHook {
+    fn after_iteration(
+        &mut self,
+        iteration: usize,
+        before: &[Vec3],
+        after: &mut [Vec3],
+    ) -> Result<()>;
+}
+
+impl<F> IterationHook for F
+where
+    F: FnMut(usize, &[Vec3], &mut [Vec3]) -> Result<()>,
+{
+    fn after_iteration(
+        &mut self,
+        iteration: usize,
+        before: &[Vec3],
+        after: &mut [Vec3],
+    ) -> Result<()> {
+        self(iteration, before, after)
+    }
+}
+
+struct Entry {
+    constraint: Box<dyn Constraint>,
+    weights: Vec<f32>,
+}
+
+/// A projective solver over a fixed vertex count and a set of constraints.
+///
+/// The global matrix is built lazily on the first solve after constraints or
+/// weights change, so a deformer that solves frame after frame with the same
+/// settings factorises exactly once.
+pub struct Solver {
+    vertex_count: usize,
+    entries: Vec<Entry>,
+    system: Option<System>,
+    /// Symbolic Cholesky analysis, kept across weight changes (it only
+    /// depends on the rows) and dropped when a constraint is added.
+    symbolic: Option<Arc<SymbolicCholesky<usize>>>,
+    variable_projections: Vec<Vec3>,
+    constant_projections: Vec<Vec3>,
+    rhs_constant: Vec<Vec3>,
+    work: Vec<Vec3>,
+}
+
+impl Solver {
+    pub fn new(vertex_count: usize) -> Self {
+        Solver {
+            vertex_count,
+            entries: Vec::new(),
+            system: None,
+            symbolic: None,
+            variable_projections: Vec::new(),
+            constant_projections: Vec::new(),
+            rhs_constant: Vec::new(),
+            work: Vec::new(),
+        }
+    }
+
+    pub fn vertex_count(&self) -> usize {
+        self.vertex_count
+    }
+
+    /// Adds a constraint with one non-negative weight per row.
+    pub fn add(
+        &mut self,
+        constraint: Box<dyn Constraint>,
+        weights: Vec<f32>,
+    ) -> Result<ConstraintId> {
+        constraint
+            .rows()
+            .validate(constraint.name(), self.vertex_count)?;
+        check_weights(constraint.as_ref(), &weights)?;
+        self.entries.push(Entry {
+            constraint,
+            weights,
+        });
+        self.system = None;
+        self.symbolic = None;
+        Ok(ConstraintId(self.entries.len() - 1))
+    }
+
+    /// Replaces a constraint's row weights; the next solve refactorises
+    /// numerically (the symbolic analysis is kept).
+    pub fn set_weights(&mut self, id: ConstraintId, weights: &[f32]) -> Result<()> {
+        let entry = self.entry(id)?;
+        check_weights(entry.constraint.as_ref(), weights)?;
+        if entry.weights != weights {
+            self.entries[id.0].weights = weights.to_vec();
+            if let Some(system) = self.system.take() {
+                self.symbolic = system.symbolic().or(self.symbolic.take());
+            }
+        }
+        Ok(())
+    }
+
+    pub fn weights(&self, id: ConstraintId) -> Result<&[f32]> {
+        Ok(&self.entry(id)?.weights)
+    }
+
+    pub fn constraint(&self, id: ConstraintId) -> Result<&dyn Constraint> {
+        Ok(self.entry(id)?.constraint.as_ref())
+    }
+
+    pub fn constraint_mut(&mut self, id: ConstraintId) -> Result<&mut dyn Constraint> {
+        self.entry(id)?;
+        Ok(self.entries[id.0].constraint.as_mut())
+    }
+
+    fn entry(&self, id: ConstraintId) -> Result<&Entry> {
+        self.entries.get(id.0).ok_or_else(|| {
+            Error::invalid(format!(
+                "constraint {} does not belong to this solver",
+                id.0
+            ))
+        })
+    }
+
+    /// Builds (and factorises) the global system if needed; returns its kind.
+    pub fn prepare(&mut self) -> Result<SystemKind> {
+        if self.system.is_none() {
+            let (variable, constant) = self.blocks();
+            let system = System::build(
+                self.vertex_count,
+                &variable,
+                &constant,
+                self.symbolic.clone(),
+            )?;
+            let variable_rows: usize = variable.iter().map(|b| b.rows.len()).sum();
+            let constant_rows: usize = constant.iter().map(|b| b.rows.len()).sum();
+            self.symbolic = system.symbolic();
+            self.system = Some(system);
+            self.variable_projections = vec![Vec3::ZERO; variable_rows];
+            self.constant_projections = vec![Vec3::ZERO; constant_rows];
+            self.rhs_constant = vec![Vec3::ZERO; self.vertex_count];
+            self.work = vec![Vec3::ZERO; self.vertex_count];
+        }
+        Ok(self
+            .system
+            .as_ref()
+            .map(System::kind)
+            .unwrap_or(SystemKind::Diagonal))
+    }
+
+    /// Entries of the Cholesky factor (0 for a diagonal system); builds the system if needed.
+    pub fn factor_nnz(&mut self) -> Result<usize> {
+        self.prepare()?;
+        Ok(self.system.as_ref().map(System::factor_nnz).unwrap_or(0))
+    }
+
+    fn blocks(&self) -> (Vec<RowBlock<'_>>, Vec<RowBlock<'_>>) {
+        let (mut variable, mut constant) = (Vec::new(), Vec::new());
+        let (mut variable_rows, mut constant_rows) = (0, 0);
+        for entry in &self.entries {
+            let rows = entry.constraint.rows();
+            let (list, offset) = if entry.constraint.is_constant() {
+                (&mut constant, &mut constant_rows)
+            } else {
+                (&mut variable, &mut variable_rows)
+            };
+            list.push(RowBlock {
+                rows,
+                weights: &entry.weights,
+                offset: *offset,
+            });
+            *offset += rows.len();
+        }
+        (variable, constant)
+    }
+
+    /// Runs `iterations` local/global iterations starting from `positions`
+    /// and leaves the result there. `input` is what constant constraints
+    /// (closeness) pull towards.
+    pub fn solve(
+        &mut self,
+        input: &[Vec3],
+        positions: &mut [Vec3],
+        iterations: usize,
+        mut hook: Option<&mut dyn IterationHook>,
+    ) -> Result<()> {
+        for (what, array) in [("input", input), ("start positions", &*positions)] {
+            if array.len() != self.vertex_count {
+                return Err(Error::invalid(format!(
+                    "{what}: {} vertices given, the solver has {}",
+                    array.len(),
+                    self.vertex_count
+                )));
+            }
+            validate_positions(what, array)?;
+        }
+        self.prepare()?;
+        for entry in &mut self.entries {
+            entry.constraint.begin_solve(input)?;
+        }
+        let system = self.system.as_mut().expect("prepared above");
+
+        // Constant projections once per solve.
+        {
+            let context = Context { positions, input };
+            let mut offset = 0;
+            for entry in self.entries.iter().filter(|e| e.constraint.is_constant()) {
+                let rows = entry.constraint.rows().len();
+                entry.constraint.project(
+                    &context,
+                    &mut self.constant_projections[offset..offset + rows],
+                );
+                offset += rows;
+            }
+            system.constant_rhs(&self.constant_projections, &mut self.rhs_constant);
+        }
+
+        // Ping-pong between the caller's buffer and our own, copying at most once.
+        let mut in_work = false;
+        for iteration in 0..iterations {
+            let (current, next): (&[Vec3], &mut [Vec3]) = if in_work {
+                (&self.work, &mut *positions)
+            } else {
+                (&*positions, &mut self.work)
+            };
+            let context = Context {
+                positions: current,
+                input,
+            };
+            let mut offset = 0;
+            for entry in self.entries.iter().filter(|e| !e.constraint.is_constant()) {
+                let rows = entry.constraint.rows().len();
+                entry.constraint.project(
+                    &context,
+                    &mut self.variable_projections[offset..offset + rows],
+                );
+                offset += rows;
+            }
+            system.solve(&self.rhs_constant, &self.variable_projections, next);
+            if let Some(hook) = hook.as_deref_mut() {
+                hook.after_iteration(iteration, current, next)?;
+            }
+            in_work = !in_work;
+        }
+        if in_work {
+            positions.copy_from_slice(&self.work);
+        }
+        if let Some(v) = positions.iter().position(|p| !p.is_finite()) {
+            return Err(Error::Numerical(format!(
+                "the solve produced a non-finite position at vertex {v}"
+            )));
+        }
+        for entry in &mut self.entries {
+            entry.constraint.end_solve(positions)?;
+        }
+        Ok(())
+    }
+}
+
+fn check_weights(constraint: &dyn Constraint, weights: &[f32]) -> Result<()> {
+    let rows = constraint.rows().len();
+    if weights.len() != rows {
+        return Err(Error::invalid(format!(
+            "constraint {}: {} weights given for {rows} rows",
+            constraint.name(),
+            weights.len()
+        )));
+    }
+    if let Some(r) = weights.iter().position(|w| !(w.is_finite() && *w >= 0.0)) {
+        return Err(Error::invalid(format!(
+            "constraint {}: weight of row {r} is {}, weights must be finite and non-negative",
+            constraint.name(),
+            weights[r]
+        )));
+    }
+    Ok(())
+}

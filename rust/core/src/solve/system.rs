@@ -1,0 +1,354 @@
+//! The global step: `(Σ w AᵀA) x = Σ w Aᵀ p`, factorised once per set of weights.
+//!
+//! Two shapes of matrix occur. When every row selects a single vertex (closeness,
+//! per-vertex targets, inertia) the matrix is diagonal and the global step is a
+//! weighted average: no factorisation, one fused pass. When some row couples
+//! vertices (the linearised pyramid row, strain limits) the matrix is a sparse
+//! SPD matrix: `faer`'s sparse Cholesky (AMD ordering) is computed once, and
+//! each iteration is one back-substitution per coordinate, the three running in
+//! parallel. The symbolic analysis depends only on the rows, so changing
+//! weights (closeness painted differently) only redoes the numeric part.
+
+use std::sync::Arc;
+
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::sparse::linalg::cholesky::{
+    factorize_symbolic_cholesky, LltRef, SymbolicCholesky, SymmetricOrdering,
+};
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+use faer::{Conj, MatMut, Par, Side};
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::constraint::Rows;
+use crate::{Error, Result};
+
+/// Which global step a solver runs: reported so that benchmarks and tests can
+/// tell the two apart.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SystemKind {
+    /// Every row selects one vertex: the global step is a weighted average.
+    Diagonal,
+    /// Some rows couple vertices: prefactored sparse Cholesky.
+    Cholesky,
+}
+
+/// One constraint's rows as the system sees them.
+pub(crate) struct RowBlock<'a> {
+    pub rows: &'a Rows,
+    pub weights: &'a [f32],
+    /// Index of the block's first row among all rows of its kind.
+    pub offset: usize,
+}
+
+/// `AᵀW` stored by vertex: for vertex `k`, the rows that touch it and `w·a`.
+/// The global right-hand side is then a gather per vertex in a fixed order,
+/// which keeps it deterministic without atomics or per-thread buffers.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Gather {
+    offsets: Vec<u32>,
+    rows: Vec<u32>,
+    coefficients: Vec<f32>,
+}
+
+impl Gather {
+    pub fn build(vertex_count: usize, blocks: &[RowBlock<'_>]) -> Self {
+        let mut offsets = vec![0u32; vertex_count + 1];
+        for block in blocks {
+            for r in 0..block.rows.len() {
+                for &v in block.rows.row(r).0 {
+                    offsets[v as usize + 1] += 1;
+                }
+            }
+        }
+        for k in 0..vertex_count {
+            offsets[k + 1] += offsets[k];
+        }
+        let total = offsets[vertex_count] as usize;
+        let mut fill = offsets.clone();
+        let mut rows = vec![0u32; total];
+        let mut coefficients = vec![0f32; total];
+        // Blocks, then rows, in order: the per-vertex sums below always add in
+        // this order, whatever the thread count.
+        for block in blocks {
+            for r in 0..block.rows.len() {
+                let (vertices, coeffs) = block.rows.row(r);
+                for (&v, &a) in vertices.iter().zip(coeffs) {
+                    let at = fill[v as usize] as usize;
+                    rows[at] = (block.offset + r) as u32;
+                    coefficients[at] = a * block.weights[r];
+                    fill[v as usize] += 1;
+                }
+            }
+        }
+        Gather {
+            offsets,
+            rows,
+            coefficients,
+        }
+    }
+
+    /// `(AᵀW p)_k`.
+    #[inline]
+    pub fn apply(&self, k: usize, projections: &[Vec3]) -> Vec3 {
+        let range = self.offsets[k] as usize..self.offsets[k + 1] as usize;
+        let mut sum = Vec3::ZERO;
+        for (&r, &c) in self.rows[range.clone()]
+            .iter()
+            .zip(&self.coefficients[range])
+        {
+            sum += projections[r as usize] * c;
+        }
+        sum
+    }
+}
+
+/// The factorised global matrix.
+enum Factor {
+    Diagonal {
+        inverse: Vec<f32>,
+    },
+    Cholesky {
+        symbolic: Arc<SymbolicCholesky<usize>>,
+        values: Vec<f64>,
+        /// Right-hand sides, one column per coordinate.
+        columns: [Vec<f64>; 3],
+        /// Solve scratch, one per column so the three solves run at once
+        /// without allocating per iteration.
+        scratch: [MemBuffer; 3],
+    },
+}
+
+/// The global step of one solver for one set of weights.
+pub(crate) struct System {
+    vertex_count: usize,
+    /// `AᵀW` over the rows whose projection changes every iteration.
+    variable: Gather,
+    /// `AᵀW` over the rows whose projection is fixed within a solve.
+    constant: Gather,
+    factor: Factor,
+}
+
+impl System {
+    /// Assembles and factorises. `symbolic` is a previous analysis of the same
+    /// rows (weights may differ), reused when given.
+    pub fn build(
+        vertex_count: usize,
+        variable: &[RowBlock<'_>],
+        constant: &[RowBlock<'_>],
+        symbolic: Option<Arc<SymbolicCholesky<usize>>>,
+    ) -> Result<Self> {
+        let diagonal = variable
+            .iter()
+            .chain(constant)
+            .all(|b| b.rows.is_identity());
+        let factor = if diagonal {
+            let mut sum = vec![0f32; vertex_count];
+            for block in variable.iter().chain(constant) {
+                for r in 0..block.rows.len() {
+                    sum[block.rows.row(r).0[0] as usize] += block.weights[r];
+                }
+            }
+            if let Some(v) = sum.iter().position(|&s| !(s > 0.0)) {
+                return Err(Error::Numerical(format!(
+                    "vertex {v} has no weight in the solve: no constraint and no closeness holds it"
+                )));
+            }
+            Factor::Diagonal {
+                inverse: sum.iter().map(|s| 1.0 / s).collect(),
+            }
+        } else {
+            cholesky(vertex_count, variable.iter().chain(constant), symbolic)?
+        };
+        Ok(System {
+            vertex_count,
+            variable: Gather::build(vertex_count, variable),
+            constant: Gather::build(vertex_count, constant),
+            factor,
+        })
+    }
+
+    pub fn kind(&self) -> SystemKind {
+        match self.factor {
+            Factor::Diagonal { .. } => SystemKind::Diagonal,
+            Factor::Cholesky { .. } => SystemKind::Cholesky,
+        }
+    }
+
+    pub fn symbolic(&self) -> Option<Arc<SymbolicCholesky<usize>>> {
+        match &self.factor {
+            Factor::Cholesky { symbolic, .. } => Some(symbolic.clone()),
+            Factor::Diagonal { .. } => None,
+        }
+    }
+
+    /// Number of stored entries of the Cholesky factor (0 for a diagonal system).
+    pub fn factor_nnz(&self) -> usize {
+        match &self.factor {
+            Factor::Cholesky { values, .. } => values.len(),
+            Factor::Diagonal { .. } => 0,
+        }
+    }
+
+    /// `AᵀW p` over the constant rows, once per solve.
+    pub fn constant_rhs(&self, projections: &[Vec3], out: &mut [Vec3]) {
+        out.par_iter_mut()
+            .enumerate()
+            .for_each(|(k, o)| *o = self.constant.apply(k, projections));
+    }
+
+    /// One global step: `x = N⁻¹ (rhs_constant + AᵀW p)`.
+    pub fn solve(&mut self, rhs_constant: &[Vec3], projections: &[Vec3], out: &mut [Vec3]) {
+        let variable = &self.variable;
+        match &mut self.factor {
+            Factor::Diagonal { inverse } => {
+                // Fused gather and divide: one pass over the vertices.
+                out.par_iter_mut()
+                    .enumerate()
+                    .with_min_len(1024)
+                    .for_each(|(k, o)| {
+                        *o = (rhs_constant[k] + variable.apply(k, projections)) * inverse[k];
+                    });
+            }
+            Factor::Cholesky {
+                symbolic,
+                values,
+                columns,
+                scratch,
+            } => {
+                let [cx, cy, cz] = columns;
+                cx.par_iter_mut()
+                    .zip(cy.par_iter_mut())
+                    .zip(cz.par_iter_mut())
+                    .enumerate()
+                    .with_min_len(1024)
+                    .for_each(|(k, ((x, y), z))| {
+                        let b = rhs_constant[k] + variable.apply(k, projections);
+                        (*x, *y, *z) = (b.x as f64, b.y as f64, b.z as f64);
+                    });
+                let llt = LltRef::<usize, f64>::new(symbolic, values);
+                let n = self.vertex_count;
+                // One back-substitution per coordinate, in parallel; each is
+                // sequential inside, so the result does not depend on threads.
+                columns
+                    .par_iter_mut()
+                    .zip(scratch.par_iter_mut())
+                    .for_each(|(column, buffer)| {
+                        let rhs = MatMut::from_column_major_slice_mut(column.as_mut_slice(), n, 1);
+                        llt.solve_in_place_with_conj(
+                            Conj::No,
+                            rhs,
+                            Par::Seq,
+                            MemStack::new(buffer),
+                        );
+                    });
+                let [cx, cy, cz] = columns;
+                out.par_iter_mut()
+                    .enumerate()
+                    .with_min_len(1024)
+                    .for_each(|(k, o)| {
+                        *o = Vec3::new(cx[k] as f32, cy[k] as f32, cz[k] as f32);
+                    });
+            }
+        }
+    }
+}
+
+/// Assembles the lower triangle of `Σ w AᵀA` and factorises it.
+fn cholesky<'a>(
+    n: usize,
+    blocks: impl Iterator<Item = &'a RowBlock<'a>>,
+    symbolic: Option<Arc<SymbolicCholesky<usize>>>,
+) -> Result<Factor> {
+    // (column, row, value) with row ≥ column; every diagonal entry present so
+    // the pattern never depends on which weights happen to be zero.
+    let mut entries: Vec<(u32, u32, f64)> = (0..n as u32).map(|k| (k, k, 0.0)).collect();
+    for block in blocks {
+        for r in 0..block.rows.len() {
+            let (vertices, coeffs) = block.rows.row(r);
+            let w = block.weights[r] as f64;
+            for (i, (&a, &ca)) in vertices.iter().zip(coeffs).enumerate() {
+                for (&b, &cb) in vertices[..=i].iter().zip(&coeffs[..=i]) {
+                    let (row, col) = if a >= b { (a, b) } else { (b, a) };
+                    // Each unordered pair once: exactly the lower-triangle
+                    // entry of the symmetric w·aᵀa.
+                    entries.push((col, row, w * ca as f64 * cb as f64));
+                }
+            }
+        }
+    }
+    // Stable sort: duplicates are summed in insertion order, deterministically.
+    entries.par_sort_by_key(|&(col, row, _)| (col, row));
+    let mut col_ptr = vec![0usize; n + 1];
+    let mut row_idx = Vec::with_capacity(entries.len());
+    let mut matrix = Vec::with_capacity(entries.len());
+    for group in entries.chunk_by(|a, b| a.0 == b.0 && a.1 == b.1) {
+        let sum: f64 = group.iter().map(|e| e.2).sum();
+        col_ptr[group[0].0 as usize + 1] += 1;
+        row_idx.push(group[0].1 as usize);
+        matrix.push(sum);
+    }
+    for k in 0..n {
+        col_ptr[k + 1] += col_ptr[k];
+    }
+    let pattern = SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
+    let symbolic = match symbolic {
+        Some(s) if s.nrows() == n => s,
+        _ => Arc::new(
+            factorize_symbolic_cholesky(
+                pattern,
+                Side::Lower,
+                SymmetricOrdering::Amd,
+                Default::default(),
+            )
+            .map_err(|e| {
+                Error::Numerical(format!(
+                    "symbolic Cholesky analysis of the global matrix failed: {e:?}"
+                ))
+            })?,
+        ),
+    };
+    let mut values = Vec::new();
+    values
+        .try_reserve_exact(symbolic.len_val())
+        .map_err(|_| Error::TooLarge {
+            what: format!(
+                "the Cholesky factor of a {n}-vertex global matrix ({} entries)",
+                symbolic.len_val()
+            ),
+            needed_bytes: symbolic.len_val() as u64 * 8,
+            limit_bytes: 0,
+        })?;
+    values.resize(symbolic.len_val(), 0.0);
+    let mut stack =
+        MemBuffer::new(symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()));
+    symbolic
+        .factorize_numeric_llt::<f64>(
+            &mut values,
+            SparseColMatRef::new(pattern, &matrix),
+            Side::Lower,
+            LltRegularization { dynamic_regularization_delta: 0.0, dynamic_regularization_epsilon: 0.0 },
+            Par::Seq,
+            MemStack::new(&mut stack),
+            Default::default(),
+        )
+        .map_err(|_| {
+            Error::Numerical(
+                "the global matrix is not positive definite: some part of the mesh has neither closeness nor pinned vertices to hold it"
+                    .to_string(),
+            )
+        })?;
+    let req = symbolic.solve_in_place_scratch::<f64>(1, Par::Seq);
+    let scratch = [
+        MemBuffer::new(req),
+        MemBuffer::new(req),
+        MemBuffer::new(req),
+    ];
+    Ok(Factor::Cholesky {
+        symbolic,
+        values,
+        columns: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
+        scratch,
+    })
+}
