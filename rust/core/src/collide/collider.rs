@@ -63,6 +63,12 @@ pub struct Collider {
     current: Vec<Vec3>,
     settings: ColliderSettings,
     tree: BoxTree,
+    /// BVH over swept, thickened vertex boxes (collider vertices against skin
+    /// triangles).
+    vertex_tree: BoxTree,
+    /// CSR lists of the triangles around every vertex.
+    vertex_triangle_offsets: Vec<u32>,
+    vertex_triangle_list: Vec<u32>,
     last_update: Option<UpdateReport>,
 }
 
@@ -94,6 +100,7 @@ impl Collider {
                 }
             }
         }
+        let (vertex_triangle_offsets, vertex_triangle_list) = incidence(positions.len(), triangles);
         let mut collider = Collider {
             triangles: triangles.to_vec(),
             edges,
@@ -104,9 +111,13 @@ impl Collider {
             current: positions.to_vec(),
             settings,
             tree: BoxTree::build(&[])?,
+            vertex_tree: BoxTree::build(&[])?,
+            vertex_triangle_offsets,
+            vertex_triangle_list,
             last_update: None,
         };
         collider.tree = BoxTree::build(&collider.swept_boxes())?;
+        collider.vertex_tree = BoxTree::build(&collider.swept_vertex_boxes())?;
         Ok(collider)
     }
 
@@ -156,6 +167,7 @@ impl Collider {
     fn refresh(&mut self) -> Result<UpdateReport> {
         let boxes = self.swept_boxes();
         let report = self.tree.update(&boxes)?;
+        self.vertex_tree.update(&self.swept_vertex_boxes())?;
         self.last_update = Some(report);
         Ok(report)
     }
@@ -172,6 +184,15 @@ impl Collider {
             self.current[c],
         ])
         .inflated(self.settings.thickness)
+    }
+
+    fn swept_vertex_boxes(&self) -> Vec<Bounds> {
+        use rayon::prelude::*;
+        let r = self.settings.thickness;
+        (self.previous.par_iter(), self.current.par_iter())
+            .into_par_iter()
+            .map(|(&a, &b)| Bounds::of_points(&[a, b]).inflated(r))
+            .collect()
     }
 
     fn swept_boxes(&self) -> Vec<Bounds> {
@@ -214,6 +235,15 @@ impl Collider {
     pub fn tree(&self) -> &BoxTree {
         &self.tree
     }
+    /// The BVH over swept, thickened vertex boxes.
+    pub fn vertex_tree(&self) -> &BoxTree {
+        &self.vertex_tree
+    }
+    /// The triangles around vertex `v`.
+    pub fn vertex_triangles(&self, v: usize) -> &[u32] {
+        let (a, b) = (self.vertex_triangle_offsets[v] as usize, self.vertex_triangle_offsets[v + 1] as usize);
+        &self.vertex_triangle_list[a..b]
+    }
     /// What the last update of the BVH did.
     pub fn last_update(&self) -> Option<UpdateReport> {
         self.last_update
@@ -249,6 +279,28 @@ fn edges_of(triangles: &[[u32; 3]]) -> (Vec<[u32; 2]>, Vec<[u32; 3]>, bool) {
         i = j;
     }
     (edges, triangle_edges, closed)
+}
+
+/// CSR lists of the triangles around each of `n` vertices.
+fn incidence(n: usize, triangles: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
+    let mut offsets = vec![0u32; n + 1];
+    for t in triangles {
+        for &v in t {
+            offsets[v as usize + 1] += 1;
+        }
+    }
+    for i in 0..n {
+        offsets[i + 1] += offsets[i];
+    }
+    let mut fill = offsets.clone();
+    let mut list = vec![0u32; offsets[n] as usize];
+    for (k, t) in triangles.iter().enumerate() {
+        for &v in t {
+            list[fill[v as usize] as usize] = k as u32;
+            fill[v as usize] += 1;
+        }
+    }
+    (offsets, list)
 }
 
 /// Triangles of a flat `[a0, b0, c0, a1, …]` index array, checked.

@@ -25,7 +25,7 @@ pub use audit::{audit, AuditParams, AuditReport};
 pub use bvh::{BoxTree, Bounds, UpdateReport};
 pub use ccd::{CcdHit, CcdParams};
 pub use collider::{Collider, ColliderSettings};
-pub use response::{ColliderMotion, ColliderSet, ContactStats, ResolveParams};
+pub use response::{ColliderMotion, ColliderSet, ContactStats, ResolveParams, Skin};
 
 #[cfg(test)]
 mod tests;

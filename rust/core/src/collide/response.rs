@@ -18,10 +18,13 @@
 //!    |Δx⊥| < μs·d (static friction; d = projection depth), otherwise reduced
 //!    by μk·d (kinetic). Colliders are kinematic (inverse mass 0), so the whole
 //!    correction goes to the skin.
-//! 3. **Edge–edge**: each skin edge against the collider edges; the correction
-//!    moves the edge's contact point out along the edges' common normal,
-//!    split between its two vertices by their barycentric weights. Several
-//!    contacts on a vertex are averaged (Jacobi).
+//! 3. **Edge–edge** and **collider vertex–skin triangle**: each skin edge
+//!    against the collider edges, each skin triangle against the collider
+//!    vertices (sharp collider corners). The correction moves the skin's
+//!    contact point out along the contact normal, split between the skin
+//!    vertices by their barycentric weights (the minimum-norm change).
+//!    Several contacts on a vertex are averaged (Jacobi). With these and 1,
+//!    every way two triangle meshes can start to intersect is covered.
 //! 4. Repeat detection on the vertices that moved, up to
 //!    [`ResolveParams::max_rounds`] rounds. Vertices still in violation after
 //!    the last round are **pinched** (e.g. squeezed between two colliders):
@@ -30,17 +33,19 @@
 //! # Use in the two passes (seed 000, Algorithm 2)
 //!
 //! ```text
+//! // once per bind
+//! let skin = Skin::from_mesh(mesh)?;
 //! // once per frame
-//! for c in colliders { c.update(&collider_positions_this_frame)?; }
+//! for c in &mut colliders { c.update(&collider_positions_this_frame)?; }
 //! let set = ColliderSet::new(colliders.iter());
 //! // pass 1: from last frame's collision-free output towards this frame's input
 //! let mut x = input.clone();
-//! let stats = set.resolve_path(&last_output, &mut x, &edges, &ResolveParams::first_pass())?;
+//! let stats = set.resolve_path(&last_output, &mut x, &skin, &ResolveParams::first_pass())?;
 //! // pass 2: inside the solver loop
 //! for _ in 0..iterations {
 //!     let before = x.clone();
 //!     solver.iterate(&mut x);                         // global + local step
-//!     let s = set.resolve_path(&before, &mut x, &edges, &ResolveParams::in_loop())?;
+//!     let s = set.resolve_path(&before, &mut x, &skin, &ResolveParams::in_loop())?;
 //!     // s.pinched → soft constraints / report
 //! }
 //! ```
@@ -51,11 +56,12 @@
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
+use super::audit::{fan_triangles, polygon_edges};
 use super::bvh::Bounds;
 use super::ccd::{self, CcdParams};
 use super::collider::Collider;
 use super::geometry::{triangle_normal, unit};
-use crate::mesh::validate_positions;
+use crate::mesh::{validate_positions, MeshInput};
 use crate::{Error, Result};
 
 /// How the colliders move during the step being resolved.
@@ -73,8 +79,10 @@ pub struct ResolveParams {
     pub motion: ColliderMotion,
     /// Detection–projection rounds before remaining violations count as pinched.
     pub max_rounds: usize,
-    /// Test skin edges against collider edges (needs the `edges` argument).
+    /// Test skin edges against collider edges.
     pub edge_edge: bool,
+    /// Test collider vertices against skin triangles.
+    pub collider_vertices: bool,
     /// Apply friction (off for passes where it would double count).
     pub friction: bool,
 }
@@ -82,11 +90,11 @@ pub struct ResolveParams {
 impl ResolveParams {
     /// Pass 1: colliders sweep over the frame, friction on.
     pub fn first_pass() -> Self {
-        ResolveParams { motion: ColliderMotion::Swept, max_rounds: 8, edge_edge: true, friction: true }
+        ResolveParams { motion: ColliderMotion::Swept, max_rounds: 12, edge_edge: true, collider_vertices: true, friction: true }
     }
     /// Pass 2: colliders at their current positions, friction on.
     pub fn in_loop() -> Self {
-        ResolveParams { motion: ColliderMotion::AtCurrent, max_rounds: 8, edge_edge: true, friction: true }
+        ResolveParams { motion: ColliderMotion::AtCurrent, max_rounds: 12, edge_edge: true, collider_vertices: true, friction: true }
     }
 }
 
@@ -97,6 +105,8 @@ pub struct ContactStats {
     pub vertex_contacts: usize,
     /// Edge–edge projections applied (over all rounds).
     pub edge_contacts: usize,
+    /// Collider-vertex–skin-triangle projections applied (over all rounds).
+    pub collider_vertex_contacts: usize,
     /// Vertices whose end position changed, ascending.
     pub moved: Vec<u32>,
     /// Vertices still in violation after the last round, ascending.
@@ -105,6 +115,100 @@ pub struct ContactStats {
     pub rounds: usize,
     /// Largest displacement applied to one vertex.
     pub max_correction: f32,
+}
+
+/// The skin's connectivity as the collision passes need it. Build it once
+/// (per bind) and pass it to every [`ColliderSet::resolve_path`] call.
+#[derive(Debug, Clone, Default)]
+pub struct Skin {
+    vertex_count: usize,
+    edges: Vec<[u32; 2]>,
+    triangles: Vec<[u32; 3]>,
+    vertex_edges: (Vec<u32>, Vec<u32>),
+    vertex_triangles: (Vec<u32>, Vec<u32>),
+}
+
+impl Skin {
+    /// A skin of `vertex_count` vertices with the given edges (tested against
+    /// collider edges) and triangles (tested against collider vertices).
+    pub fn new(vertex_count: usize, edges: Vec<[u32; 2]>, triangles: Vec<[u32; 3]>) -> Result<Self> {
+        if let Some((i, e)) = edges.iter().enumerate().find(|(_, e)| e.iter().any(|&v| v as usize >= vertex_count)) {
+            return Err(Error::invalid(format!(
+                "edge {i} refers to vertex {}, but the skin has {vertex_count} vertices",
+                e[0].max(e[1])
+            )));
+        }
+        if let Some((i, t)) = triangles.iter().enumerate().find(|(_, t)| t.iter().any(|&v| v as usize >= vertex_count)) {
+            return Err(Error::invalid(format!(
+                "triangle {i} refers to vertex {}, but the skin has {vertex_count} vertices",
+                t.iter().max().copied().unwrap_or(0)
+            )));
+        }
+        let vertex_edges = incidence(vertex_count, edges.iter().map(|e| &e[..]));
+        let vertex_triangles = incidence(vertex_count, triangles.iter().map(|t| &t[..]));
+        Ok(Skin { vertex_count, edges, triangles, vertex_edges, vertex_triangles })
+    }
+
+    /// Edges and fan-triangulated polygons of a polygon mesh.
+    pub fn from_mesh(mesh: MeshInput<'_>) -> Result<Self> {
+        let offsets = mesh.validate()?;
+        Skin::new(
+            mesh.positions.len(),
+            polygon_edges(mesh.corner_verts, &offsets),
+            fan_triangles(mesh.corner_verts, &offsets),
+        )
+    }
+
+    /// Vertices only: no edge–edge or collider-vertex tests.
+    pub fn vertices_only(vertex_count: usize) -> Self {
+        Skin { vertex_count, vertex_edges: (vec![0; vertex_count + 1], Vec::new()), vertex_triangles: (vec![0; vertex_count + 1], Vec::new()), ..Default::default() }
+    }
+
+    pub fn vertex_count(&self) -> usize {
+        self.vertex_count
+    }
+    pub fn edges(&self) -> &[[u32; 2]] {
+        &self.edges
+    }
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+
+    /// Edges and triangles touching any of `vertices`, each once, ascending.
+    fn touching(&self, vertices: &[u32]) -> (Vec<u32>, Vec<u32>) {
+        let gather = |(offsets, list): &(Vec<u32>, Vec<u32>)| {
+            let mut out: Vec<u32> = vertices
+                .iter()
+                .flat_map(|&v| list[offsets[v as usize] as usize..offsets[v as usize + 1] as usize].iter().copied())
+                .collect();
+            out.sort_unstable();
+            out.dedup();
+            out
+        };
+        (gather(&self.vertex_edges), gather(&self.vertex_triangles))
+    }
+}
+
+/// CSR lists of the elements around each of `n` vertices.
+fn incidence<'e>(n: usize, elements: impl Iterator<Item = &'e [u32]> + Clone) -> (Vec<u32>, Vec<u32>) {
+    let mut offsets = vec![0u32; n + 1];
+    for el in elements.clone() {
+        for &v in el {
+            offsets[v as usize + 1] += 1;
+        }
+    }
+    for i in 0..n {
+        offsets[i + 1] += offsets[i];
+    }
+    let mut fill = offsets.clone();
+    let mut list = vec![0u32; offsets[n] as usize];
+    for (k, el) in elements.enumerate() {
+        for &v in el {
+            list[fill[v as usize] as usize] = k as u32;
+            fill[v as usize] += 1;
+        }
+    }
+    (offsets, list)
 }
 
 /// The colliders one skin collides with, borrowed for a step.
@@ -329,42 +433,175 @@ impl<'a> ColliderSet<'a> {
         unit(sum * self.outward[c])
     }
 
+    /// Earliest contact of a collider vertex with skin triangle `tri`, and
+    /// the corrections of the triangle's three end positions.
+    fn face_correction(
+        &self,
+        start: &[Vec3],
+        end: &[Vec3],
+        tri: [u32; 3],
+        params: &ResolveParams,
+    ) -> Option<[DVec3; 3]> {
+        let [i0, i1, i2] = tri.map(|v| v as usize);
+        let (s0, s1, s2) = (d(start[i0]), d(start[i1]), d(start[i2]));
+        let (e0, e1, e2) = (d(end[i0]), d(end[i1]), d(end[i2]));
+        let query = Bounds::of_points(&[start[i0], start[i1], start[i2], end[i0], end[i1], end[i2]]);
+        let mut best: Option<(usize, usize, ccd::CcdHit)> = None;
+        for (c, col) in self.colliders.iter().enumerate() {
+            let mut ccd_params = self.ccd_params(col.settings().thickness as f64);
+            col.vertex_tree().query(&query, |v| {
+                if let Some((_, _, b)) = &best {
+                    ccd_params.t_max = b.toi.max(f64::MIN_POSITIVE);
+                }
+                let (r0, r1) = self.vertex_ends(c, v, params.motion);
+                if let Some(hit) = ccd::vertex_triangle(r0, s0, s1, s2, r1, e0, e1, e2, &ccd_params) {
+                    if best.is_none_or(|(_, _, b)| hit.toi < b.toi) {
+                        best = Some((c, v, hit));
+                    }
+                }
+                true
+            });
+        }
+        let (c, v, hit) = best?;
+        let sep = self.colliders[c].settings().thickness as f64;
+        let (r0, r1) = self.vertex_ends(c, v, params.motion);
+        let (t, u, w) = (hit.toi, hit.u, hit.v);
+        let weights = [1.0 - u - w, u, w];
+        let at = |a: DVec3, b: DVec3, c: DVec3| weights[0] * a + weights[1] * b + weights[2] * c;
+        let lerp = |p0: DVec3, p1: DVec3| p0 + t * (p1 - p0);
+        let (p0, p1) = (at(s0, s1, s2), at(e0, e1, e2));
+        let pt = at(lerp(s0, e0), lerp(s1, e1), lerp(s2, e2));
+        let rt = lerp(r0, r1);
+        let n1 = triangle_normal(e0, e1, e2).or_else(|| triangle_normal(lerp(s0, e0), lerp(s1, e1), lerp(s2, e2)));
+        let n = if self.outward[c] != 0.0 {
+            let out = self.vertex_outward(c, v)?;
+            match n1 {
+                Some(n) if n.dot(out).abs() > 0.2 => n * n.dot(out).signum(),
+                _ => out,
+            }
+        } else {
+            let n1 = n1.or_else(|| unit(p1 - r1))?;
+            let side = open_side_generic((pt - rt).dot(n1), (p0 - r0).dot(n1), ((p1 - p0) - (r1 - r0)).dot(n1), sep);
+            side * n1
+        };
+        let dist = (p1 - r1).dot(n);
+        if dist >= sep {
+            return None;
+        }
+        let depth = sep + self.slack(sep) - dist;
+        let lambda = depth / weights.iter().map(|w| w * w).sum::<f64>();
+        let out = weights.map(|w| w * lambda * n);
+        out.iter().all(|x| x.is_finite()).then_some(out)
+    }
+
+    fn vertex_ends(&self, c: usize, v: usize, motion: ColliderMotion) -> (DVec3, DVec3) {
+        let col = self.colliders[c];
+        let end = d(col.current()[v]);
+        match motion {
+            ColliderMotion::Swept => (d(col.previous()[v]), end),
+            ColliderMotion::AtCurrent => (end, end),
+        }
+    }
+
+    /// Outward direction at collider vertex `v` (sum of its faces' normals).
+    fn vertex_outward(&self, c: usize, v: usize) -> Option<DVec3> {
+        let col = self.colliders[c];
+        let mut sum = DVec3::ZERO;
+        for &t in col.vertex_triangles(v) {
+            let [a, b, cc] = col.triangles()[t as usize].map(|i| d(col.current()[i as usize]));
+            if let Some(n) = triangle_normal(a, b, cc) {
+                sum += n;
+            }
+        }
+        unit(sum * self.outward[c])
+    }
+
+    /// Edge–edge and collider-vertex–skin-triangle corrections of one round,
+    /// averaged per vertex. Returns the number of contacts and the changes.
+    fn shared_corrections(
+        &self,
+        start: &[Vec3],
+        end: &[Vec3],
+        skin: &Skin,
+        edges: &[u32],
+        triangles: &[u32],
+        params: &ResolveParams,
+    ) -> (usize, usize, Vec<(u32, Vec3)>) {
+        let from_edges: Vec<(u32, [DVec3; 2])> = if params.edge_edge {
+            edges
+                .par_iter()
+                .filter_map(|&k| self.edge_correction(start, end, skin.edges[k as usize], params).map(|(a, b)| (k, [a, b])))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let from_faces: Vec<(u32, [DVec3; 3])> = if params.collider_vertices {
+            triangles
+                .par_iter()
+                .filter_map(|&k| self.face_correction(start, end, skin.triangles[k as usize], params).map(|c| (k, c)))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let mut sum: std::collections::BTreeMap<u32, (DVec3, u32)> = Default::default();
+        let mut add = |v: u32, delta: DVec3| {
+            let slot = sum.entry(v).or_insert((DVec3::ZERO, 0));
+            slot.0 += delta;
+            slot.1 += 1;
+        };
+        for (k, deltas) in &from_edges {
+            for (&v, &delta) in skin.edges[*k as usize].iter().zip(deltas) {
+                add(v, delta);
+            }
+        }
+        for (k, deltas) in &from_faces {
+            for (&v, &delta) in skin.triangles[*k as usize].iter().zip(deltas) {
+                add(v, delta);
+            }
+        }
+        let changes = sum
+            .into_iter()
+            .filter_map(|(v, (delta, count))| {
+                let p = (d(end[v as usize]) + delta / count as f64).as_vec3();
+                p.is_finite().then_some((v, p))
+            })
+            .collect();
+        (from_edges.len(), from_faces.len(), changes)
+    }
+
     /// Makes the motion `start → end` collision-free against the colliders by
     /// changing `end` (see the module documentation).
     pub fn resolve_path(
         &self,
         start: &[Vec3],
         end: &mut [Vec3],
-        edges: &[[u32; 2]],
+        skin: &Skin,
         params: &ResolveParams,
     ) -> Result<ContactStats> {
         let n = start.len();
-        if end.len() != n {
+        if end.len() != n || skin.vertex_count != n {
             return Err(Error::invalid(format!(
-                "start has {n} positions but end has {}; both must have one per skin vertex",
-                end.len()
+                "start has {n} positions, end has {} and the skin has {} vertices; all three must agree",
+                end.len(),
+                skin.vertex_count
             )));
         }
         validate_positions("start positions", start)?;
         validate_positions("end positions", end)?;
-        if let Some((i, e)) = edges.iter().enumerate().find(|(_, e)| e[0] as usize >= n || e[1] as usize >= n) {
-            return Err(Error::invalid(format!("edge {i} refers to vertex {}, but the skin has {n} vertices", e[0].max(e[1]))));
-        }
         let mut stats = ContactStats::default();
         if self.colliders.is_empty() || n == 0 {
             return Ok(stats);
         }
-        let use_edges = params.edge_edge && !edges.is_empty();
-        let vertex_edges = if use_edges { incident_edges(n, edges) } else { (Vec::new(), Vec::new()) };
         let requested: Vec<Vec3> = end.to_vec();
         let mut moved = vec![false; n];
         let mut active: Vec<u32> = (0..n as u32).collect();
-        let mut active_edges: Vec<u32> = if use_edges { (0..edges.len() as u32).collect() } else { Vec::new() };
+        let mut active_edges: Vec<u32> = (0..skin.edges.len() as u32).collect();
+        let mut active_triangles: Vec<u32> = (0..skin.triangles.len() as u32).collect();
         let mut converged = false;
         for _ in 0..params.max_rounds.max(1) {
             stats.rounds += 1;
             let mut changed = vec![false; n];
-            // Vertex–triangle.
+            // Skin vertices against collider triangles.
             let updates: Vec<(u32, Vec3)> = active
                 .par_iter()
                 .filter_map(|&i| {
@@ -378,35 +615,14 @@ impl<'a> ColliderSet<'a> {
                 end[i as usize] = p;
                 changed[i as usize] = true;
             }
-            // Edge–edge.
-            if use_edges {
-                let corrections: Vec<(u32, DVec3, DVec3)> = active_edges
-                    .par_iter()
-                    .filter_map(|&k| {
-                        self.edge_correction(start, end, edges[k as usize], params).map(|(da, db)| (k, da, db))
-                    })
-                    .collect();
-                stats.edge_contacts += corrections.len();
-                let mut sum: Vec<(DVec3, u32)> = Vec::new();
-                if !corrections.is_empty() {
-                    sum = vec![(DVec3::ZERO, 0); n];
-                    for (k, da, db) in &corrections {
-                        let [a, b] = edges[*k as usize];
-                        sum[a as usize].0 += *da;
-                        sum[a as usize].1 += 1;
-                        sum[b as usize].0 += *db;
-                        sum[b as usize].1 += 1;
-                    }
-                }
-                for (i, (delta, count)) in sum.iter().enumerate() {
-                    if *count > 0 {
-                        let p = (d(end[i]) + *delta / *count as f64).as_vec3();
-                        if p.is_finite() {
-                            end[i] = p;
-                            changed[i] = true;
-                        }
-                    }
-                }
+            // Skin edges against collider edges, skin triangles against
+            // collider vertices.
+            let (ee, fv, shared) = self.shared_corrections(start, end, skin, &active_edges, &active_triangles, params);
+            stats.edge_contacts += ee;
+            stats.collider_vertex_contacts += fv;
+            for (i, p) in shared {
+                end[i as usize] = p;
+                changed[i as usize] = true;
             }
             let next: Vec<u32> = (0..n as u32).filter(|&i| changed[i as usize]).collect();
             for &i in &next {
@@ -416,23 +632,11 @@ impl<'a> ColliderSet<'a> {
                 converged = true;
                 break;
             }
-            if use_edges {
-                let mut es: Vec<u32> = next
-                    .iter()
-                    .flat_map(|&i| {
-                        let (offsets, list) = &vertex_edges;
-                        list[offsets[i as usize] as usize..offsets[i as usize + 1] as usize].iter().copied()
-                    })
-                    .collect();
-                es.sort_unstable();
-                es.dedup();
-                active_edges = es;
-            }
+            (active_edges, active_triangles) = skin.touching(&next);
             active = next;
         }
         if !converged {
-            // Verify the vertices moved in the last round; those still in
-            // violation are pinched.
+            // Verify the last round's changes; what is still in violation is pinched.
             let mut pinched: Vec<u32> = active
                 .par_iter()
                 .copied()
@@ -443,14 +647,8 @@ impl<'a> ColliderSet<'a> {
                         .is_some()
                 })
                 .collect();
-            if use_edges {
-                let bad_edges: Vec<u32> = active_edges
-                    .par_iter()
-                    .copied()
-                    .filter(|&k| self.edge_correction(start, end, edges[k as usize], params).is_some())
-                    .collect();
-                pinched.extend(bad_edges.iter().flat_map(|&k| edges[k as usize]));
-            }
+            let (_, _, shared) = self.shared_corrections(start, end, skin, &active_edges, &active_triangles, params);
+            pinched.extend(shared.iter().map(|(v, _)| *v));
             pinched.sort_unstable();
             pinched.dedup();
             // Bound the displacement of pinched vertices: no farther from the
@@ -533,25 +731,4 @@ fn open_side_generic(at_contact: f64, at_start: f64, relative_motion: f64, sep: 
     } else {
         1.0
     }
-}
-
-/// CSR lists of the edges incident to every vertex.
-fn incident_edges(n: usize, edges: &[[u32; 2]]) -> (Vec<u32>, Vec<u32>) {
-    let mut offsets = vec![0u32; n + 1];
-    for e in edges {
-        offsets[e[0] as usize + 1] += 1;
-        offsets[e[1] as usize + 1] += 1;
-    }
-    for i in 0..n {
-        offsets[i + 1] += offsets[i];
-    }
-    let mut fill = offsets.clone();
-    let mut list = vec![0u32; offsets[n] as usize];
-    for (k, e) in edges.iter().enumerate() {
-        for &v in e {
-            list[fill[v as usize] as usize] = k as u32;
-            fill[v as usize] += 1;
-        }
-    }
-    (offsets, list)
 }

@@ -2,8 +2,8 @@
 
 use glam::Vec3;
 
-use crate::collide::audit::{audit, fan_triangles, polygon_edges, AuditParams};
-use crate::collide::{Collider, ColliderSet, ColliderSettings, ResolveParams};
+use crate::collide::audit::{audit, fan_triangles, AuditParams};
+use crate::collide::{Collider, ColliderSet, ColliderSettings, ResolveParams, Skin};
 use crate::mesh::shapes::{grid, quad_sphere, PolyMesh};
 
 fn offsets(mesh: &PolyMesh) -> Vec<u32> {
@@ -33,7 +33,7 @@ fn fast_vertex_does_not_tunnel_through_a_thin_floor() {
     let set = ColliderSet::new([&c]);
     let start = [Vec3::new(0.3, 0.2, 1.0), Vec3::new(5.0, 5.0, 3.0)];
     let mut end = [Vec3::new(0.8, 0.2, -100.0), Vec3::new(5.0, 5.0, 2.0)];
-    let stats = set.resolve_path(&start, &mut end, &[], &ResolveParams::first_pass()).unwrap();
+    let stats = set.resolve_path(&start, &mut end, &Skin::vertices_only(start.len()), &ResolveParams::first_pass()).unwrap();
     assert!(end[0].z >= 0.01 && end[0].z < 0.011, "{:?}", end[0]);
     // Zero friction: the tangential part of the motion is kept.
     assert!((end[0].x - 0.8).abs() < 1e-5 && (end[0].y - 0.2).abs() < 1e-5, "{:?}", end[0]);
@@ -50,7 +50,7 @@ fn static_friction_holds_and_kinetic_friction_slows() {
     let run = |mu_s: f32, mu_k: f32| {
         let c = floor(ColliderSettings { thickness: 0.0, static_friction: mu_s, kinetic_friction: mu_k });
         let mut end = [request];
-        ColliderSet::new([&c]).resolve_path(&start, &mut end, &[], &ResolveParams::first_pass()).unwrap();
+        ColliderSet::new([&c]).resolve_path(&start, &mut end, &Skin::vertices_only(start.len()), &ResolveParams::first_pass()).unwrap();
         end[0]
     };
     let free = run(0.0, 0.0);
@@ -70,7 +70,7 @@ fn moving_floor_drags_a_resting_vertex_with_static_friction() {
     c.update(&moved(&c, Vec3::new(0.5, 0.0, 1.0))).unwrap();
     let start = [Vec3::new(0.0, 0.0, 0.5)];
     let mut end = start;
-    ColliderSet::new([&c]).resolve_path(&start, &mut end, &[], &ResolveParams::first_pass()).unwrap();
+    ColliderSet::new([&c]).resolve_path(&start, &mut end, &Skin::vertices_only(start.len()), &ResolveParams::first_pass()).unwrap();
     assert!(end[0].z >= 1.0, "{:?}", end[0]);
     // Contact at t = 0.5 (x of floor = 0.25); floor moved 0.25 more in x since.
     assert!((end[0].x - 0.25).abs() < 1e-3, "{:?}", end[0]);
@@ -84,8 +84,8 @@ fn sphere_passing_through_the_skin_in_one_frame_pushes_it() {
     c.update(&moved(&c, Vec3::new(0.0, 0.0, 4.0))).unwrap();
     let start = skin.positions.clone();
     let mut end = start.clone();
-    let edges = polygon_edges(&skin.corner_verts, &offsets(&skin));
-    let stats = ColliderSet::new([&c]).resolve_path(&start, &mut end, &edges, &ResolveParams::first_pass()).unwrap();
+    let topo = Skin::from_mesh(skin.input()).unwrap();
+    let stats = ColliderSet::new([&c]).resolve_path(&start, &mut end, &topo, &ResolveParams::first_pass()).unwrap();
     assert!(!stats.moved.is_empty());
     assert!(end.iter().all(|p| p.is_finite()));
     // The touched skin is carried over the sphere's top (z ≥ 2.5 + thickness).
@@ -94,8 +94,9 @@ fn sphere_passing_through_the_skin_in_one_frame_pushes_it() {
     let mesh = PolyMesh { positions: end.clone(), ..skin.clone() };
     let report = audit(mesh.input(), &[&c], &AuditParams::default()).unwrap();
     assert!(report.vertices_inside.is_empty(), "{report:?}");
-    // Edges that span the sphere's top may still cross it: the edge–edge pass
-    // only fixes contacts with collider edges. Report it rather than hide it.
+    assert!(report.edges_crossing.is_empty(), "{report:?}");
+    assert!(report.collider_edges_crossing.is_empty(), "{report:?}");
+    assert!(stats.pinched.is_empty());
     println!("after tunnelling push: {} vertices moved, {} edges crossing, {} collider edges crossing, {} pinched",
         stats.moved.len(), report.edges_crossing.len(), report.collider_edges_crossing.len(), stats.pinched.len());
 }
@@ -108,14 +109,15 @@ fn skin_pressed_onto_a_sphere_ends_outside_it() {
     let start: Vec<Vec3> = skin.positions.iter().map(|&p| p + Vec3::new(0.0, 0.0, 0.8)).collect();
     let requested: Vec<Vec3> = skin.positions.iter().map(|&p| p + Vec3::new(0.0, 0.0, -0.2)).collect();
     let mut end = requested.clone();
-    let edges = polygon_edges(&skin.corner_verts, &offsets(&skin));
-    let stats = ColliderSet::new([&c]).resolve_path(&start, &mut end, &edges, &ResolveParams::in_loop()).unwrap();
+    let topo = Skin::from_mesh(skin.input()).unwrap();
+    let stats = ColliderSet::new([&c]).resolve_path(&start, &mut end, &topo, &ResolveParams::in_loop()).unwrap();
     let mesh = PolyMesh { positions: end.clone(), ..skin.clone() };
     let report = audit(mesh.input(), &[&c], &AuditParams::default()).unwrap();
     let before = audit(PolyMesh { positions: requested, ..skin.clone() }.input(), &[&c], &AuditParams::default()).unwrap();
     assert!(!before.vertices_inside.is_empty(), "the request must penetrate for this test to mean anything");
     assert!(report.vertices_inside.is_empty(), "{:?}", report.vertices_inside);
     assert!(report.edges_crossing.is_empty(), "{:?}", report.edges_crossing);
+    assert!(report.collider_edges_crossing.is_empty(), "{:?}", report.collider_edges_crossing);
     assert!(stats.pinched.is_empty(), "{:?}", stats.pinched);
     println!(
         "pressed skin: {} inside before, 0 after; {} collider edges crossing after; rounds {}",
@@ -140,14 +142,14 @@ fn skin_edge_cannot_slip_through_a_collider_ridge() {
     let c = Collider::new(&p, &tris, ColliderSettings::new(0.0, 0.0)).unwrap();
     let start = [Vec3::new(-2.0, 0.0, 2.0), Vec3::new(2.0, 0.0, 2.0)];
     let mut end = [Vec3::new(-2.0, 0.0, 0.2), Vec3::new(2.0, 0.0, 0.2)];
-    let stats = ColliderSet::new([&c]).resolve_path(&start, &mut end, &[[0, 1]], &ResolveParams::first_pass()).unwrap();
+    let stats = ColliderSet::new([&c]).resolve_path(&start, &mut end, &Skin::new(2, vec![[0, 1]], vec![]).unwrap(), &ResolveParams::first_pass()).unwrap();
     assert!(stats.edge_contacts > 0);
     // Ridge height at y = 0 is 0.5: the edge's midpoint must stay above it.
     let mid = 0.5 * (end[0] + end[1]);
     assert!(mid.z >= 0.5 - 1e-4, "{end:?}");
     let without = {
         let mut e = [Vec3::new(-2.0, 0.0, 0.2), Vec3::new(2.0, 0.0, 0.2)];
-        ColliderSet::new([&c]).resolve_path(&start, &mut e, &[], &ResolveParams::first_pass()).unwrap();
+        ColliderSet::new([&c]).resolve_path(&start, &mut e, &Skin::vertices_only(2), &ResolveParams::first_pass()).unwrap();
         e
     };
     assert!(0.5 * (without[0] + without[1]).z < 0.5, "the vertices alone would slip through");
@@ -163,7 +165,7 @@ fn pinched_vertices_are_reported_finite_and_bounded() {
     right.update(&moved(&right, Vec3::new(-0.8, 0.0, 0.0))).unwrap();
     let start = [Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.0, 5.0, 0.0)];
     let mut end = start;
-    let stats = ColliderSet::new([&left, &right]).resolve_path(&start, &mut end, &[], &ResolveParams::first_pass()).unwrap();
+    let stats = ColliderSet::new([&left, &right]).resolve_path(&start, &mut end, &Skin::vertices_only(start.len()), &ResolveParams::first_pass()).unwrap();
     assert_eq!(stats.pinched, vec![0]);
     assert!(end[0].is_finite());
     assert!(end[0].length() <= 2.0 * 0.05 + 0.01, "displacement not bounded: {:?}", end[0]);
@@ -175,11 +177,13 @@ fn bad_input_is_refused_with_a_message() {
     let c = floor(ColliderSettings::default());
     let set = ColliderSet::new([&c]);
     let mut end = [Vec3::ZERO];
-    let err = set.resolve_path(&[Vec3::ZERO, Vec3::ONE], &mut end, &[], &ResolveParams::first_pass()).unwrap_err();
-    assert!(err.to_string().contains("start has 2 positions but end has 1"), "{err}");
-    let err = set.resolve_path(&[Vec3::ZERO], &mut end, &[[0, 3]], &ResolveParams::first_pass()).unwrap_err();
+    let err = set.resolve_path(&[Vec3::ZERO, Vec3::ONE], &mut end, &Skin::vertices_only(2), &ResolveParams::first_pass()).unwrap_err();
+    assert!(err.to_string().contains("start has 2 positions, end has 1"), "{err}");
+    let err = Skin::new(1, vec![[0, 3]], vec![]).unwrap_err();
     assert!(err.to_string().contains("edge 0 refers to vertex 3"), "{err}");
-    let err = set.resolve_path(&[Vec3::NAN], &mut end, &[], &ResolveParams::first_pass()).unwrap_err();
+    let err = Skin::new(3, vec![], vec![[0, 1, 7]]).unwrap_err();
+    assert!(err.to_string().contains("triangle 0 refers to vertex 7"), "{err}");
+    let err = set.resolve_path(&[Vec3::NAN], &mut end, &Skin::vertices_only(1), &ResolveParams::first_pass()).unwrap_err();
     assert!(err.to_string().contains("vertex 0"), "{err}");
 }
 
