@@ -8,6 +8,7 @@ use pyo3::prelude::*;
 
 mod convert;
 mod mesh;
+mod pyramid;
 
 pub use convert::TegumentError;
 
@@ -16,5 +17,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("TegumentError", m.py().get_type::<TegumentError>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     mesh::register(m)?;
+    pyramid::register(m)?;
     Ok(())
 }

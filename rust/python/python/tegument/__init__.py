@@ -8,10 +8,11 @@ float32 positions of shape ``(N, 3)``, int32 indices, in Blender's mesh layout
 what is wrong and where.
 """
 
-from ._native import Mesh, TegumentError, __version__
+from ._native import Mesh, PyramidDeformer, TegumentError, __version__
 
 __all__ = [
     "Mesh",
+    "PyramidDeformer",
     "TegumentError",
     "__version__",
 ]

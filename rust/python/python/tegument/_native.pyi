@@ -33,3 +33,34 @@ class Mesh:
         """Vertices an artist should look at (non-manifold, degenerate, isolated)."""
     def report(self) -> dict[str, Any]:
         """Counts of everything unusual, plus ``is_closed_manifold`` and ``is_clean``."""
+
+class PyramidDeformer:
+    """Pyramid-coordinate deformer: keeps the local shape of the rest mesh on top
+    of whatever deformation the input positions carry (armature, shape keys).
+
+    Boundary, non-manifold and degenerate vertices cannot be encoded: they follow
+    the input and are listed in ``pinned_vertices``.
+    """
+
+    def __init__(
+        self,
+        rest_positions: npt.NDArray[np.float32],
+        corner_verts: npt.NDArray[np.int32],
+        polygon_sizes: npt.NDArray[np.int32],
+        scale_safe: bool = True,
+    ) -> None: ...
+    @property
+    def vertex_count(self) -> int:
+        """Number of vertices of the bound mesh."""
+    @property
+    def pinned_vertices(self) -> npt.NDArray[np.int32]:
+        """Vertices the bind could not encode (they follow the input), ascending."""
+    def solve(
+        self,
+        positions: npt.NDArray[np.float32],
+        iterations: int = 10,
+        closeness: float | npt.NDArray[np.float32] | None = None,
+    ) -> npt.NDArray[np.float32]:
+        """Solves one frame; ``closeness`` is None (0.1), a float or a float32 ``(N,)`` array in ``[0, 1]``."""
+    def residual(self, positions: npt.NDArray[np.float32]) -> float:
+        """Mean pyramid residual relative to the mean rest edge length (0 at rest)."""

@@ -1,0 +1,147 @@
+//! `tegument.PyramidDeformer`: bind a rest mesh, solve deformed frames.
+
+use std::sync::Mutex;
+
+use numpy::{PyArray1, PyArray2, PyUntypedArray};
+use pyo3::prelude::*;
+use tegument_core::mesh::MeshInput;
+use tegument_core::pyramid::{Closeness, DeformerOptions, PyramidDeformer as Core};
+
+use crate::convert::{float_array_arg, indices_to_py, int_array_arg, positions_arg, positions_to_py, run_detached, TegumentError};
+
+/// Pyramid-coordinate deformer: keeps the local shape of the rest mesh on top
+/// of whatever deformation the input positions carry (armature, shape keys).
+///
+/// ``rest_positions`` float32 ``(N, 3)``, ``corner_verts`` int32 ``(L,)`` and
+/// ``polygon_sizes`` int32 ``(P,)`` describe the mesh at rest in Blender's
+/// layout. ``scale_safe`` stores edge elevation angles instead of plain heights,
+/// so that a uniformly scaled input is reproduced exactly. Boundary,
+/// non-manifold and degenerate vertices cannot be encoded: they follow the
+/// input and are listed in ``pinned_vertices``. Raises ``TegumentError`` on
+/// bad input.
+#[pyclass(module = "tegument", name = "PyramidDeformer", frozen)]
+pub struct PyramidDeformer {
+    // A mutex rather than `&mut self`: solves run without the GIL, and another
+    // Python thread calling in meanwhile waits instead of getting an error.
+    inner: Mutex<Core>,
+    vertex_count: usize,
+}
+
+impl PyramidDeformer {
+    fn with<T: Send>(&self, py: Python<'_>, work: impl FnOnce(&mut Core) -> tegument_core::Result<T> + Send) -> PyResult<T> {
+        run_detached(py, || {
+            let mut core = self
+                .inner
+                .lock()
+                .map_err(|_| tegument_core::Error::Numerical("an earlier call on this deformer failed mid-way; bind again".into()))?;
+            work(&mut core)
+        })
+    }
+}
+
+#[pymethods]
+impl PyramidDeformer {
+    #[new]
+    #[pyo3(signature = (rest_positions, corner_verts, polygon_sizes, scale_safe = true))]
+    fn new(
+        py: Python<'_>,
+        rest_positions: &Bound<'_, PyAny>,
+        corner_verts: &Bound<'_, PyAny>,
+        polygon_sizes: &Bound<'_, PyAny>,
+        scale_safe: bool,
+    ) -> PyResult<Self> {
+        let positions = positions_arg("rest_positions", rest_positions, None)?;
+        let corner_verts = int_array_arg("corner_verts", corner_verts, None)?;
+        let polygon_sizes = int_array_arg("polygon_sizes", polygon_sizes, None)?;
+        let core = run_detached(py, || {
+            Core::bind(
+                MeshInput { positions: &positions, corner_verts: &corner_verts, polygon_sizes: &polygon_sizes },
+                DeformerOptions { scale_safe, ..DeformerOptions::default() },
+            )
+        })?;
+        Ok(PyramidDeformer { vertex_count: core.vertex_count(), inner: Mutex::new(core) })
+    }
+
+    /// Number of vertices of the bound mesh.
+    #[getter]
+    fn vertex_count(&self) -> usize {
+        self.vertex_count
+    }
+
+    /// int32 ``(K,)``: the vertices the bind could not encode (boundary,
+    /// non-manifold, degenerate or very high valence one-rings), ascending.
+    /// They follow the input positions exactly.
+    #[getter]
+    fn pinned_vertices<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<i32>>> {
+        let pinned = self.with(py, |core| Ok(core.pinned_vertices()))?;
+        Ok(indices_to_py(py, &pinned))
+    }
+
+    /// Solves one frame and returns float32 ``(N, 3)`` positions.
+    ///
+    /// ``positions`` is the deformed input, float32 ``(N, 3)``. ``closeness``
+    /// pulls each vertex towards its input: ``None`` (the default weight,
+    /// 0.1), a float in ``[0, 1]``, or a float32 ``(N,)`` array of per-vertex
+    /// weights in ``[0, 1]`` (1 = follow the input exactly, 0 = keep only the
+    /// local shape). Deterministic whatever the thread count.
+    #[pyo3(signature = (positions, iterations = 10, closeness = None))]
+    fn solve<'py>(
+        &self,
+        py: Python<'py>,
+        positions: &Bound<'py, PyAny>,
+        iterations: i64,
+        closeness: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let n = self.vertex_count;
+        let input = positions_arg("positions", positions, Some(n))?;
+        if iterations < 0 {
+            return Err(TegumentError::new_err(format!("iterations is {iterations}; it must be 0 or more")));
+        }
+        let weights = match closeness {
+            None => None,
+            Some(obj) if obj.cast::<PyUntypedArray>().is_ok() => Some(Weights::PerVertex(float_array_arg("closeness", obj, Some(n))?)),
+            Some(obj) if obj.is_instance_of::<pyo3::types::PyBool>() => {
+                return Err(TegumentError::new_err("closeness: expected None, a float or a float32 (N,) array; got a bool"))
+            }
+            Some(obj) => match obj.extract::<f64>() {
+                Ok(c) => Some(Weights::Uniform(c as f32)),
+                Err(_) => {
+                    let kind = obj.get_type().name().map(|s| s.to_string()).unwrap_or_default();
+                    return Err(TegumentError::new_err(format!(
+                        "closeness: expected None, a float or a float32 ({n},) array; got a {kind}"
+                    )));
+                }
+            },
+        };
+        let output = self.with(py, move |core| {
+            let closeness = match &weights {
+                None => Closeness::Default,
+                Some(Weights::Uniform(c)) => Closeness::Uniform(*c),
+                Some(Weights::PerVertex(w)) => Closeness::PerVertex(w),
+            };
+            core.solve(&input, iterations as usize, closeness)
+        })?;
+        Ok(positions_to_py(py, &output))
+    }
+
+    /// Mean pyramid residual of ``positions`` (float32 ``(N, 3)``): the mean
+    /// distance of each encoded vertex from where its one-ring puts it,
+    /// relative to the mean rest edge length. 0 at rest and under rigid motion.
+    fn residual(&self, py: Python<'_>, positions: &Bound<'_, PyAny>) -> PyResult<f64> {
+        let positions = positions_arg("positions", positions, Some(self.vertex_count))?;
+        Ok(self.with(py, move |core| core.residual(&positions))? as f64)
+    }
+
+    fn __repr__(&self) -> String {
+        format!("tegument.PyramidDeformer({} vertices)", self.vertex_count)
+    }
+}
+
+enum Weights {
+    Uniform(f32),
+    PerVertex(Vec<f32>),
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyramidDeformer>()
+}
