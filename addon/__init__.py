@@ -6,9 +6,10 @@ with whole-array ``foreach_get``/``foreach_set``, operators, panels. All
 per-vertex work happens in the wheel.
 """
 
-from . import operators, ui
+from . import cli, operators, ui
+from .deform import live, properties
 
-_modules = (operators, ui)
+_modules = (properties, operators, ui, live, cli)
 
 
 def register() -> None:

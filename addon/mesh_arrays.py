@@ -55,3 +55,19 @@ def _set_bool_attribute(mesh: bpy.types.Mesh, name: str, domain: str, values: np
     if attribute is None:
         attribute = mesh.attributes.new(name, "BOOLEAN", domain)
     attribute.data.foreach_set("value", values)
+
+
+def vertex_group_weights(mesh: bpy.types.Mesh, group_index: int) -> np.ndarray:
+    """Weights of one vertex group, float32 ``(N,)``, 0 where a vertex is not in it.
+
+    Blender exposes vertex-group weights to Python only per vertex (they are
+    not attributes, not even on the evaluated mesh), so this is the one
+    per-vertex loop in the add-on; it runs once per bake, not per frame.
+    """
+    weights = np.zeros(len(mesh.vertices), dtype=np.float32)
+    for vertex in mesh.vertices:
+        for element in vertex.groups:
+            if element.group == group_index:
+                weights[vertex.index] = element.weight
+                break
+    return weights

@@ -21,8 +21,12 @@ _user_resources = tempfile.mkdtemp(prefix="tegument-blender-user-")
 os.environ["BLENDER_USER_RESOURCES"] = _user_resources
 atexit.register(shutil.rmtree, _user_resources, ignore_errors=True)
 
+import sys  # noqa: E402
+
 import bpy  # noqa: E402  (must follow BLENDER_USER_RESOURCES)
 import pytest  # noqa: E402
+
+sys.path.insert(0, str(ROOT / "demo"))  # the procedural scenes are shared with the demo
 
 ADDON_MODULE = "bl_ext.user_default.tegument"
 

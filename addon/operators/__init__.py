@@ -3,9 +3,9 @@
 
 import bpy
 
-from . import check_mesh
+from . import check_mesh, deform
 
-_classes = (check_mesh.TEGUMENT_OT_check_mesh,)
+_classes = (check_mesh.TEGUMENT_OT_check_mesh, *deform.classes)
 
 
 def register() -> None:

@@ -5,6 +5,9 @@ import json
 
 import bpy
 
+from .. import pc2
+from ..deform import evaluate
+
 
 class TEGUMENT_PT_modifier(bpy.types.Panel):
     bl_label = "Tegument"
@@ -19,10 +22,42 @@ class TEGUMENT_PT_modifier(bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
+        obj = context.object
+        settings = obj.tegument
+        if evaluate.tegument_modifier(obj) is None:
+            layout.operator("tegument.deform_add", icon="MOD_MESHDEFORM")
+        else:
+            header = layout.row(align=True)
+            header.prop(settings, "enabled")
+            header.operator("tegument.deform_remove", text="", icon="X")
+            column = layout.column()
+            column.use_property_split = True
+            column.prop(settings, "iterations")
+            column.prop(settings, "closeness")
+            column.prop_search(settings, "closeness_group", obj, "vertex_groups")
+            column.prop(settings, "scale_safe")
+            column.prop(settings, "bind_source")
+            column.prop(settings, "collider_collection")
+            frames = column.column(align=True)
+            frames.prop(settings, "frame_start", text="Frame Start")
+            frames.prop(settings, "frame_end", text="End")
+            column.prop(settings, "cache_path")
+            column.prop(settings, "live")
+            buttons = layout.row(align=True)
+            buttons.operator("tegument.bind")
+            buttons.operator("tegument.bake", icon="REC")
+            buttons.operator("tegument.bake_frame")
+            buttons.operator("tegument.free_bake", icon="TRASH")
+            cached = pc2.frame_count(evaluate.cache_file(obj))
+            status = layout.column(align=True)
+            status.label(text=f"Bound: {settings.bound_vertices} vertices · cached: {cached} frames"
+                         + (f" · {settings.last_frame_ms:.1f} ms/frame" if settings.last_frame_ms else ""), icon="INFO")
+            if settings.warnings:
+                status.label(text=settings.warnings, icon="ERROR")
         layout.operator("tegument.check_mesh", icon="CHECKMARK")
         text = context.window_manager.tegument_check_result
         if text:
             result = json.loads(text)
-            if result.get("object") == context.object.name:
+            if result.get("object") == obj.name:
                 state = "closed manifold" if result["is_closed_manifold"] else "open" if result["is_clean"] else "has problems"
                 layout.label(text=f"Last check: {state}", icon="INFO")

@@ -1,0 +1,220 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Bake jobs: solve frames in order and stream them into the PC2 cache.
+
+One job serves every path a bake can take — the blocking operator in
+background mode, the modal operator in the UI (one frame per timer event),
+``bake_frame``, live playback and the command line — so they cannot drift
+apart. A job owns its cache writer: until it commits, the existing cache is
+untouched; cancelling commits the frames done, failing discards them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+
+import bpy
+import numpy as np
+
+from .. import mesh_arrays, pc2
+from . import evaluate
+from .evaluate import DeformError
+
+# Deformers are cheap to rebuild but not free (topology + encoding of every
+# vertex); live playback reuses them while the bind is unchanged.
+_deformers: dict[tuple, object] = {}
+
+
+def build_deformer(obj):
+    """The ``tegument.PyramidDeformer`` for the object's bind (cached per bind)."""
+    import tegument
+
+    rest = evaluate.rest_positions(obj)
+    mesh = obj.data
+    if len(rest) != len(mesh.vertices):
+        raise DeformError(
+            f"{obj.name}: the mesh has {len(mesh.vertices)} vertices but was bound with {len(rest)}: rebind it"
+        )
+    corners = mesh_arrays.corner_verts(mesh)
+    sizes = mesh_arrays.polygon_sizes(mesh)
+    key = (obj.session_uid, obj.tegument.scale_safe, rest.tobytes().__hash__(), corners.tobytes().__hash__(), sizes.tobytes().__hash__())
+    deformer = _deformers.get(key)
+    if deformer is None:
+        try:
+            deformer = tegument.PyramidDeformer(rest, corners, sizes, scale_safe=obj.tegument.scale_safe)
+        except tegument.TegumentError as error:
+            raise DeformError(f"{obj.name}: {error}") from None
+        _deformers.clear()  # one bind at a time is the common case; keep memory bounded
+        _deformers[key] = deformer
+    return deformer, rest
+
+
+class BakeJob:
+    """Solves ``frames`` of ``obj`` into a new cache, one frame per :meth:`step`."""
+
+    def __init__(self, context, obj, frames: range, *, keep_existing: bool = False):
+        self.scene = context.scene
+        self.obj = obj
+        self.frames = frames
+        self.settings = obj.tegument
+        if evaluate.tegument_modifier(obj) is None:
+            raise DeformError(f"{obj.name} has no Tegument modifier: use Add Pyramid Deform (tegument.deform_add)")
+        if len(frames) == 0:
+            raise DeformError(f"{obj.name}: the frame range {frames.start}–{frames.stop - 1} is empty")
+        self.deformer, self.rest = build_deformer(obj)
+        self.closeness = evaluate.closeness_weights(obj)
+        self.path = evaluate.cache_file(obj)
+        self.start_frame = self.settings.frame_start
+        self.frame_before = self.scene.frame_current
+        self.times: list[float] = []
+        self._existing = None
+        self.done = 0
+        self._stack = contextlib.ExitStack()
+        self._stack.enter_context(evaluate.upstream_only(obj))
+        try:
+            self.writer = pc2.Writer(self.path, len(self.rest), start=self.start_frame)
+            if keep_existing and pc2.frame_count(self.path):
+                existing = pc2.read(self.path)[0]
+                # A cache of another bind (other vertex count) has nothing to keep.
+                self._existing = existing if existing.shape[1] == len(self.rest) else None
+            if self._existing is not None:
+                self._copy_existing(frames.start - self.start_frame)
+        except BaseException:
+            self._stack.close()
+            raise
+
+    def _copy_existing(self, count: int) -> None:
+        """Keeps the first ``count`` frames of the current cache (for partial bakes)."""
+        if count <= 0:
+            return
+        existing = self._existing
+        if existing.shape[1] != len(self.rest) or len(existing) < count:
+            raise DeformError(f"{self.obj.name}: the cache does not hold the frames before {self.frames.start}")
+        for frame in existing[:count]:
+            self.writer.append(frame)
+
+    @property
+    def finished(self) -> bool:
+        return self.done >= len(self.frames)
+
+    @property
+    def current_frame(self) -> int:
+        return self.frames[min(self.done, len(self.frames) - 1)]
+
+    def step(self) -> int:
+        """Solves and writes the next frame; returns it."""
+        frame = self.frames[self.done]
+        started = time.perf_counter()
+        self.writer.append(solve_frame(self.scene, self.obj, frame, self.deformer, self.closeness))
+        self.times.append(time.perf_counter() - started)
+        self.done += 1
+        return frame
+
+    def eta_seconds(self) -> float:
+        if not self.times:
+            return float("nan")
+        return float(np.mean(self.times)) * (len(self.frames) - self.done)
+
+    def commit(self) -> None:
+        """Keeps the frames done as the cache (a cancelled bake is a valid, shorter cache)."""
+        try:
+            if self.finished and self._existing is not None:
+                # A partial re-bake keeps the cached frames after it.
+                for frame in self._existing[self.writer.frames:]:
+                    self.writer.append(frame)
+            if self.writer.frames:
+                self.writer.commit()
+            else:
+                self.writer.abort()
+        finally:
+            self._restore()
+        if self.times:
+            self.settings.last_frame_ms = 1000.0 * float(np.mean(self.times))
+        modifier = evaluate.tegument_modifier(self.obj)
+        modifier.filepath = self.settings.cache_path
+        modifier.frame_start = self.start_frame
+        self.obj.update_tag()
+
+    def abort(self) -> None:
+        """Discards everything this job wrote; the previous cache stays as it was."""
+        self.writer.abort()
+        self._restore()
+
+    def _restore(self) -> None:
+        self._stack.close()
+        self.scene.frame_set(self.frame_before)
+
+
+def solve_frame(scene, obj, frame: int, deformer, closeness) -> np.ndarray:
+    """Object-space result of one frame; the caller hides Tegument's modifier."""
+    import tegument
+
+    scene.frame_set(frame)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    local, world = evaluate.evaluated_positions(obj, depsgraph)
+    if len(local) != deformer.vertex_count:
+        raise DeformError(
+            f"{obj.name}: at frame {frame} the modifier stack above Tegument gives {len(local)} vertices, "
+            f"but the bind has {deformer.vertex_count}: a modifier above Tegument changes the topology "
+            "(move it below Tegument, or rebind)"
+        )
+    if not np.isfinite(world).all():
+        vertex = int(np.argwhere(~np.isfinite(world))[0][0])
+        raise DeformError(f"{obj.name}: at frame {frame} the input position of vertex {vertex} is not finite")
+    matrix = obj.evaluated_get(depsgraph).matrix_world
+    try:
+        solved = deformer.solve(world, iterations=obj.tegument.iterations, closeness=closeness)
+    except tegument.TegumentError as error:
+        raise DeformError(f"{obj.name}, frame {frame}: {error}") from None
+    return evaluate.to_local(solved, matrix)
+
+
+@contextlib.contextmanager
+def sigint_requests_cancel():
+    """Ctrl-C (SIGINT) during the block sets the returned flag instead of raising.
+
+    A KeyboardInterrupt raised in the middle of Blender's frame evaluation
+    could land inside a handler, where Blender swallows it; a flag checked
+    between frames always stops the bake cleanly after the current frame.
+    """
+    import signal
+    import threading
+
+    requested = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield requested
+        return
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: requested.set())
+    try:
+        yield requested
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def bake_blocking(context, obj, frames: range, *, report=print, keep_existing: bool = False) -> tuple[int, bool]:
+    """Bakes in the foreground with one progress line per frame; Ctrl-C keeps the frames done.
+
+    Returns ``(frames written, cancelled)``.
+    """
+    job = BakeJob(context, obj, frames, keep_existing=keep_existing)
+    wm = context.window_manager
+    wm.progress_begin(0, len(frames))
+    try:
+        with sigint_requests_cancel() as cancel:
+            while not job.finished and not cancel.is_set():
+                frame = job.step()
+                wm.progress_update(job.done)
+                report(
+                    f"Tegument: {obj.name} frame {frame} ({job.done}/{len(frames)}) "
+                    f"{1000 * job.times[-1]:.1f} ms, ETA {job.eta_seconds():.1f} s"
+                )
+            cancelled = not job.finished
+    except BaseException:
+        job.abort()
+        raise
+    finally:
+        wm.progress_end()
+    if cancelled:
+        report(f"Tegument: bake of {obj.name} cancelled; keeping the {job.done} frames done")
+    job.commit()
+    return job.writer.frames, cancelled

@@ -1,0 +1,99 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""What one frame of Pyramid Deform reads from Blender: rest, input, weights."""
+
+from __future__ import annotations
+
+import contextlib
+
+import bpy
+import numpy as np
+
+from .. import mesh_arrays
+from .properties import MODIFIER_NAME, REST_ATTRIBUTE
+
+
+class DeformError(ValueError):
+    """Something about the object or its settings that stops a bind or bake."""
+
+
+def tegument_modifier(obj) -> bpy.types.Modifier | None:
+    modifier = obj.modifiers.get(MODIFIER_NAME)
+    return modifier if modifier is not None and modifier.type == "MESH_CACHE" else None
+
+
+@contextlib.contextmanager
+def upstream_only(obj):
+    """Within the block, the object evaluates to the stack *above* Tegument's modifier.
+
+    The Tegument Mesh Cache modifier and every modifier below it are hidden
+    from the viewport evaluation, then restored exactly as they were.
+    """
+    hidden = []
+    below = False
+    for modifier in obj.modifiers:
+        below = below or modifier.name == MODIFIER_NAME
+        if below and modifier.show_viewport:
+            hidden.append(modifier)
+    try:
+        for modifier in hidden:
+            modifier.show_viewport = False
+        yield
+    finally:
+        for modifier in hidden:
+            modifier.show_viewport = True
+
+
+def evaluated_positions(obj, depsgraph) -> tuple[np.ndarray, np.ndarray]:
+    """``(local (N, 3), world (N, 3))`` positions of the evaluated object."""
+    evaluated = obj.evaluated_get(depsgraph)
+    mesh = evaluated.to_mesh()
+    try:
+        local = mesh_arrays.positions(mesh)
+    finally:
+        evaluated.to_mesh_clear()
+    return local, to_world(local, evaluated.matrix_world)
+
+
+def to_world(local: np.ndarray, matrix) -> np.ndarray:
+    m = np.array(matrix, dtype=np.float64)
+    return (local @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
+
+
+def to_local(world: np.ndarray, matrix) -> np.ndarray:
+    m = np.linalg.inv(np.array(matrix, dtype=np.float64))
+    return (world @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
+
+
+def rest_positions(obj) -> np.ndarray:
+    """The bound rest positions (object space), or a DeformError saying to bind."""
+    attribute = obj.data.attributes.get(REST_ATTRIBUTE)
+    if attribute is None or attribute.data_type != "FLOAT_VECTOR" or attribute.domain != "POINT":
+        raise DeformError(f"{obj.name} is not bound: press Bind (tegument.bind) first")
+    rest = np.empty((len(attribute.data), 3), dtype=np.float32)
+    attribute.data.foreach_get("vector", rest.ravel())
+    return rest
+
+
+def store_rest(obj, rest: np.ndarray) -> None:
+    """Stores the rest positions in the mesh so the bind survives save and reload."""
+    mesh = obj.data
+    attribute = mesh.attributes.get(REST_ATTRIBUTE)
+    if attribute is not None:
+        mesh.attributes.remove(attribute)
+    attribute = mesh.attributes.new(REST_ATTRIBUTE, "FLOAT_VECTOR", "POINT")
+    attribute.data.foreach_set("vector", np.ascontiguousarray(rest, dtype=np.float32).ravel())
+
+
+def closeness_weights(obj) -> float | np.ndarray:
+    """Closeness per vertex: the setting, scaled by the closeness group where one is named."""
+    settings = obj.tegument
+    if not settings.closeness_group:
+        return float(settings.closeness)
+    group = obj.vertex_groups.get(settings.closeness_group)
+    if group is None:
+        raise DeformError(f"{obj.name}: the closeness vertex group \"{settings.closeness_group}\" does not exist")
+    return (settings.closeness * mesh_arrays.vertex_group_weights(obj.data, group.index)).astype(np.float32)
+
+
+def cache_file(obj) -> str:
+    return bpy.path.abspath(obj.tegument.cache_path)

@@ -1,0 +1,85 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""``obj.tegument``: the Pyramid Deform settings and status of one object.
+
+These names are Tegument's public interface for scripts; keep them stable.
+"""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+
+MODIFIER_NAME = "Tegument"
+REST_ATTRIBUTE = "tegument_rest"
+
+
+# Blender 4.5 made blend-relative ("//") paths an explicit option of path properties.
+_RELATIVE_PATH = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set()
+
+
+def _enabled_changed(settings, context):
+    obj = settings.id_data
+    modifier = obj.modifiers.get(MODIFIER_NAME)
+    if modifier is not None:
+        modifier.show_viewport = modifier.show_render = settings.enabled
+
+
+class TEGUMENT_PG_deform(bpy.types.PropertyGroup):
+    enabled: BoolProperty(
+        name="Enabled", default=True, update=_enabled_changed,
+        description="Show Tegument's cached result (the Mesh Cache modifier named Tegument)",
+    )
+    iterations: IntProperty(
+        name="Iterations", default=10, min=1, max=500,
+        description="Solver iterations per frame: more keeps the rest shape better, at a higher cost",
+    )
+    closeness: FloatProperty(
+        name="Closeness", default=0.05, min=0.0, max=1.0, subtype="FACTOR",
+        description="How strongly each vertex is pulled towards the upstream (rig) position; "
+        "1 follows the rig exactly, 0 keeps only the rest shape",
+    )
+    closeness_group: StringProperty(
+        name="Closeness Group",
+        description="Vertex group whose weights scale Closeness per vertex (empty: the same everywhere)",
+    )
+    scale_safe: BoolProperty(
+        name="Scale Safe", default=True,
+        description="Encode the height of each vertex as angles so the shape survives uniform scaling",
+    )
+    bind_source: EnumProperty(
+        name="Bind Pose",
+        items=(
+            ("ORIGINAL", "Original", "Bind to the mesh's own vertex positions"),
+            ("EVALUATED", "Evaluated", "Bind to the positions the modifier stack produces at the current frame"),
+        ),
+        default="ORIGINAL",
+    )
+    collider_collection: PointerProperty(
+        name="Colliders", type=bpy.types.Collection,
+        description="Mesh objects the skin must not pass through",
+    )
+    frame_start: IntProperty(name="Start", default=1, description="First frame of the bake")
+    frame_end: IntProperty(name="End", default=250, description="Last frame of the bake")
+    cache_path: StringProperty(
+        name="Cache", subtype="FILE_PATH", default="//tegument/object.pc2", options=_RELATIVE_PATH,
+        description="PC2 point cache the bake writes and the Mesh Cache modifier plays back",
+    )
+    live: BoolProperty(
+        name="Live", default=False,
+        description="Solve and cache each frame as the timeline advances by one frame",
+    )
+
+    # Status, written by bind and bake, shown in the panel.
+    bound_vertices: IntProperty(name="Bound Vertices", default=0, options={"HIDDEN"})
+    last_frame_ms: FloatProperty(name="Time per Frame", default=0.0, options={"HIDDEN"})
+    warnings: StringProperty(name="Warnings", default="", options={"HIDDEN"})
+
+
+def register() -> None:
+    bpy.utils.register_class(TEGUMENT_PG_deform)
+    bpy.types.Object.tegument = PointerProperty(type=TEGUMENT_PG_deform)
+
+
+def unregister() -> None:
+    del bpy.types.Object.tegument
+    bpy.utils.unregister_class(TEGUMENT_PG_deform)

@@ -1,0 +1,273 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Pyramid Deform operators: add, bind, bake, bake one frame, free, remove.
+
+Every failure becomes a ``self.report`` message and ``{'CANCELLED'}``; the
+cache and the mesh are left as they were.
+"""
+
+from __future__ import annotations
+
+import os
+
+import bpy
+import numpy as np
+
+from .. import mesh_arrays, pc2
+from ..deform import bake, evaluate
+from ..deform.evaluate import DeformError
+from ..deform.properties import MODIFIER_NAME
+
+_EXPECTED = (DeformError, pc2.CacheError)
+
+
+def _mesh_poll(cls, context) -> bool:
+    obj = context.active_object
+    if obj is None or obj.type != "MESH":
+        cls.poll_message_set("The active object must be a mesh")
+        return False
+    return True
+
+
+def _deformed_poll(cls, context) -> bool:
+    if not _mesh_poll(cls, context):
+        return False
+    if evaluate.tegument_modifier(context.active_object) is None:
+        cls.poll_message_set("The active object has no Tegument modifier (Add Pyramid Deform first)")
+        return False
+    return True
+
+
+def bind(context, obj) -> str:
+    """Stores the rest pose and checks it can be encoded; returns a status message."""
+    import tegument
+
+    if obj.tegument.bind_source == "EVALUATED":
+        with evaluate.upstream_only(obj):
+            rest, _ = evaluate.evaluated_positions(obj, context.evaluated_depsgraph_get())
+        if len(rest) != len(obj.data.vertices):
+            raise DeformError(
+                f"{obj.name}: the modifier stack gives {len(rest)} vertices, the mesh has {len(obj.data.vertices)}; "
+                "bind to the original positions or move topology-changing modifiers below Tegument"
+            )
+    else:
+        rest = mesh_arrays.positions(obj.data)
+    corners = mesh_arrays.corner_verts(obj.data)
+    sizes = mesh_arrays.polygon_sizes(obj.data)
+    try:
+        deformer = tegument.PyramidDeformer(rest, corners, sizes, scale_safe=obj.tegument.scale_safe)
+        report = tegument.Mesh(rest, corners, sizes).report()
+    except tegument.TegumentError as error:
+        raise DeformError(f"{obj.name}: {error}") from None
+    evaluate.store_rest(obj, rest)
+    obj.tegument.bound_vertices = len(rest)
+    pinned = len(deformer.pinned_vertices)
+    warnings = []
+    if pinned:
+        warnings.append(f"{pinned} vertices follow the rig (boundary or irregular one-ring)")
+    if not report["is_clean"]:
+        warnings.append("the mesh has non-manifold parts (run Check Mesh)")
+    obj.tegument.warnings = "; ".join(warnings)
+    return f"Bound {obj.name}: {len(rest)} vertices" + (f" ({'; '.join(warnings)})" if warnings else "")
+
+
+class TEGUMENT_OT_deform_add(bpy.types.Operator):
+    """Add Pyramid Deform to the active mesh: bind its rest shape and add the Mesh Cache modifier that plays the bake back"""
+
+    bl_idname = "tegument.deform_add"
+    bl_label = "Add Pyramid Deform"
+    bl_options = {"REGISTER", "UNDO"}
+
+    poll = classmethod(_mesh_poll)
+
+    def execute(self, context):
+        obj = context.active_object
+        if evaluate.tegument_modifier(obj) is not None:
+            self.report({"WARNING"}, f"{obj.name} already has Pyramid Deform")
+            return {"CANCELLED"}
+        settings = obj.tegument
+        if settings.cache_path in ("", "//tegument/object.pc2"):
+            settings.cache_path = f"//tegument/{bpy.path.clean_name(obj.name)}.pc2"
+        settings.frame_start, settings.frame_end = context.scene.frame_start, context.scene.frame_end
+        try:
+            message = bind(context, obj)
+        except _EXPECTED as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        modifier = obj.modifiers.new(MODIFIER_NAME, "MESH_CACHE")
+        modifier.cache_format = "PC2"
+        modifier.filepath = settings.cache_path
+        modifier.frame_start = settings.frame_start
+        self.report({"INFO"}, message)
+        return {"FINISHED"}
+
+
+class TEGUMENT_OT_deform_remove(bpy.types.Operator):
+    """Remove Pyramid Deform from the active mesh: its modifier and its bind (the cache file stays on disk)"""
+
+    bl_idname = "tegument.deform_remove"
+    bl_label = "Remove Pyramid Deform"
+    bl_options = {"REGISTER", "UNDO"}
+
+    poll = classmethod(_deformed_poll)
+
+    def execute(self, context):
+        obj = context.active_object
+        obj.modifiers.remove(evaluate.tegument_modifier(obj))
+        attribute = obj.data.attributes.get(evaluate.REST_ATTRIBUTE)
+        if attribute is not None:
+            obj.data.attributes.remove(attribute)
+        obj.tegument.bound_vertices = 0
+        obj.tegument.warnings = ""
+        self.report({"INFO"}, f"Removed Pyramid Deform from {obj.name}")
+        return {"FINISHED"}
+
+
+class TEGUMENT_OT_bind(bpy.types.Operator):
+    """Bind: store the current rest shape that Pyramid Deform preserves (rebinding replaces it)"""
+
+    bl_idname = "tegument.bind"
+    bl_label = "Bind"
+    bl_options = {"REGISTER", "UNDO"}
+
+    poll = classmethod(_mesh_poll)
+
+    def execute(self, context):
+        try:
+            self.report({"INFO"}, bind(context, context.active_object))
+        except _EXPECTED as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        return {"FINISHED"}
+
+
+class TEGUMENT_OT_bake(bpy.types.Operator):
+    """Bake Pyramid Deform over the frame range into the point cache (Esc cancels and keeps the frames done)"""
+
+    bl_idname = "tegument.bake"
+    bl_label = "Bake"
+
+    poll = classmethod(_deformed_poll)
+
+    def _frames(self, obj) -> range:
+        return range(obj.tegument.frame_start, obj.tegument.frame_end + 1)
+
+    def execute(self, context):
+        obj = context.active_object
+        try:
+            written, cancelled = bake.bake_blocking(context, obj, self._frames(obj))
+        except _EXPECTED as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        self.report({"WARNING" if cancelled else "INFO"},
+                    f"{'Cancelled' if cancelled else 'Baked'} {obj.name}: {written} frames, "
+                    f"{obj.tegument.last_frame_ms:.1f} ms per frame")
+        return {"CANCELLED"} if cancelled else {"FINISHED"}
+
+    def invoke(self, context, event):
+        if bpy.app.background or context.window is None:
+            return self.execute(context)
+        obj = context.active_object
+        try:
+            self._job = bake.BakeJob(context, obj, self._frames(obj))
+        except _EXPECTED as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(0.001, window=context.window)
+        wm.progress_begin(0, len(self._job.frames))
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        job = self._job
+        if event.type == "ESC":
+            return self._end(context, cancelled=True)
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        try:
+            job.step()
+        except _EXPECTED as error:
+            job.abort()
+            self._end(context, cancelled=True, failed=True)
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        context.window_manager.progress_update(job.done)
+        context.workspace.status_text_set(
+            f"Tegument: baking {job.obj.name}, frame {job.done}/{len(job.frames)}, ETA {job.eta_seconds():.0f} s (Esc to cancel)"
+        )
+        if job.finished:
+            return self._end(context, cancelled=False)
+        return {"RUNNING_MODAL"}
+
+    def _end(self, context, *, cancelled: bool, failed: bool = False):
+        wm = context.window_manager
+        wm.event_timer_remove(self._timer)
+        wm.progress_end()
+        context.workspace.status_text_set(None)
+        if not failed:
+            self._job.commit()
+            self.report({"WARNING" if cancelled else "INFO"},
+                        f"{'Cancelled' if cancelled else 'Baked'} {self._job.obj.name}: {self._job.writer.frames} frames")
+        return {"CANCELLED"} if cancelled else {"FINISHED"}
+
+
+class TEGUMENT_OT_bake_frame(bpy.types.Operator):
+    """Solve the current frame into the cache (and any frames missing before it)"""
+
+    bl_idname = "tegument.bake_frame"
+    bl_label = "Bake Frame"
+
+    poll = classmethod(_deformed_poll)
+
+    def execute(self, context):
+        obj = context.active_object
+        settings = obj.tegument
+        frame = context.scene.frame_current
+        if not settings.frame_start <= frame <= settings.frame_end:
+            self.report({"ERROR"}, f"frame {frame} is outside the bake range {settings.frame_start}–{settings.frame_end}")
+            return {"CANCELLED"}
+        cached = pc2.frame_count(evaluate.cache_file(obj))
+        first = min(settings.frame_start + cached, frame)
+        try:
+            bake.bake_blocking(context, obj, range(first, frame + 1), keep_existing=True,
+                               report=lambda line: None)
+        except _EXPECTED as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"Baked frame {frame} of {obj.name}")
+        return {"FINISHED"}
+
+
+class TEGUMENT_OT_free_bake(bpy.types.Operator):
+    """Delete the point cache of the active object"""
+
+    bl_idname = "tegument.free_bake"
+    bl_label = "Free Bake"
+    bl_options = {"REGISTER", "UNDO"}
+
+    poll = classmethod(_deformed_poll)
+
+    def execute(self, context):
+        obj = context.active_object
+        path = evaluate.cache_file(obj)
+        try:
+            os.remove(path)
+        except FileNotFoundError:
+            self.report({"INFO"}, f"{obj.name} has no cache to free")
+            return {"CANCELLED"}
+        except OSError as error:
+            self.report({"ERROR"}, f"cannot delete {path}: {error.strerror}")
+            return {"CANCELLED"}
+        obj.update_tag()
+        self.report({"INFO"}, f"Freed the cache of {obj.name}")
+        return {"FINISHED"}
+
+
+classes = (
+    TEGUMENT_OT_deform_add,
+    TEGUMENT_OT_deform_remove,
+    TEGUMENT_OT_bind,
+    TEGUMENT_OT_bake,
+    TEGUMENT_OT_bake_frame,
+    TEGUMENT_OT_free_bake,
+)
