@@ -6,6 +6,7 @@
 
 use pyo3::prelude::*;
 
+mod collide;
 mod convert;
 mod mesh;
 mod pyramid;
@@ -17,6 +18,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("TegumentError", m.py().get_type::<TegumentError>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     mesh::register(m)?;
+    collide::register(m)?;
     pyramid::register(m)?;
     Ok(())
 }

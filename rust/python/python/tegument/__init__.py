@@ -8,11 +8,13 @@ float32 positions of shape ``(N, 3)``, int32 indices, in Blender's mesh layout
 what is wrong and where.
 """
 
-from ._native import Mesh, PyramidDeformer, TegumentError, __version__
+from ._native import Collider, Mesh, PyramidDeformer, TegumentError, __version__, audit
 
 __all__ = [
+    "Collider",
     "Mesh",
     "PyramidDeformer",
     "TegumentError",
     "__version__",
+    "audit",
 ]

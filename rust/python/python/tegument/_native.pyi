@@ -1,6 +1,6 @@
 """Typed stubs of the native module (kept in step with the Rust docstrings)."""
 
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -64,3 +64,78 @@ class PyramidDeformer:
         """Solves one frame; ``closeness`` is None (0.1), a float or a float32 ``(N,)`` array in ``[0, 1]``."""
     def residual(self, positions: npt.NDArray[np.float32]) -> float:
         """Mean pyramid residual relative to the mean rest edge length (0 at rest)."""
+
+class Collider:
+    """A kinematic triangle-mesh collider that keeps last frame's positions.
+
+    ``positions`` is float32 ``(N, 3)`` in world space, ``triangles`` int32
+    ``(T, 3)``. ``thickness`` is the distance kept between skin and surface;
+    ``friction`` the static friction coefficient (and the kinetic one unless
+    ``kinetic_friction`` is given). Call :meth:`update` once per frame with the
+    new world positions: the collider then moves from the previous positions
+    to these over the frame, which is what continuous collision detection sees.
+    """
+
+    def __init__(
+        self,
+        positions: npt.NDArray[np.float32],
+        triangles: npt.NDArray[np.int32],
+        thickness: float = 0.0,
+        friction: float = 0.0,
+        kinetic_friction: float | None = None,
+    ) -> None: ...
+    def update(self, positions: npt.NDArray[np.float32]) -> dict[str, Any]:
+        """Next frame: current positions become the previous ones; ``positions`` (same N)
+        the current ones. Refits the BVH (rebuilds it when degraded). Returns
+        ``{"cost_ratio": float, "rebuilt": bool}``."""
+    def hold(self) -> None:
+        """Forgets the motion (previous = current), e.g. after a jump in time."""
+    @property
+    def vertex_count(self) -> int:
+        """Number of vertices."""
+    @property
+    def triangle_count(self) -> int:
+        """Number of triangles."""
+    @property
+    def thickness(self) -> float:
+        """Distance kept between the skin and the surface."""
+    @property
+    def friction(self) -> float:
+        """Static friction coefficient."""
+    @property
+    def kinetic_friction(self) -> float:
+        """Kinetic friction coefficient."""
+    @property
+    def is_closed(self) -> bool:
+        """Whether every edge has exactly two triangles (the audit's inside test needs it)."""
+    @property
+    def positions(self) -> npt.NDArray[np.float32]:
+        """This frame's positions ``(N, 3)``."""
+    @property
+    def previous_positions(self) -> npt.NDArray[np.float32]:
+        """Last frame's positions ``(N, 3)``."""
+    @property
+    def triangles(self) -> npt.NDArray[np.int32]:
+        """Triangles ``(T, 3)``."""
+    def edges(self) -> npt.NDArray[np.int32]:
+        """Unique edges ``(E, 2)``; rows referred to by the audit's collider edge indices."""
+    @property
+    def bvh_rebuilds(self) -> int:
+        """How many times the BVH was rebuilt because refitting had degraded it."""
+
+def audit(
+    positions: npt.NDArray[np.float32],
+    corner_verts: npt.NDArray[np.int32],
+    polygon_sizes: npt.NDArray[np.int32],
+    colliders: Sequence[Collider],
+    depth_tolerance: float = 1e-4,
+) -> dict[str, Any]:
+    """Penetration audit of a mesh against colliders at their current positions.
+
+    Returns counts ``vertices_inside`` (inside a closed collider deeper than
+    ``depth_tolerance``), ``edges_crossing`` (mesh edges through collider
+    triangles), ``collider_edges_crossing`` (collider edges through mesh polygons),
+    the index arrays ``vertices_inside_indices`` ``(K,)``, ``edges_crossing_indices``
+    ``(K, 2)``, ``collider_edges_crossing_indices`` ``(K, 2)`` (collider, edge), and
+    ``open_colliders`` (skipped by the inside test).
+    """

@@ -1,0 +1,249 @@
+//! `tegument.Collider` and `tegument.audit`: kinematic colliders and the
+//! penetration audit.
+
+use glam::Vec3;
+use numpy::ndarray::Array2;
+use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PySequence};
+use tegument_core::collide::{audit as core_audit, AuditParams, Collider as CoreCollider, ColliderSettings};
+use tegument_core::mesh::MeshInput;
+
+use crate::convert::{indices_to_py, int_array_arg, positions_arg, positions_to_py, rows_to_py, run_detached, TegumentError};
+
+/// `(T, 3)` int32 triangle indices, C-contiguous.
+fn triangles_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<Vec<[u32; 3]>> {
+    let describe = || match obj.cast::<PyUntypedArray>() {
+        Ok(a) => {
+            let dtype = a.dtype().str().map(|s| s.to_string()).unwrap_or_default();
+            let layout = if a.is_c_contiguous() { "" } else { ", not C-contiguous" };
+            format!("{dtype} {:?}{layout}", a.shape())
+        }
+        Err(_) => format!("a {}", obj.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into())),
+    };
+    let fail = || TegumentError::new_err(format!("{name}: expected int32 (T, 3), C-contiguous; got {}", describe()));
+    let array = obj.cast::<PyArrayDyn<i32>>().map_err(|_| fail())?;
+    if array.ndim() != 2 || array.shape()[1] != 3 || !array.is_c_contiguous() {
+        return Err(fail());
+    }
+    let readonly = array
+        .try_readonly()
+        .map_err(|e| TegumentError::new_err(format!("{name}: the array is being written elsewhere ({e})")))?;
+    let flat = readonly.as_slice().map_err(|e| TegumentError::new_err(format!("{name}: {e}")))?;
+    crate::convert::py_result(tegument_core::collide::collider::triangles_from_flat(flat))
+}
+
+fn settings(thickness: f32, friction: f32, kinetic_friction: Option<f32>) -> ColliderSettings {
+    ColliderSettings { thickness, static_friction: friction, kinetic_friction: kinetic_friction.unwrap_or(friction) }
+}
+
+/// A kinematic triangle-mesh collider that keeps last frame's positions.
+///
+/// ``positions`` is float32 ``(N, 3)`` in world space, ``triangles`` int32
+/// ``(T, 3)``. ``thickness`` is the distance kept between skin and surface;
+/// ``friction`` the static friction coefficient (and the kinetic one unless
+/// ``kinetic_friction`` is given). Call :meth:`update` once per frame with the
+/// new world positions: the collider then moves from the previous positions
+/// to these over the frame, which is what continuous collision detection sees.
+#[pyclass(module = "tegument", name = "Collider")]
+pub struct Collider {
+    pub inner: CoreCollider,
+}
+
+#[pymethods]
+impl Collider {
+    #[new]
+    #[pyo3(signature = (positions, triangles, thickness=0.0, friction=0.0, kinetic_friction=None))]
+    fn new(
+        py: Python<'_>,
+        positions: &Bound<'_, PyAny>,
+        triangles: &Bound<'_, PyAny>,
+        thickness: f32,
+        friction: f32,
+        kinetic_friction: Option<f32>,
+    ) -> PyResult<Self> {
+        let positions = positions_arg("positions", positions, None)?;
+        let triangles = triangles_arg("triangles", triangles)?;
+        let settings = settings(thickness, friction, kinetic_friction);
+        let inner = run_detached(py, || CoreCollider::new(&positions, &triangles, settings))?;
+        Ok(Collider { inner })
+    }
+
+    /// Next frame: the current positions become the previous ones and
+    /// ``positions`` (float32 ``(N, 3)``, same N) the current ones. The BVH is
+    /// refitted, and rebuilt when refitting has degraded it. Returns
+    /// ``{"cost_ratio": float, "rebuilt": bool}``.
+    fn update<'py>(&mut self, py: Python<'py>, positions: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyDict>> {
+        let count = self.inner.vertex_count();
+        let given = positions.cast::<PyUntypedArray>().ok().filter(|a| a.ndim() == 2).map(|a| a.shape()[0]);
+        if let Some(given) = given {
+            if given != count {
+                return Err(TegumentError::new_err(format!("collider had {count} vertices, update gave {given}")));
+            }
+        }
+        let positions: Vec<Vec3> = positions_arg("positions", positions, Some(count))?;
+        let inner = &mut self.inner;
+        let report = run_detached(py, move || inner.update(&positions))?;
+        let dict = PyDict::new(py);
+        dict.set_item("cost_ratio", report.cost_ratio)?;
+        dict.set_item("rebuilt", report.rebuilt)?;
+        Ok(dict)
+    }
+
+    /// Forgets the motion (previous = current), e.g. after a jump in time.
+    fn hold(&mut self, py: Python<'_>) -> PyResult<()> {
+        let inner = &mut self.inner;
+        run_detached(py, move || inner.hold().map(|_| ()))
+    }
+
+    /// Number of vertices.
+    #[getter]
+    fn vertex_count(&self) -> usize {
+        self.inner.vertex_count()
+    }
+
+    /// Number of triangles.
+    #[getter]
+    fn triangle_count(&self) -> usize {
+        self.inner.triangles().len()
+    }
+
+    /// Distance kept between the skin and the surface.
+    #[getter]
+    fn thickness(&self) -> f32 {
+        self.inner.settings().thickness
+    }
+
+    /// Static friction coefficient.
+    #[getter]
+    fn friction(&self) -> f32 {
+        self.inner.settings().static_friction
+    }
+
+    /// Kinetic friction coefficient.
+    #[getter]
+    fn kinetic_friction(&self) -> f32 {
+        self.inner.settings().kinetic_friction
+    }
+
+    /// Whether every edge has exactly two triangles (the audit's inside test
+    /// applies only to closed colliders).
+    #[getter]
+    fn is_closed(&self) -> bool {
+        self.inner.is_closed()
+    }
+
+    /// This frame's positions, float32 ``(N, 3)``.
+    #[getter]
+    fn positions<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
+        positions_to_py(py, self.inner.current())
+    }
+
+    /// Last frame's positions, float32 ``(N, 3)``.
+    #[getter]
+    fn previous_positions<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
+        positions_to_py(py, self.inner.previous())
+    }
+
+    /// Triangles, int32 ``(T, 3)``.
+    #[getter]
+    fn triangles<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<i32>> {
+        rows_to_py(py, self.inner.triangles())
+    }
+
+    /// Unique edges, int32 ``(E, 2)``; the audit's ``collider_edges_crossing_indices``
+    /// refer to these rows.
+    fn edges<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<i32>> {
+        rows_to_py(py, self.inner.edges())
+    }
+
+    /// How many times the BVH was rebuilt because refitting had degraded it.
+    #[getter]
+    fn bvh_rebuilds(&self) -> usize {
+        self.inner.tree().rebuild_count()
+    }
+
+    fn __repr__(&self) -> String {
+        let s = self.inner.settings();
+        format!(
+            "tegument.Collider({} vertices, {} triangles, thickness={}, friction={}, kinetic_friction={})",
+            self.inner.vertex_count(),
+            self.inner.triangles().len(),
+            s.thickness,
+            s.static_friction,
+            s.kinetic_friction
+        )
+    }
+}
+
+/// Penetration audit of a mesh against colliders at their current positions.
+///
+/// ``positions`` float32 ``(N, 3)``, ``corner_verts`` and ``polygon_sizes`` int32
+/// in Blender's layout, ``colliders`` a sequence of :class:`Collider`. Counts
+/// vertices inside a closed collider deeper than ``depth_tolerance``, mesh edges
+/// crossing a collider triangle, and collider edges crossing a mesh polygon.
+/// Returns a dict with the counts ``vertices_inside``, ``edges_crossing``,
+/// ``collider_edges_crossing``, the index arrays ``vertices_inside_indices``
+/// ``(K,)``, ``edges_crossing_indices`` ``(K, 2)`` (vertex pairs),
+/// ``collider_edges_crossing_indices`` ``(K, 2)`` (collider, edge row of
+/// :meth:`Collider.edges`), and ``open_colliders`` (colliders skipped by the
+/// inside test because they are not closed).
+#[pyfunction]
+#[pyo3(signature = (positions, corner_verts, polygon_sizes, colliders, depth_tolerance=1e-4))]
+pub fn audit<'py>(
+    py: Python<'py>,
+    positions: &Bound<'py, PyAny>,
+    corner_verts: &Bound<'py, PyAny>,
+    polygon_sizes: &Bound<'py, PyAny>,
+    colliders: &Bound<'py, PyAny>,
+    depth_tolerance: f32,
+) -> PyResult<Bound<'py, PyDict>> {
+    let positions = positions_arg("positions", positions, None)?;
+    let corner_verts = int_array_arg("corner_verts", corner_verts, None)?;
+    let polygon_sizes = int_array_arg("polygon_sizes", polygon_sizes, None)?;
+    let refs = collider_refs(colliders)?;
+    let cols: Vec<&CoreCollider> = refs.iter().map(|r| &r.inner).collect();
+    let params = AuditParams { depth_tolerance };
+    let report = run_detached(py, || {
+        core_audit(MeshInput { positions: &positions, corner_verts: &corner_verts, polygon_sizes: &polygon_sizes }, &cols, &params)
+    })?;
+    let dict = PyDict::new(py);
+    dict.set_item("vertices_inside", report.vertices_inside.len())?;
+    dict.set_item("edges_crossing", report.edges_crossing.len())?;
+    dict.set_item("collider_edges_crossing", report.collider_edges_crossing.len())?;
+    dict.set_item("vertices_inside_indices", indices_to_py(py, &report.vertices_inside))?;
+    dict.set_item("edges_crossing_indices", rows_to_py(py, &report.edges_crossing))?;
+    let pairs: Vec<i32> = report.collider_edges_crossing.iter().flat_map(|&(c, e)| [c as i32, e as i32]).collect();
+    let pairs = Array2::from_shape_vec((report.collider_edges_crossing.len(), 2), pairs)
+        .map_err(|e| TegumentError::new_err(format!("internal error: {e}")))?;
+    dict.set_item("collider_edges_crossing_indices", pairs.into_pyarray(py))?;
+    dict.set_item("open_colliders", report.open_colliders.iter().map(|&c| c as usize).collect::<Vec<_>>())?;
+    Ok(dict)
+}
+
+/// Borrows every element of a sequence of `Collider`, naming the first that is not one.
+pub fn collider_refs<'py>(colliders: &Bound<'py, PyAny>) -> PyResult<Vec<PyRef<'py, Collider>>> {
+    let seq = colliders.cast::<PySequence>().map_err(|_| {
+        TegumentError::new_err(format!(
+            "colliders: expected a sequence of tegument.Collider, got {}",
+            colliders.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into())
+        ))
+    })?;
+    let mut out = Vec::new();
+    for i in 0..seq.len()? {
+        let item = seq.get_item(i)?;
+        let collider = item.extract::<PyRef<'py, Collider>>().map_err(|_| {
+            TegumentError::new_err(format!(
+                "colliders[{i}]: expected a tegument.Collider, got {}",
+                item.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into())
+            ))
+        })?;
+        out.push(collider);
+    }
+    Ok(out)
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Collider>()?;
+    m.add_function(wrap_pyfunction!(audit, m)?)
+}
