@@ -19,6 +19,22 @@ HERE = pathlib.Path(__file__).resolve().parent
 ROOT = HERE.parent
 
 
+def side_by_side(bpy, paths, target: pathlib.Path) -> str:
+    """Joins renders left to right into one PNG (through Blender's own image I/O)."""
+    import numpy as np
+
+    images = [bpy.data.images.load(str(p)) for p in paths]
+    width, height = images[0].size
+    pixels = [np.array(image.pixels[:], dtype=np.float32).reshape(height, width, 4) for image in images]
+    joined = np.concatenate(pixels, axis=1)
+    result = bpy.data.images.new(target.stem, width * len(images), height, alpha=True)
+    result.pixels.foreach_set(joined.ravel())
+    result.filepath_raw = str(target)
+    result.file_format = "PNG"
+    result.save()
+    return str(target)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--out", type=pathlib.Path, default=ROOT / "out" / "demo")
@@ -61,7 +77,7 @@ def main() -> int:
         scene.clear()
         bpy.ops.preferences.addon_enable(module="bl_ext.user_default.tegument")
         limb, rig = scene.build_limb()
-        scene.animate_bend(rig)
+        scene.animate_bend(rig, 1, 24, angle_deg=70, twist_deg=160)
         body = scene.build_body()
         scene.add_camera_and_light()
         info.update(limb_vertices=len(limb.data.vertices), body_vertices=len(body.data.vertices))
@@ -72,17 +88,33 @@ def main() -> int:
             bpy.ops.tegument.check_mesh()
             info[obj.name] = json.loads(bpy.context.window_manager.tegument_check_result)
 
+    with stage("pyramid_deform") as info:
+        bpy.context.view_layer.objects.active = limb
+        limb.tegument.cache_path = str(out / "Limb.pc2")
+        bpy.ops.tegument.deform_add()
+        limb.tegument.frame_start, limb.tegument.frame_end = 1, 24
+        limb.tegument.closeness = 0.01
+        limb.tegument.iterations = 60
+        if bpy.ops.tegument.bake() != {"FINISHED"}:
+            sys.exit("error: the Pyramid Deform bake failed")
+        info.update(frames=24, ms_per_frame=round(limb.tegument.last_frame_ms, 2), cache=limb.tegument.cache_path,
+                    warnings=limb.tegument.warnings)
+
     with stage("render") as info:
         render = bpy.context.scene.render
         render.engine = "CYCLES"
         bpy.context.scene.cycles.samples = 16
         bpy.context.scene.cycles.device = "CPU"
         render.resolution_x, render.resolution_y = 480, 320
-        for frame in (1, 24):
-            bpy.context.scene.frame_set(frame)
-            render.filepath = str(out / f"skinning_frame{frame:03d}.png")
+        bpy.context.scene.frame_set(24)
+        pictures = []
+        for label, show in (("skinning", False), ("tegument", True)):
+            limb.modifiers["Tegument"].show_render = show
+            render.filepath = str(out / f"{label}_frame024.png")
             bpy.ops.render.render(write_still=True)
-            info[f"frame {frame}"] = render.filepath
+            pictures.append(render.filepath)
+        limb.modifiers["Tegument"].show_render = True
+        info["side_by_side"] = side_by_side(bpy, pictures, out / "pyramid_deform_before_after.png")
 
     blend = out / "demo.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))

@@ -69,12 +69,12 @@ def build_limb(name: str = "Limb", segments: int = 48, rings: int = 64, radius: 
     return limb, rig
 
 
-def animate_bend(rig, frame_start: int = 1, frame_end: int = 24, angle_deg: float = 100.0) -> None:
-    """Bends the lower bone from straight to `angle_deg` over the frame range."""
+def animate_bend(rig, frame_start: int = 1, frame_end: int = 24, angle_deg: float = 100.0, twist_deg: float = 0.0) -> None:
+    """Bends the lower bone from straight to `angle_deg` (and twists it about its length) over the frame range."""
     bone = rig.pose.bones["Lower"]
-    bone.rotation_mode = "XYZ"
-    for frame, angle in ((frame_start, 0.0), (frame_end, math.radians(angle_deg))):
-        bone.rotation_euler = (0.0, 0.0, angle)
+    bone.rotation_mode = "YXZ"  # twist about the bone's own axis (Y) first, then bend
+    for frame, bend, twist in ((frame_start, 0.0, 0.0), (frame_end, math.radians(angle_deg), math.radians(twist_deg))):
+        bone.rotation_euler = (0.0, twist, bend)
         bone.keyframe_insert("rotation_euler", frame=frame)
 
 
@@ -86,9 +86,10 @@ def build_body(name: str = "Body", location=(0.9, 0.9, 0.0), radius: float = 0.6
 
 
 def add_camera_and_light(target=(0.2, 0.3, 0.0)) -> None:
-    bpy.ops.object.camera_add(location=(target[0], target[1] - 0.4, 5.0))
+    # Looking down at an angle, so both the bend and the thinning of a twisted joint show.
+    bpy.ops.object.camera_add(location=(target[0], target[1] - 3.2, 3.6))
     camera = bpy.context.active_object
-    camera.rotation_euler = (math.radians(5), 0.0, 0.0)
+    camera.rotation_euler = (math.radians(42), 0.0, 0.0)
     bpy.context.scene.camera = camera
     bpy.ops.object.light_add(type="SUN", location=(0, 0, 5))
     bpy.context.active_object.data.energy = 3.0
