@@ -241,3 +241,49 @@ def test_headless_command(limb, capfd):
     assert obj.modifiers["Tegument"].frame_start == 2.0
     assert cli.main(["bake", "--objects", "Nope"]) == 2
     assert "no object named Nope" in capfd.readouterr().err
+
+
+def test_cache_writer_refuses_nan_and_leaves_nothing_behind(tmp_path):
+    from bl_ext.user_default.tegument import pc2
+
+    target = tmp_path / "cache.pc2"
+    good = np.zeros((2, 4, 3), np.float32)
+    pc2.write(target, good, start=1)
+    before = target.read_bytes()
+    bad = good.copy()
+    bad[1, 3, 0] = np.nan
+    with pytest.raises(pc2.CacheError, match="vertex 3 of cache frame 1 is not finite"):
+        pc2.write(target, bad, start=1)
+    assert target.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["cache.pc2"]
+    frames, start, sampling = pc2.read(target)
+    assert frames.shape == (2, 4, 3) and start == 1.0 and sampling == 1.0
+    target.write_bytes(before[:-5])
+    with pytest.raises(pc2.CacheError, match="truncated"):
+        pc2.read(target)
+
+
+def test_unwritable_cache_path_is_a_clear_error(limb, tmp_path):
+    obj, _ = limb
+    bpy.ops.tegument.deform_add()
+    blocker = tmp_path / "not_a_folder"
+    blocker.write_text("a file where the cache folder should be")
+    obj.tegument.cache_path = str(blocker / "Limb.pc2")
+    mesh_before = np.array([v.co[:] for v in obj.data.vertices])
+    with pytest.raises(RuntimeError, match=r"cannot write the cache"):
+        bpy.ops.tegument.bake()
+    assert blocker.read_text() == "a file where the cache folder should be"
+    assert np.array_equal(mesh_before, np.array([v.co[:] for v in obj.data.vertices]))
+
+
+def test_missing_closeness_group_and_unbound_mesh_are_reported(limb):
+    obj, _ = limb
+    bpy.ops.tegument.deform_add()
+    obj.tegument.closeness_group = "renamed"
+    with pytest.raises(RuntimeError, match='closeness vertex group "renamed" does not exist'):
+        bpy.ops.tegument.bake()
+    obj.tegument.closeness_group = ""
+    obj.data.attributes.remove(obj.data.attributes["tegument_rest"])
+    with pytest.raises(RuntimeError, match=r"Limb is not bound: press Bind"):
+        bpy.ops.tegument.bake()
+    assert not pathlib.Path(bpy.path.abspath(obj.tegument.cache_path)).exists()
