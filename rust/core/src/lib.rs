@@ -9,6 +9,7 @@ pub mod error;
 pub mod mesh;
 pub mod pyramid;
 pub mod solve;
+pub mod warp;
 
 pub use error::{Error, Result};
 pub use mesh::{MeshInput, Topology, TopologyReport};

@@ -1,0 +1,455 @@
+//! The "must show" tests of the UV warp.
+
+use glam::{Vec2, Vec3};
+
+use super::fixtures::{bend, rectangles, uv_cylinder, UvPolyMesh};
+use super::*;
+
+const N: usize = 128;
+
+fn cylinder() -> UvPolyMesh {
+    uv_cylinder(64, 32, 1.0, std::f32::consts::TAU, 0.1)
+}
+
+/// Bent so that the +X side squashes to half and the −X side stretches to 1.5.
+fn bent(m: &UvPolyMesh, amount: f32) -> Vec<Vec3> {
+    bend(&m.positions, 2, 0, 0.0, 0.0, 0.5 * amount)
+}
+
+/// Rigid squares on the squashed side (+X: u = 0.7) and the stretched side (−X: u = 0.3).
+fn squares() -> Vec<f32> {
+    let s = 0.06;
+    rectangles(N, N, &[(0.7 - s, 0.5 - s, 0.7 + s, 0.5 + s), (0.3 - s, 0.5 - s, 0.3 + s, 0.5 + s)])
+}
+
+fn settings(warm: bool) -> WarpSettings {
+    WarpSettings { iterations: 8, warm_start: warm, ..Default::default() }
+}
+
+fn cylinder_warp(warm: bool) -> (UvPolyMesh, UvWarp) {
+    let m = cylinder();
+    let r = squares();
+    let warp = UvWarp::new(m.input(), &m.corner_uvs, N, N, &[TileMaps { udim: 1001, rigidity: &r, mask: None }], settings(warm)).unwrap();
+    (m, warp)
+}
+
+#[test]
+fn rest_equals_deformed_gives_the_identity() {
+    let (m, mut warp) = cylinder_warp(false);
+    warp.solve(&m.positions).unwrap();
+    let met = &warp.metrics(&m.positions).unwrap()[0];
+    assert!(met.max_displacement < 0.01, "{met:?}");
+    assert!(met.round_trip_max < 0.01, "{met:?}");
+    // The redirection is the identity too.
+    let tile = &warp.tiles[0];
+    for (i, uv) in tile.redirection.chunks(2).enumerate() {
+        let (x, y) = (i % N, i / N);
+        assert!((uv[0] - (x as f32 + 0.5) / N as f32).abs() < 1e-5 && (uv[1] - (y as f32 + 0.5) / N as f32).abs() < 1e-5);
+    }
+}
+
+#[test]
+fn bent_cylinder_rigid_squares_keep_their_size() {
+    let (m, mut warp) = cylinder_warp(false);
+    let def = bent(&m, 1.0);
+    warp.solve(&def).unwrap();
+    let met = &warp.metrics(&def).unwrap()[0];
+    eprintln!("{met:#?}");
+    assert!(met.rigid_texels > 400, "{met:?}");
+    assert!(met.stretch_identity.mean > 0.3, "the fixture must actually distort the squares: {met:?}");
+    assert!(
+        met.stretch_warped.mean * 3.0 <= met.stretch_identity.mean,
+        "mean rigid stretch error {} is not 3× below the identity's {}",
+        met.stretch_warped.mean,
+        met.stretch_identity.mean
+    );
+    assert!(met.stretch_warped.p95 < met.stretch_identity.p95 / 2.0, "{met:?}");
+    // Masked texels never move, no fold-overs, round trip below half a texel.
+    assert_eq!(met.max_masked_displacement, 0.0);
+    assert_eq!(met.foldovers, 0);
+    assert!(met.round_trip_max < 0.5, "{met:?}");
+    assert!(met.max_displacement > 2.0, "the warp must actually move texels: {met:?}");
+}
+
+#[test]
+fn user_mask_fixes_texels() {
+    let m = cylinder();
+    let r = squares();
+    // Fix a band through the squashed square's neighbourhood.
+    let mut mask = vec![1.0f32; N * N];
+    for y in 0..N {
+        for x in 80..84 {
+            mask[y * N + x] = 0.0;
+        }
+    }
+    let mut warp = UvWarp::new(m.input(), &m.corner_uvs, N, N, &[TileMaps { udim: 1001, rigidity: &r, mask: Some(&mask) }], settings(false)).unwrap();
+    let def = bent(&m, 1.0);
+    warp.solve(&def).unwrap();
+    let (dx, dy) = warp.tiles[0].displacement();
+    for y in 0..N {
+        for x in 80..84 {
+            assert_eq!((dx[y * N + x], dy[y * N + x]), (0.0, 0.0), "texel ({x}, {y}) is masked but moved");
+        }
+    }
+    // Outside charts and on chart borders nothing moves either.
+    let layout = &warp.tiles[0].layout;
+    for i in 0..N * N {
+        if layout.interior[i] == 0 {
+            assert_eq!((dx[i], dy[i]), (0.0, 0.0), "texel {i} is outside the chart interior but moved");
+        }
+    }
+    assert!(dx.iter().any(|&d| d.abs() > 1.0), "the rest of the grid still warps");
+}
+
+#[test]
+fn temporal_coherence_small_change_small_warp_change() {
+    let (m, mut warp) = cylinder_warp(true);
+    // Converge at the first pose.
+    for _ in 0..6 {
+        warp.solve(&bent(&m, 1.0)).unwrap();
+    }
+    let snap = |w: &UvWarp| {
+        let (dx, dy) = w.tiles[0].displacement();
+        (dx.to_vec(), dy.to_vec())
+    };
+    let max_diff = |a: &(Vec<f32>, Vec<f32>), b: &(Vec<f32>, Vec<f32>)| {
+        a.0.iter().zip(&b.0).chain(a.1.iter().zip(&b.1)).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max)
+    };
+    let base = snap(&warp);
+    let total = base.0.iter().zip(&base.1).map(|(x, y)| (x * x + y * y).sqrt()).fold(0.0f32, f32::max);
+    // Same pose again: the warm start barely moves.
+    warp.solve(&bent(&m, 1.0)).unwrap();
+    let still = max_diff(&base, &snap(&warp));
+    // 1% more bend.
+    let mut w1 = warp.clone();
+    w1.solve(&bent(&m, 1.01)).unwrap();
+    let d1 = max_diff(&snap(&warp), &snap(&w1));
+    // 4% more bend.
+    let mut w4 = warp.clone();
+    w4.solve(&bent(&m, 1.04)).unwrap();
+    let d4 = max_diff(&snap(&warp), &snap(&w4));
+    eprintln!("total {total} still {still} d1 {d1} d4 {d4}");
+    assert!(total > 2.0);
+    assert!(still < 0.05 * total, "same pose moved the warp by {still} texels (warp size {total})");
+    // A 1% change of the bend changes the warp by a bounded multiple of 1% of its size.
+    assert!(d1 < 0.5 && d1 < 5.0 * 0.01 * total, "1% more bend moved the warp by {d1} texels (warp size {total})");
+    assert!(d4 < 5.0 * 0.04 * total, "4% more bend moved the warp by {d4} texels (warp size {total})");
+}
+
+#[test]
+fn results_do_not_depend_on_the_thread_count() {
+    let (m, warp) = cylinder_warp(true);
+    let run = |threads: usize| {
+        let mut w = warp.clone();
+        rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
+            w.solve(&bent(&m, 0.8)).unwrap();
+            w.solve(&bent(&m, 1.0)).unwrap();
+        });
+        let t = &w.tiles[0];
+        (t.displacement().0.to_vec(), t.displacement().1.to_vec(), t.redirection.clone())
+    };
+    let one = run(1);
+    for threads in [2, 3, 7] {
+        let other = run(threads);
+        assert!(one.0.iter().zip(&other.0).all(|(a, b)| a.to_bits() == b.to_bits()), "dx differs with {threads} threads");
+        assert!(one.1.iter().zip(&other.1).all(|(a, b)| a.to_bits() == b.to_bits()), "dy differs with {threads} threads");
+        assert!(one.2.iter().zip(&other.2).all(|(a, b)| a.to_bits() == b.to_bits()), "redirection differs with {threads} threads");
+    }
+}
+
+#[test]
+fn reset_gives_the_same_result_as_a_fresh_cold_solve() {
+    let (m, mut warp) = cylinder_warp(true);
+    let fresh = {
+        let (_, mut w) = cylinder_warp(true);
+        w.solve(&bent(&m, 1.0)).unwrap();
+        w.tiles[0].redirection.clone()
+    };
+    warp.solve(&bent(&m, 0.5)).unwrap();
+    warp.reset();
+    warp.solve(&bent(&m, 1.0)).unwrap();
+    assert_eq!(warp.tiles[0].redirection, fresh);
+}
+
+#[test]
+fn layout_is_watertight_and_finds_the_chart() {
+    let (_, warp) = cylinder_warp(false);
+    let l = &warp.tiles[0].layout;
+    assert_eq!(l.overlaps, 0);
+    assert_eq!(warp.mesh.chart_count, 1);
+    // Every texel centre strictly inside the chart [0.1, 0.9]² is covered once.
+    for y in 0..N {
+        for x in 0..N {
+            let (u, v) = ((x as f32 + 0.5) / N as f32, (y as f32 + 0.5) / N as f32);
+            let inside = u > 0.1 && u < 0.9 && v > 0.1 && v < 0.9;
+            let outside = u < 0.1 || u > 0.9 || v < 0.1 || v > 0.9;
+            if inside {
+                assert_eq!(l.covered[y * N + x], 1, "({x}, {y})");
+            }
+            if outside {
+                assert_eq!(l.covered[y * N + x], 0, "({x}, {y})");
+            }
+        }
+    }
+    // Interpolated rest positions lie on the cylinder, also a few texels past the border.
+    let m = cylinder();
+    let fo = l.interpolate(&warp.mesh, &m.positions);
+    let mut outside_but_extended = 0;
+    for (i, p) in fo.iter().enumerate() {
+        if let Some(p) = p {
+            let r = (p.x * p.x + p.y * p.y).sqrt();
+            // On the surface inside (chords of 64 segments), linearly
+            // extrapolated along the tangent plane outside.
+            let tol = if l.covered[i] == 1 { 0.002 } else { 0.05 };
+            assert!((r - 1.0).abs() < tol, "texel {i}: radius {r}");
+            outside_but_extended += (l.covered[i] == 0) as usize;
+        }
+    }
+    assert!(outside_but_extended > 0);
+}
+
+#[test]
+fn bad_input_is_refused_with_a_message() {
+    let m = cylinder();
+    let r = squares();
+    let make = |w: usize, h: usize, uvs: &[Vec2], maps: &[TileMaps<'_>]| UvWarp::new(m.input(), uvs, w, h, maps, settings(false)).map(|_| ()).unwrap_err().to_string();
+    let ok = [TileMaps { udim: 1001, rigidity: &r, mask: None }];
+    assert!(make(100, 128, &m.corner_uvs, &ok).contains("power of two"));
+    assert!(make(N, N, &m.corner_uvs[1..], &ok).contains("corner_uvs has"));
+    let mut nan = m.corner_uvs.clone();
+    nan[7] = Vec2::new(f32::NAN, 0.0);
+    assert!(make(N, N, &nan, &ok).contains("corner 7"));
+    let short = vec![0.0; 10];
+    assert!(make(N, N, &m.corner_uvs, &[TileMaps { udim: 1001, rigidity: &short, mask: None }]).contains("shape (height=128, width=128)"));
+    let mut bad = r.clone();
+    bad[3 * N + 5] = f32::NAN;
+    assert!(make(N, N, &m.corner_uvs, &[TileMaps { udim: 1001, rigidity: &bad, mask: None }]).contains("(row 3, column 5)"));
+    assert!(make(N, N, &m.corner_uvs, &[]).contains("no rigidity map was given for it"));
+    let err = UvWarp::new(m.input(), &m.corner_uvs, 16384, 16384, &ok, settings(false)).unwrap_err().to_string();
+    assert!(err.contains("16384×16384") && err.contains("GiB"), "{err}");
+    let (_, mut warp) = cylinder_warp(false);
+    let err = warp.solve(&m.positions[1..]).unwrap_err().to_string();
+    assert!(err.contains("deformed positions has"), "{err}");
+    let mut p = m.positions.clone();
+    p[3].y = f32::INFINITY;
+    assert!(warp.solve(&p).unwrap_err().to_string().contains("vertex 3"));
+}
+
+#[test]
+fn udim_tiles_get_their_own_grids() {
+    let mut m = cylinder();
+    // Move the upper half of the polygons' UVs to tile 1002 (u + 1).
+    let quads = m.polygon_sizes.len();
+    for q in quads / 2..quads {
+        for c in 4 * q..4 * q + 4 {
+            m.corner_uvs[c].x += 1.0;
+        }
+    }
+    let r = squares();
+    let maps = [TileMaps { udim: 1001, rigidity: &r, mask: None }, TileMaps { udim: 1002, rigidity: &r, mask: None }];
+    let mut warp = UvWarp::new(m.input(), &m.corner_uvs, 64, 64, &[], settings(false)).map(|_| ()).unwrap_err();
+    assert!(warp.to_string().contains("1001"));
+    let r64 = rectangles(64, 64, &[(0.6, 0.6, 0.8, 0.8)]);
+    let maps64 = [TileMaps { udim: 1001, rigidity: &r64, mask: None }, TileMaps { udim: 1002, rigidity: &r64, mask: None }];
+    let _ = maps;
+    let mut w = UvWarp::new(m.input(), &m.corner_uvs, 64, 64, &maps64, settings(false)).unwrap();
+    assert_eq!(w.tiles.iter().map(|t| t.udim()).collect::<Vec<_>>(), vec![1001, 1002]);
+    w.solve(&bent(&m, 1.0)).unwrap();
+    let t2 = w.tile(1002).unwrap();
+    assert!(t2.redirection.chunks(2).all(|uv| uv[0] >= 1.0 && uv[0] <= 2.0), "tile 1002 redirects into its own tile");
+    for met in w.metrics(&bent(&m, 1.0)).unwrap() {
+        assert_eq!(met.foldovers, 0);
+        assert_eq!(met.max_masked_displacement, 0.0);
+    }
+    warp = Error::invalid("");
+    let _ = warp;
+}
+
+#[test]
+fn exr_round_trip_keeps_values_rows_and_metadata() {
+    let (m, mut warp) = cylinder_warp(false);
+    warp.solve(&bent(&m, 1.0)).unwrap();
+    let dir = std::env::temp_dir().join(format!("tegument-warp-exr-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("warp.1001.exr");
+    warp.write_exr(1001, &path).unwrap();
+    let (w, h, c, data, meta) = super::exr::read_exr(&path).unwrap();
+    assert_eq!((w, h, c), (N, N, 3));
+    let t = &warp.tiles[0];
+    for i in 0..N * N {
+        assert_eq!(data[3 * i], t.redirection[2 * i]);
+        assert_eq!(data[3 * i + 1], t.redirection[2 * i + 1]);
+        assert_eq!(data[3 * i + 2], t.layout.covered[i] as f32);
+    }
+    assert!(meta.contains(&("iterations".to_string(), "8".to_string())), "{meta:?}");
+    assert!(meta.iter().any(|(k, _)| k == "smoothing"));
+    // No temporary file left behind; NaN refused without touching the old file.
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
+    let before = std::fs::read(&path).unwrap();
+    let err = super::exr::write_exr(&path, 2, 1, 2, &[0.0, 1.0, f32::NAN, 0.0], &[]).unwrap_err();
+    assert!(err.to_string().contains("row 0, column 1"), "{err}");
+    assert_eq!(std::fs::read(&path).unwrap(), before);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+// ---- Spot -----------------------------------------------------------------
+
+fn spot_dir() -> Option<std::path::PathBuf> {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/meshes/spot");
+    if dir.join("spot_triangulated.obj").exists() && dir.join("spot_texture.png").exists() {
+        return Some(dir);
+    }
+    if std::env::var("CI").as_deref() == Ok("true") {
+        panic!("test data missing: {} (CI=true, so this is a failure, not a skip)", dir.display());
+    }
+    eprintln!("SKIPPED: Spot test data not found at {} (../shared/data relative to the project root)", dir.display());
+    None
+}
+
+/// Minimal OBJ reader: `v`, `vt`, `f` with `v/vt[/vn]` corners.
+fn read_obj(path: &std::path::Path) -> UvPolyMesh {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut m = UvPolyMesh::default();
+    let mut vts = Vec::new();
+    let mut faces: Vec<Vec<(usize, usize)>> = Vec::new();
+    for line in text.lines() {
+        let mut it = line.split_whitespace();
+        match it.next() {
+            Some("v") => {
+                let v: Vec<f32> = it.take(3).map(|s| s.parse().unwrap()).collect();
+                m.positions.push(Vec3::new(v[0], v[1], v[2]));
+            }
+            Some("vt") => {
+                let v: Vec<f32> = it.take(2).map(|s| s.parse().unwrap()).collect();
+                vts.push(Vec2::new(v[0], v[1]));
+            }
+            Some("f") => faces.push(
+                it.map(|c| {
+                    let mut p = c.split('/');
+                    (p.next().unwrap().parse::<usize>().unwrap() - 1, p.next().unwrap().parse::<usize>().unwrap() - 1)
+                })
+                .collect(),
+            ),
+            _ => {}
+        }
+    }
+    for f in faces {
+        m.polygon_sizes.push(f.len() as i32);
+        for (v, t) in f {
+            m.corner_verts.push(v as i32);
+            m.corner_uvs.push(vts[t]);
+        }
+    }
+    m
+}
+
+/// Minimal PNG reader (8-bit RGB/RGBA, non-interlaced) → (width, height, channels, top row first).
+fn read_png(path: &std::path::Path) -> (usize, usize, usize, Vec<u8>) {
+    let bytes = std::fs::read(path).unwrap();
+    assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n");
+    let (mut w, mut h, mut ch) = (0, 0, 0);
+    let mut idat = Vec::new();
+    let mut at = 8;
+    while at + 8 <= bytes.len() {
+        let len = u32::from_be_bytes(bytes[at..at + 4].try_into().unwrap()) as usize;
+        let kind = &bytes[at + 4..at + 8];
+        let body = &bytes[at + 8..at + 8 + len];
+        match kind {
+            b"IHDR" => {
+                w = u32::from_be_bytes(body[0..4].try_into().unwrap()) as usize;
+                h = u32::from_be_bytes(body[4..8].try_into().unwrap()) as usize;
+                assert_eq!(body[8], 8, "8-bit only");
+                ch = match body[9] {
+                    2 => 3,
+                    6 => 4,
+                    t => panic!("colour type {t}"),
+                };
+                assert_eq!(body[12], 0, "non-interlaced only");
+            }
+            b"IDAT" => idat.extend_from_slice(body),
+            _ => {}
+        }
+        at += 12 + len;
+    }
+    let raw = miniz_oxide::inflate::decompress_to_vec_zlib(&idat).unwrap();
+    let stride = w * ch;
+    let mut out = vec![0u8; h * stride];
+    for y in 0..h {
+        let filter = raw[y * (stride + 1)];
+        let line = &raw[y * (stride + 1) + 1..(y + 1) * (stride + 1)];
+        for x in 0..stride {
+            let a = if x >= ch { out[y * stride + x - ch] as i32 } else { 0 };
+            let b = if y > 0 { out[(y - 1) * stride + x] as i32 } else { 0 };
+            let c = if x >= ch && y > 0 { out[(y - 1) * stride + x - ch] as i32 } else { 0 };
+            let pred = match filter {
+                0 => 0,
+                1 => a,
+                2 => b,
+                3 => (a + b) / 2,
+                4 => {
+                    let p = a + b - c;
+                    let (pa, pb, pc) = ((p - a).abs(), (p - b).abs(), (p - c).abs());
+                    if pa <= pb && pa <= pc {
+                        a
+                    } else if pb <= pc {
+                        b
+                    } else {
+                        c
+                    }
+                }
+                f => panic!("filter {f}"),
+            };
+            out[y * stride + x] = (line[x] as i32 + pred) as u8;
+        }
+    }
+    (w, h, ch, out)
+}
+
+/// Rigidity from Spot's texture: texels whose colour is far from the skin
+/// colour (the spots, eyes, nostrils, hooves) are rigid. Box-filtered to the
+/// grid; row 0 = lowest v (the PNG's bottom row).
+pub(super) fn spot_rigidity(dir: &std::path::Path, n: usize) -> Vec<f32> {
+    let (w, h, ch, px) = read_png(&dir.join("spot_texture.png"));
+    let skin = [255.0, 236.0, 228.0];
+    let mut r = vec![0.0f32; n * n];
+    let (fx, fy) = (w / n, h / n);
+    for y in 0..n {
+        for x in 0..n {
+            let mut acc = 0.0;
+            for yy in 0..fy {
+                for xx in 0..fx {
+                    let py = h - 1 - (y * fy + yy);
+                    let p = &px[(py * w + x * fx + xx) * ch..];
+                    let d = ((p[0] as f32 - skin[0]).powi(2) + (p[1] as f32 - skin[1]).powi(2) + (p[2] as f32 - skin[2]).powi(2)).sqrt();
+                    acc += if d > 60.0 { 1.0 } else { 0.0 };
+                }
+            }
+            r[y * n + x] = acc / (fx * fy) as f32;
+        }
+    }
+    r
+}
+
+#[test]
+fn spot_under_a_bend_rigidity_from_its_texture() {
+    let Some(dir) = spot_dir() else { return };
+    let m = read_obj(&dir.join("spot_triangulated.obj"));
+    let n = 256;
+    let r = spot_rigidity(&dir, n);
+    let rigid = r.iter().filter(|&&v| v >= 0.5).count();
+    assert!(rigid > n * n / 20, "the feature mask should cover a good part of the texture ({rigid} texels)");
+    let mut warp = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &r, mask: None }], settings(false)).unwrap();
+    assert_eq!(warp.mesh.chart_count, 13, "Spot has 13 UV charts");
+    assert_eq!(warp.tiles.len(), 1);
+    // Bend the body (long axis z) around x; the back (y = 0.8) stretches by 1.4, the belly (y = -0.5) squashes.
+    let def = bend(&m.positions, 2, 1, 0.0, -0.7, 0.5);
+    warp.solve(&def).unwrap();
+    let met = &warp.metrics(&def).unwrap()[0];
+    eprintln!("{met:#?}");
+    assert!(met.stretch_identity.mean > 0.05, "the bend must distort features: {met:?}");
+    assert!(met.stretch_warped.mean < 0.9 * met.stretch_identity.mean, "rigid stretch error not reduced: {met:?}");
+    assert!(met.stretch_warped.p95 < met.stretch_identity.p95, "{met:?}");
+    assert_eq!(met.foldovers, 0, "{met:?}");
+    assert_eq!(met.max_masked_displacement, 0.0, "chart borders must stay fixed");
+    assert!(met.round_trip_max < 0.5, "{met:?}");
+}
