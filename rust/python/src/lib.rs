@@ -10,6 +10,7 @@ mod collide;
 mod convert;
 mod mesh;
 mod pyramid;
+mod warp;
 
 pub use convert::TegumentError;
 
@@ -20,5 +21,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     mesh::register(m)?;
     collide::register(m)?;
     pyramid::register(m)?;
+    warp::register(m)?;
     Ok(())
 }

@@ -8,13 +8,16 @@ float32 positions of shape ``(N, 3)``, int32 indices, in Blender's mesh layout
 what is wrong and where.
 """
 
-from ._native import Collider, Mesh, PyramidDeformer, TegumentError, __version__, audit
+from ._native import Collider, Mesh, PyramidDeformer, TegumentError, UvWarp, __version__, audit, read_exr, write_exr
 
 __all__ = [
     "Collider",
     "Mesh",
     "PyramidDeformer",
     "TegumentError",
+    "UvWarp",
     "__version__",
     "audit",
+    "read_exr",
+    "write_exr",
 ]

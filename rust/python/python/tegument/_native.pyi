@@ -1,5 +1,6 @@
 """Typed stubs of the native module (kept in step with the Rust docstrings)."""
 
+import os
 from typing import Any, Sequence
 
 import numpy as np
@@ -139,3 +140,71 @@ def audit(
     ``(K, 2)``, ``collider_edges_crossing_indices`` ``(K, 2)`` (collider, edge), and
     ``open_colliders`` (skipped by the inside test).
     """
+
+class UvWarp:
+    """Content-aware UV warp of one mesh (hierarchical position-based dynamics on a
+    UV-space grid, one grid per UDIM tile).
+
+    Images are float32 ``(height, width)`` arrays with row 0 = the lowest v
+    (texel ``(row j, column i)`` covers ``u ∈ [i/width, (i+1)/width)``,
+    ``v ∈ [j/height, (j+1)/height)``): Blender's ``Image.pixels`` order.
+    ``rigidity``/``mask`` may be a dict ``{udim: array}`` for UDIM layouts; then
+    the per-tile results are dicts too.
+    """
+
+    def __init__(
+        self,
+        width: int,
+        height: int,
+        rest_positions: npt.NDArray[np.float32],
+        corner_verts: npt.NDArray[np.int32],
+        polygon_sizes: npt.NDArray[np.int32],
+        corner_uvs: npt.NDArray[np.float32],
+        rigidity: npt.NDArray[np.float32] | dict[int, npt.NDArray[np.float32]],
+        mask: npt.NDArray[np.float32] | dict[int, npt.NDArray[np.float32]] | None = None,
+        iterations: int = 4,
+        orientation: float = 0.05,
+        smoothing: float = 0.1,
+        warm_start: bool = True,
+        memory_limit: int | None = None,
+        sample_warped: bool = False,
+    ) -> None: ...
+    def solve(self, deformed_positions: npt.NDArray[np.float32]) -> Any:
+        """Solve for this frame; returns the UV redirection ``(height, width, 2)`` float32
+        (absolute UVs: sample the texture at ``redirection(t)``), or ``{udim: array}``."""
+    def redirection(self) -> Any:
+        """The latest redirection, as ``solve`` returns it (identity before the first solve)."""
+    def validity(self) -> Any:
+        """``(height, width)`` float32: 1 inside UV charts, 0 outside."""
+    def displacement(self) -> Any:
+        """Forward warp as texel displacements ``(height, width, 2)``."""
+    def metrics(self, deformed_positions: npt.NDArray[np.float32]) -> dict[Any, Any]:
+        """Stretch error of rigid texels (identity vs warped: mean, p95, max), fold-overs,
+        largest masked displacement, round-trip error (texels)."""
+    def reset(self) -> None:
+        """Forget the previous frame: the next solve starts from the identity."""
+    def write_exr(self, path: str | os.PathLike[str], udim: int | None = None) -> None:
+        """Write the latest redirection (R, G = UV, B = validity, settings as metadata); atomic."""
+    @property
+    def tiles(self) -> list[int]:
+        """UDIM tiles the UVs touch."""
+    @property
+    def width(self) -> int: ...
+    @property
+    def height(self) -> int: ...
+    @property
+    def chart_count(self) -> int:
+        """Number of UV charts."""
+    def settings(self) -> dict[str, str]:
+        """The settings, as written into EXR metadata."""
+
+def write_exr(
+    path: str | os.PathLike[str],
+    array: npt.NDArray[np.float32],
+    metadata: dict[str, str] | None = None,
+) -> None:
+    """Write a float32 ``(height, width[, C])`` image (C ≤ 4; row 0 = lowest v) as OpenEXR;
+    refuses NaN/inf; atomic (temporary file, then rename)."""
+
+def read_exr(path: str | os.PathLike[str]) -> tuple[npt.NDArray[np.float32], dict[str, str]]:
+    """Read an OpenEXR image: ``(array (height, width, C) float32, metadata)``."""

@@ -1,0 +1,320 @@
+//! `tegument.UvWarp`, `tegument.write_exr`, `tegument.read_exr`: content-aware
+//! UV warps baked into redirection textures.
+//!
+//! Array convention: images are ``(height, width[, channels])`` float32,
+//! row-major, **row 0 is the lowest v** (texel ``(row j, column i)`` covers
+//! ``u ∈ [i/width, (i+1)/width)``, ``v ∈ [j/height, (j+1)/height)``), which is
+//! the order of Blender's ``Image.pixels``.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use glam::Vec2;
+use numpy::ndarray::{Array2, Array3};
+use numpy::IntoPyArray;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use tegument_core::mesh::MeshInput;
+use tegument_core::warp::{self, TileMaps, WarpSettings};
+
+use crate::convert::{float_grid_arg, int_array_arg, positions_arg, run_detached, TegumentError};
+
+/// Content-aware UV warp of one mesh (seed 001: hierarchical position-based
+/// dynamics on a UV-space grid).
+///
+/// ``width``, ``height``: grid size per UDIM tile, powers of two in [8, 16384].
+/// ``rest_positions`` float32 ``(N, 3)``; ``corner_verts`` int32 ``(L,)``;
+/// ``polygon_sizes`` int32 ``(P,)``; ``corner_uvs`` float32 ``(L, 2)`` in
+/// Blender's corner order. ``rigidity`` and ``mask``: float32 ``(height,
+/// width)`` in [0, 1] (row 0 = lowest v), or a dict ``{udim: array}`` when the
+/// UVs span several UDIM tiles. Rigidity 1 keeps texture detail rigid, 0 lets
+/// it stretch with the surface; mask 0 fixes texels (the mask is also 0
+/// automatically outside UV charts and on chart borders).
+///
+/// ``iterations``: PBD iterations on the finest level (coarser levels run
+/// more). ``orientation``: fraction in [0, 1] by which rigid segments turn back
+/// to their rest direction per iteration. ``smoothing``: the global smoothing
+/// factor of rigid regions, in [0, 1]. ``warm_start``: start each solve from the
+/// previous one (temporal coherence); ``False`` solves every frame from the
+/// identity, deterministically. ``memory_limit``: bytes (default 3 GiB); grids
+/// that would need more are refused with the amount they need.
+#[pyclass(module = "tegument", name = "UvWarp")]
+pub struct UvWarp {
+    inner: warp::UvWarp,
+    multi: bool,
+}
+
+/// A rigidity or mask argument: one array (tile 1001) or `{udim: array}`.
+fn tile_images(name: &str, obj: &Bound<'_, PyAny>, w: usize, h: usize) -> PyResult<BTreeMap<u32, Vec<f32>>> {
+    let mut out = BTreeMap::new();
+    if let Ok(dict) = obj.cast::<PyDict>() {
+        for (k, v) in dict.iter() {
+            let udim: u32 = k.extract().map_err(|_| TegumentError::new_err(format!("{name}: dict keys must be UDIM tile numbers (int), got {k}")))?;
+            let (_, data) = float_grid_arg(&format!("{name}[{udim}]"), &v, &[Some(h), Some(w)])?;
+            out.insert(udim, data);
+        }
+        if out.is_empty() {
+            return Err(TegumentError::new_err(format!("{name}: the dict is empty")));
+        }
+    } else {
+        let (_, data) = float_grid_arg(name, obj, &[Some(h), Some(w)])?;
+        out.insert(1001, data);
+    }
+    Ok(out)
+}
+
+fn size_arg(name: &str, v: i64) -> PyResult<usize> {
+    let ok = v > 0 && (v as u64).is_power_of_two() && (8..=16384).contains(&v);
+    if !ok {
+        return Err(TegumentError::new_err(format!("{name} must be a power of two between 8 and 16384, not {v}")));
+    }
+    Ok(v as usize)
+}
+
+fn metrics_dict<'py>(py: Python<'py>, m: &warp::WarpMetrics) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("udim", m.udim)?;
+    d.set_item("rigid_texels", m.rigid_texels)?;
+    for (prefix, s) in [("stretch_identity", m.stretch_identity), ("stretch_warped", m.stretch_warped)] {
+        d.set_item(format!("{prefix}_mean"), s.mean)?;
+        d.set_item(format!("{prefix}_p95"), s.p95)?;
+        d.set_item(format!("{prefix}_max"), s.max)?;
+    }
+    d.set_item("foldovers", m.foldovers)?;
+    d.set_item("max_masked_displacement", m.max_masked_displacement)?;
+    d.set_item("max_displacement", m.max_displacement)?;
+    d.set_item("round_trip_max", m.round_trip_max)?;
+    d.set_item("round_trip_mean", m.round_trip_mean)?;
+    Ok(d)
+}
+
+impl UvWarp {
+    /// One result per tile: the array itself for a single-tile warp, else `{udim: array}`.
+    fn per_tile<'py>(&self, py: Python<'py>, make: impl Fn(&warp::TileWarp) -> Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+        if !self.multi {
+            return Ok(make(&self.inner.tiles[0]));
+        }
+        let d = PyDict::new(py);
+        for t in &self.inner.tiles {
+            d.set_item(t.udim(), make(t))?;
+        }
+        Ok(d.into_any())
+    }
+}
+
+#[pymethods]
+impl UvWarp {
+    #[new]
+    #[pyo3(signature = (width, height, rest_positions, corner_verts, polygon_sizes, corner_uvs, rigidity, mask=None, iterations=4, orientation=0.05, smoothing=0.1, warm_start=true, memory_limit=None, sample_warped=false))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        width: i64,
+        height: i64,
+        rest_positions: &Bound<'_, PyAny>,
+        corner_verts: &Bound<'_, PyAny>,
+        polygon_sizes: &Bound<'_, PyAny>,
+        corner_uvs: &Bound<'_, PyAny>,
+        rigidity: &Bound<'_, PyAny>,
+        mask: Option<&Bound<'_, PyAny>>,
+        iterations: i64,
+        orientation: f32,
+        smoothing: f32,
+        warm_start: bool,
+        memory_limit: Option<u64>,
+        sample_warped: bool,
+    ) -> PyResult<Self> {
+        let (w, h) = (size_arg("width", width)?, size_arg("height", height)?);
+        if !(1..=10_000).contains(&iterations) {
+            return Err(TegumentError::new_err(format!("iterations must be between 1 and 10000, not {iterations}")));
+        }
+        let positions = positions_arg("rest_positions", rest_positions, None)?;
+        let corner_verts = int_array_arg("corner_verts", corner_verts, None)?;
+        let polygon_sizes = int_array_arg("polygon_sizes", polygon_sizes, None)?;
+        let (_, uv_flat) = float_grid_arg("corner_uvs", corner_uvs, &[Some(corner_verts.len()), Some(2)]).map_err(|e| {
+            TegumentError::new_err(format!("{} (one UV per face corner: the mesh has {} corners)", e.value(py), corner_verts.len()))
+        })?;
+        let uvs: Vec<Vec2> = uv_flat.chunks(2).map(|c| Vec2::new(c[0], c[1])).collect();
+        let rig = tile_images("rigidity", rigidity, w, h)?;
+        let masks = match mask {
+            Some(m) if !m.is_none() => tile_images("mask", m, w, h)?,
+            _ => BTreeMap::new(),
+        };
+        if let Some(udim) = masks.keys().find(|k| !rig.contains_key(k)) {
+            return Err(TegumentError::new_err(format!("mask given for UDIM tile {udim}, which has no rigidity map")));
+        }
+        let settings = WarpSettings {
+            iterations: iterations as u32,
+            orientation,
+            smoothing,
+            warm_start,
+            memory_limit: memory_limit.unwrap_or(warp::DEFAULT_MEMORY_LIMIT),
+            sample_warped,
+        };
+        let multi = rig.len() > 1;
+        let inner = run_detached(py, || {
+            let maps: Vec<TileMaps<'_>> = rig.iter().map(|(&udim, r)| TileMaps { udim, rigidity: r, mask: masks.get(&udim).map(|m| m.as_slice()) }).collect();
+            warp::UvWarp::new(
+                MeshInput { positions: &positions, corner_verts: &corner_verts, polygon_sizes: &polygon_sizes },
+                &uvs,
+                w,
+                h,
+                &maps,
+                settings,
+            )
+        })?;
+        Ok(UvWarp { inner, multi })
+    }
+
+    /// Solves the warp for this frame's ``deformed_positions`` (float32
+    /// ``(N, 3)``) and returns the UV redirection, float32 ``(height, width,
+    /// 2)``: for a surface point whose UV is ``t``, sample the texture at
+    /// ``redirection(t)`` (absolute UVs, UDIM offset included). For a warp
+    /// over several UDIM tiles, a dict ``{udim: array}``. Releases the GIL.
+    fn solve<'py>(&mut self, py: Python<'py>, deformed_positions: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+        let positions = positions_arg("deformed_positions", deformed_positions, Some(self.inner.mesh.vertex_count))?;
+        let inner = &mut self.inner;
+        run_detached(py, || inner.solve(&positions))?;
+        self.redirection(py)
+    }
+
+    /// The latest redirection (identity before the first solve), as ``solve`` returns it.
+    fn redirection<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let (w, h) = (self.inner.width, self.inner.height);
+        self.per_tile(py, |t| Array3::from_shape_vec((h, w, 2), t.redirection.clone()).expect("2·w·h floats").into_pyarray(py).into_any())
+    }
+
+    /// Validity, float32 ``(height, width)``: 1 inside UV charts, 0 outside.
+    fn validity<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let (w, h) = (self.inner.width, self.inner.height);
+        self.per_tile(py, |t| {
+            Array2::from_shape_vec((h, w), t.validity().iter().map(|&v| v as f32).collect()).expect("w·h values").into_pyarray(py).into_any()
+        })
+    }
+
+    /// The forward warp as displacements in texels, float32 ``(height, width,
+    /// 2)``: the texture detail at texel centre ``t`` is drawn at ``t + d``.
+    fn displacement<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let (w, h) = (self.inner.width, self.inner.height);
+        self.per_tile(py, |t| {
+            let (dx, dy) = t.displacement();
+            let flat: Vec<f32> = dx.iter().zip(dy).flat_map(|(&x, &y)| [x, y]).collect();
+            Array3::from_shape_vec((h, w, 2), flat).expect("2·w·h floats").into_pyarray(py).into_any()
+        })
+    }
+
+    /// Quality figures of the current warp (the last solve) measured against
+    /// ``deformed_positions``: rigid-region stretch error (mean, p95, max of
+    /// ``max(|log σ1|, |log σ2|)`` over texels with rigidity ≥ 0.5) for the
+    /// identity warp and the solved one, fold-overs, largest displacement of
+    /// masked texels, round-trip error in texels. A dict; for several tiles,
+    /// ``{udim: dict}``. Releases the GIL.
+    fn metrics<'py>(&self, py: Python<'py>, deformed_positions: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+        let positions = positions_arg("deformed_positions", deformed_positions, Some(self.inner.mesh.vertex_count))?;
+        let inner = &self.inner;
+        let all = run_detached(py, || inner.metrics(&positions))?;
+        if !self.multi {
+            return Ok(metrics_dict(py, &all[0])?.into_any());
+        }
+        let d = PyDict::new(py);
+        for m in &all {
+            d.set_item(m.udim, metrics_dict(py, m)?)?;
+        }
+        Ok(d.into_any())
+    }
+
+    /// Forgets the previous frame: the next ``solve`` starts from the identity.
+    fn reset(&mut self) {
+        self.inner.reset();
+    }
+
+    /// Writes the latest redirection of ``udim`` (default: the only tile) to
+    /// an OpenEXR file: float32 R, G = redirected UV, B = validity, the
+    /// settings as metadata. Atomic (temporary file, then rename).
+    #[pyo3(signature = (path, udim=None))]
+    fn write_exr(&self, py: Python<'_>, path: PathBuf, udim: Option<u32>) -> PyResult<()> {
+        let udim = match udim {
+            Some(u) => u,
+            None if !self.multi => self.inner.tiles[0].udim(),
+            None => {
+                return Err(TegumentError::new_err(format!(
+                    "this warp spans UDIM tiles {:?}: say which one to write (udim=...)",
+                    self.inner.tiles.iter().map(|t| t.udim()).collect::<Vec<_>>()
+                )))
+            }
+        };
+        let inner = &self.inner;
+        run_detached(py, || inner.write_exr(udim, &path))
+    }
+
+    /// UDIM tiles the UVs touch, ascending.
+    #[getter]
+    fn tiles(&self) -> Vec<u32> {
+        self.inner.tiles.iter().map(|t| t.udim()).collect()
+    }
+
+    /// Grid width per tile.
+    #[getter]
+    fn width(&self) -> usize {
+        self.inner.width
+    }
+
+    /// Grid height per tile.
+    #[getter]
+    fn height(&self) -> usize {
+        self.inner.height
+    }
+
+    /// Number of UV charts found (edges shared with identical UVs join charts).
+    #[getter]
+    fn chart_count(&self) -> usize {
+        self.inner.mesh.chart_count
+    }
+
+    /// The settings, as written into EXR metadata.
+    fn settings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        for (k, v) in self.inner.settings.describe() {
+            d.set_item(k, v)?;
+        }
+        Ok(d)
+    }
+
+    fn __repr__(&self) -> String {
+        format!("tegument.UvWarp({}×{}, tiles {:?}, {} charts)", self.inner.width, self.inner.height, self.tiles(), self.inner.mesh.chart_count)
+    }
+}
+
+/// Writes a float32 image ``(height, width)`` or ``(height, width, C)`` with
+/// 1 ≤ C ≤ 4 (channels R, G, B, A; row 0 = lowest v, stored top row first as
+/// EXR expects) to ``path``, with ``metadata`` (str → str) as attributes.
+/// Refuses NaN and infinities; atomic (temporary file, then rename).
+#[pyfunction]
+#[pyo3(signature = (path, array, metadata=None))]
+fn write_exr(py: Python<'_>, path: PathBuf, array: &Bound<'_, PyAny>, metadata: Option<BTreeMap<String, String>>) -> PyResult<()> {
+    let (shape, data) = match float_grid_arg("array", array, &[None, None, None]) {
+        Ok(v) => v,
+        Err(_) => float_grid_arg("array", array, &[None, None])
+            .map_err(|_| TegumentError::new_err(format!("array: expected float32 (height, width) or (height, width, channels), C-contiguous; got {}", array.repr().map(|r| r.to_string()).unwrap_or_default().chars().take(80).collect::<String>())))?,
+    };
+    let channels = if shape.len() == 3 { shape[2] } else { 1 };
+    let meta: Vec<(String, String)> = metadata.unwrap_or_default().into_iter().collect();
+    run_detached(py, || warp::exr::write_exr(&path, shape[1], shape[0], channels, &data, &meta))
+}
+
+/// Reads an OpenEXR image: returns ``(array, metadata)`` with ``array``
+/// float32 ``(height, width, C)`` (channels R, G, B, A first; row 0 = lowest
+/// v) and ``metadata`` the file's text attributes.
+#[pyfunction]
+fn read_exr<'py>(py: Python<'py>, path: PathBuf) -> PyResult<(Bound<'py, PyAny>, BTreeMap<String, String>)> {
+    let (w, h, c, data, meta) = run_detached(py, || warp::exr::read_exr(&path))?;
+    let array = Array3::from_shape_vec((h, w, c), data).expect("w·h·c floats").into_pyarray(py).into_any();
+    Ok((array, meta.into_iter().collect()))
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<UvWarp>()?;
+    m.add_function(wrap_pyfunction!(write_exr, m)?)?;
+    m.add_function(wrap_pyfunction!(read_exr, m)?)?;
+    Ok(())
+}
