@@ -12,14 +12,10 @@
 use std::sync::Arc;
 
 use glam::Vec3;
-use rayon::prelude::*;
 
 use super::encode::Encoding;
 use super::project::frame;
 use crate::solve::{Constraint, Context, Rows};
-
-/// Rows per rayon task: enough work to amortise scheduling.
-const CHUNK: usize = 512;
 
 /// Per-vertex targets: row `e_i`, projection `m + s n`.
 pub struct PyramidTargets {
@@ -43,16 +39,11 @@ impl Constraint for PyramidTargets {
         &self.rows
     }
 
-    fn project(&self, context: &Context<'_>, out: &mut [Vec3]) {
+    #[inline]
+    fn project_row(&self, context: &Context<'_>, e: usize) -> Vec3 {
         let (encoding, x) = (&*self.encoding, context.positions);
-        out.par_iter_mut()
-            .enumerate()
-            .with_min_len(CHUNK)
-            .for_each(|(e, o)| {
-                // No frame: stay put, which makes the row neutral.
-                *o = frame(encoding, e, x)
-                    .map_or(x[encoding.vertices()[e] as usize], |f| f.target());
-            });
+        // No frame: stay put, which makes the row neutral.
+        frame(encoding, e, x).map_or(x[encoding.vertices()[e] as usize], |f| f.target())
     }
 }
 
@@ -86,23 +77,19 @@ impl Constraint for PyramidLaplacian {
         &self.rows
     }
 
-    fn project(&self, context: &Context<'_>, out: &mut [Vec3]) {
+    #[inline]
+    fn project_row(&self, context: &Context<'_>, e: usize) -> Vec3 {
         let (encoding, x) = (&*self.encoding, context.positions);
-        out.par_iter_mut()
-            .enumerate()
-            .with_min_len(CHUNK)
-            .for_each(|(e, o)| {
-                *o = match frame(encoding, e, x) {
-                    Some(f) => f.offset * f.normal,
-                    // Neutral: the row's current value.
-                    None => {
-                        let mut mean = Vec3::ZERO;
-                        for (&j, &w) in encoding.ring(e).iter().zip(encoding.weights(e)) {
-                            mean += w * x[j as usize];
-                        }
-                        x[encoding.vertices()[e] as usize] - mean
-                    }
-                };
-            });
+        match frame(encoding, e, x) {
+            Some(f) => f.offset * f.normal,
+            // Neutral: the row's current value.
+            None => {
+                let mut mean = Vec3::ZERO;
+                for (&j, &w) in encoding.ring(e).iter().zip(encoding.weights(e)) {
+                    mean += w * x[j as usize];
+                }
+                x[encoding.vertices()[e] as usize] - mean
+            }
+        }
     }
 }

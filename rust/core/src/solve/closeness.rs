@@ -43,9 +43,8 @@ impl Constraint for Closeness {
         true
     }
 
-    fn project(&self, context: &Context<'_>, out: &mut [Vec3]) {
-        for (o, &v) in out.iter_mut().zip(&self.vertices) {
-            *o = context.input[v as usize];
-        }
+    #[inline]
+    fn project_row(&self, context: &Context<'_>, row: usize) -> Vec3 {
+        context.input[self.vertices[row] as usize]
     }
 }

@@ -1,6 +1,7 @@
 //! What a constraint is to the solver: fixed rows plus a projection.
 
 use glam::Vec3;
+use rayon::prelude::*;
 
 use crate::{Error, Result};
 
@@ -135,8 +136,17 @@ pub trait Constraint: Send + Sync {
         Ok(())
     }
 
-    /// The local step: writes one target per row into `out` (`out.len()` is the
-    /// number of rows). A row that has no opinion (a degenerate configuration)
-    /// writes the row's current value `A_r x`, which makes it neutral.
-    fn project(&self, context: &Context<'_>, out: &mut [Vec3]);
+    /// The local step for one row: where row `row` would like `A_r x` to be.
+    /// A row that has no opinion (a degenerate configuration) returns the
+    /// row's current value `A_r x`, which makes it neutral.
+    ///
+    /// The solver calls this directly, fused with the global step, when the
+    /// global matrix is diagonal; otherwise through [`Constraint::project`].
+    fn project_row(&self, context: &Context<'_>, row: usize) -> Vec3;
+
+    /// The local step for all rows: writes one target per row into `out`
+    /// (`out.len()` is the number of rows). Parallel by default.
+    fn project(&self, context: &Context<'_>, out: &mut [Vec3]) {
+        out.par_iter_mut().enumerate().with_min_len(512).for_each(|(r, o)| *o = self.project_row(context, r));
+    }
 }

@@ -229,6 +229,14 @@ impl Solver {
             system.constant_rhs(&self.constant_projections, &mut self.rhs_constant);
         }
 
+        // The varying constraints with the index of their first row.
+        let mut variable: Vec<(&dyn Constraint, usize)> = Vec::new();
+        let mut start = 0;
+        for entry in self.entries.iter().filter(|e| !e.constraint.is_constant()) {
+            variable.push((entry.constraint.as_ref(), start));
+            start += entry.constraint.rows().len();
+        }
+
         // Ping-pong between the caller's buffer and our own, copying at most once.
         let mut in_work = false;
         for iteration in 0..iterations {
@@ -237,20 +245,14 @@ impl Solver {
             } else {
                 (&*positions, &mut self.work)
             };
-            let context = Context {
-                positions: current,
-                input,
-            };
-            let mut offset = 0;
-            for entry in self.entries.iter().filter(|e| !e.constraint.is_constant()) {
-                let rows = entry.constraint.rows().len();
-                entry.constraint.project(
-                    &context,
-                    &mut self.variable_projections[offset..offset + rows],
-                );
-                offset += rows;
+            let context = Context { positions: current, input };
+            if !system.solve_fused(&self.rhs_constant, &variable, &context, next) {
+                for &(constraint, start) in &variable {
+                    let rows = constraint.rows().len();
+                    constraint.project(&context, &mut self.variable_projections[start..start + rows]);
+                }
+                system.solve(&self.rhs_constant, &self.variable_projections, next);
             }
-            system.solve(&self.rhs_constant, &self.variable_projections, next);
             if let Some(hook) = hook.as_deref_mut() {
                 hook.after_iteration(iteration, current, next)?;
             }

@@ -21,7 +21,7 @@ use faer::{Conj, MatMut, Par, Side};
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::constraint::Rows;
+use super::constraint::{Constraint, Context, Rows};
 use crate::{Error, Result};
 
 /// Which global step a solver runs: reported so that benchmarks and tests can
@@ -196,6 +196,36 @@ impl System {
         out.par_iter_mut()
             .enumerate()
             .for_each(|(k, o)| *o = self.constant.apply(k, projections));
+    }
+
+    /// One fused local + global step for a diagonal system: every row
+    /// touches one vertex, so each vertex projects its own rows, sums them
+    /// and divides, in one pass, without a projection buffer. Returns false
+    /// (doing nothing) for a coupled system.
+    pub fn solve_fused(
+        &self,
+        rhs_constant: &[Vec3],
+        constraints: &[(&dyn Constraint, usize)],
+        context: &Context<'_>,
+        out: &mut [Vec3],
+    ) -> bool {
+        let Factor::Diagonal { inverse } = &self.factor else {
+            return false;
+        };
+        let variable = &self.variable;
+        out.par_iter_mut().enumerate().with_min_len(512).for_each(|(k, o)| {
+            let mut sum = rhs_constant[k];
+            let range = variable.offsets[k] as usize..variable.offsets[k + 1] as usize;
+            for (&r, &c) in variable.rows[range.clone()].iter().zip(&variable.coefficients[range]) {
+                let r = r as usize;
+                // Constraints are few and sorted by first row: find the owner.
+                let owner = constraints.iter().rposition(|&(_, start)| start <= r).unwrap_or(0);
+                let (constraint, start) = constraints[owner];
+                sum += constraint.project_row(context, r - start) * c;
+            }
+            *o = sum * inverse[k];
+        });
+        true
     }
 
     /// One global step: `x = N⁻¹ (rhs_constant + AᵀW p)`.

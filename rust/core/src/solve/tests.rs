@@ -35,11 +35,10 @@ impl Constraint for Springs {
     fn rows(&self) -> &Rows {
         &self.rows
     }
-    fn project(&self, context: &Context<'_>, out: &mut [Vec3]) {
-        for (i, &[a, b]) in self.edges.iter().enumerate() {
-            let d = context.positions[a as usize] - context.positions[b as usize];
-            out[i] = d.normalize_or_zero() * self.rest[i];
-        }
+    fn project_row(&self, context: &Context<'_>, i: usize) -> Vec3 {
+        let [a, b] = self.edges[i];
+        let d = context.positions[a as usize] - context.positions[b as usize];
+        d.normalize_or_zero() * self.rest[i]
     }
 }
 
@@ -277,7 +276,9 @@ fn bad_input_is_refused() {
         fn rows(&self) -> &Rows {
             &self.0
         }
-        fn project(&self, _: &Context<'_>, _: &mut [Vec3]) {}
+        fn project_row(&self, _: &Context<'_>, _: usize) -> Vec3 {
+            Vec3::ZERO
+        }
     }
     let err = solver
         .add(Box::new(Bad(rows)), vec![1.0])
