@@ -86,10 +86,8 @@ def main() -> int:
     def evaluate(frame):
         scene.frame_set(frame)
         evaluated = limb.evaluated_get(bpy.context.evaluated_depsgraph_get())
-        mesh = evaluated.to_mesh()
-        positions = np.empty(len(mesh.vertices) * 3, dtype=np.float32)
-        mesh.vertices.foreach_get("co", positions)
-        evaluated.to_mesh_clear()
+        positions = np.empty(len(evaluated.data.vertices) * 3, dtype=np.float32)
+        evaluated.data.attributes["position"].data.foreach_get("vector", positions)
 
     armature_only = time_frames(scene, frames, evaluate)
     rows.add(case, "armature only: frame", armature_only, "ms", threads, "frame_set + depsgraph + read positions")

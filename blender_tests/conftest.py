@@ -50,6 +50,16 @@ def installed_extension() -> str:
     assert ADDON_MODULE in bpy.context.preferences.addons, "the extension installed but is not enabled"
     installed = pathlib.Path(_user_resources, "extensions", "user_default", "tegument")
     assert (installed / "blender_manifest.toml").is_file(), f"not installed into the isolated user folder {installed}"
+    # The test runner's own environment may have the wheel installed too (the
+    # wheel's tests need it); Blender must use the copy the extension bundles.
+    bundled = pathlib.Path(_user_resources, "extensions", ".local", "lib", "python3.11", "site-packages")
+    assert (bundled / "tegument").is_dir(), f"the extension's wheel was not unpacked into {bundled}"
+    sys.path.insert(0, str(bundled))
+    for name in [n for n in sys.modules if n == "tegument" or n.startswith("tegument.")]:
+        del sys.modules[name]
+    import tegument
+
+    assert pathlib.Path(tegument.__file__).is_relative_to(bundled), f"tegument imported from {tegument.__file__}"
     return ADDON_MODULE
 
 

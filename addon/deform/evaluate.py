@@ -46,11 +46,7 @@ def upstream_only(obj):
 def evaluated_positions(obj, depsgraph) -> tuple[np.ndarray, np.ndarray]:
     """``(local (N, 3), world (N, 3))`` positions of the evaluated object."""
     evaluated = obj.evaluated_get(depsgraph)
-    mesh = evaluated.to_mesh()
-    try:
-        local = mesh_arrays.positions(mesh)
-    finally:
-        evaluated.to_mesh_clear()
+    local = mesh_arrays.positions(evaluated.data)  # the evaluated mesh; no copy needed to read it
     return local, to_world(local, evaluated.matrix_world)
 
 
