@@ -248,14 +248,23 @@ impl<'a> ColliderSet<'a> {
         &self.colliders
     }
 
-    /// Distance added beyond the thickness when projecting, so that f32
-    /// rounding of the result cannot put it back inside.
+    /// Distance added beyond the thickness when projecting. It keeps f32
+    /// rounding from putting a result back inside, and it is the margin by
+    /// which a resting contact clears the CCD's minimum separation: the
+    /// interval search must shrink its boxes below this margin to prove a
+    /// resting pair apart, so a margin of a tenth of the thickness (or 1e-5
+    /// of the scene scale) keeps resting contacts cheap.
     fn slack(&self, thickness: f64) -> f64 {
-        4e-7 * self.scale + 1e-4 * thickness
+        0.1 * thickness + 1e-5 * self.scale
     }
 
+    /// CCD settings for the response. The iteration cap keeps near-degenerate
+    /// resting pairs (parallel edges at the separation) bounded in cost; a
+    /// capped query reports its earliest unresolved time, which is still
+    /// conservative, and the projection then decides whether anything is
+    /// violated at the end of the step.
     fn ccd_params(&self, thickness: f64) -> CcdParams {
-        CcdParams { min_separation: thickness, tolerance: 1e-7 * self.scale, ..Default::default() }
+        CcdParams { min_separation: thickness, tolerance: 1e-6 * self.scale, max_iterations: 2_000, t_max: 1.0 }
     }
 
     /// Triangle corners of collider `c` at the start and end of the step.
