@@ -158,6 +158,9 @@ enum Verdict {
     Empty,
     /// Image narrower than the tolerance: report.
     Converged,
+    /// The corner `(t_lo, u, v)` is provably within the separation: contact
+    /// at exactly `t_lo`.
+    Touching(f64, f64),
     /// Split along this parameter (0 = t, 1 = u, 2 = v).
     Split(usize),
 }
@@ -194,6 +197,23 @@ fn examine(query: &Query, cell: &Cell, params: &CcdParams) -> Verdict {
     // rounding error below 8 ε, which the factor covers.
     if gap.max_element() > ms || gap.length_squared() > ms * ms * (1.0 + 1e-12) {
         return Verdict::Empty;
+    }
+    // A corner at the box's earliest time that is provably in contact: every
+    // earlier time has been excluded (boxes are taken in time order), so the
+    // first contact is exactly t_lo.
+    let reach = ms - 3f64.sqrt() * query.err;
+    if reach > 0.0 {
+        for iu in 0..2 {
+            for iv in 0..2 {
+                if values[0][iu][iv].length_squared() <= reach * reach {
+                    let u = if iu == 0 { cell.lo[1] } else { cell.hi[1] };
+                    let v = if iv == 0 { cell.lo[2] } else { cell.hi[2] };
+                    if query.kind == Kind::EdgeEdge || u + v <= 1.0 {
+                        return Verdict::Touching(u, v);
+                    }
+                }
+            }
+        }
     }
     if (hi - lo).max_element() <= params.tolerance {
         return Verdict::Converged;
@@ -245,6 +265,7 @@ fn solve(query: Query, params: &CcdParams) -> Option<CcdHit> {
         match examine(&query, &cell, params) {
             Verdict::Empty => {}
             Verdict::Converged => return hit(true),
+            Verdict::Touching(u, v) => return Some(CcdHit { toi: cell.lo[0], u, v, converged: true }),
             Verdict::Split(d) => {
                 let mid = 0.5 * (cell.lo[d] + cell.hi[d]);
                 let mut a = cell;

@@ -264,7 +264,7 @@ impl<'a> ColliderSet<'a> {
     /// conservative, and the projection then decides whether anything is
     /// violated at the end of the step.
     fn ccd_params(&self, thickness: f64) -> CcdParams {
-        CcdParams { min_separation: thickness, tolerance: 1e-6 * self.scale, max_iterations: 2_000, t_max: 1.0 }
+        CcdParams { min_separation: thickness, tolerance: 1e-6 * self.scale, max_iterations: 400, t_max: 1.0 }
     }
 
     /// Triangle corners of collider `c` at the start and end of the step.

@@ -57,7 +57,7 @@ fn static_friction_holds_and_kinetic_friction_slows() {
     assert!((free.x - 0.5).abs() < 1e-5 && free.z >= 0.0 && free.z <= 2e-4, "{free:?}");
     // Contact at t = 0.5, x = 0.25: static friction keeps the vertex there.
     let stuck = run(1.0, 1.0);
-    assert!((stuck.x - 0.25).abs() < 1e-4, "{stuck:?}");
+    assert!((stuck.x - 0.25).abs() < 1e-3, "{stuck:?}");
     // Kinetic: slip 0.25 after contact, depth 0.5, μk = 0.2 removes 0.1.
     let sliding = run(0.1, 0.2);
     assert!((sliding.x - 0.4).abs() < 1e-3, "{sliding:?}");
