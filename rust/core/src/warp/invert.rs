@@ -15,7 +15,7 @@ use rayon::prelude::*;
 
 use super::raster::Prepared;
 
-const BAND: usize = 16;
+const BAND: usize = 64;
 
 /// Writes the redirection (absolute UVs, interleaved `u, v`, row 0 = lowest
 /// `v`) of a `w × h` tile whose lower-left corner is at `offset`.

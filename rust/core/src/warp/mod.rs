@@ -56,8 +56,10 @@ pub const DEFAULT_MEMORY_LIMIT: u64 = 3 << 30;
 /// Solver settings.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WarpSettings {
-    /// PBD iterations on the finest level; level `l` runs `iterations · 2^l`
-    /// (at most 96, or `iterations` if larger).
+    /// PBD iterations on the finest level. A cold solve (from the identity)
+    /// runs `iterations · 2^l` on level `l` (at most 96, or `iterations` if
+    /// larger); a warm solve runs `iterations` on every level but the three
+    /// coarsest, which keep the cold schedule.
     pub iterations: u32,
     /// Fraction in [0, 1] by which each projected segment is rotated back
     /// towards its rest direction (times its rigidity).

@@ -329,6 +329,9 @@ pub struct Solver {
     pub last_iterations: Vec<usize>,
     /// Fold repair passes and global scale applied in the last solve.
     pub last_repair: (usize, f32),
+    /// Wall time per level in the last solve (ms), finest first; the last
+    /// entry is the fold check/repair.
+    pub last_level_ms: Vec<f64>,
 }
 
 impl Solver {
@@ -351,7 +354,7 @@ impl Solver {
             level.start_y = vec![0.0; lw * lh];
             levels.push(level);
         }
-        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0) }
+        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new() }
     }
 
     /// Back to the identity warp.
@@ -394,8 +397,19 @@ impl Solver {
             c.start_y.copy_from_slice(&c.dy);
         }
         self.last_iterations = vec![0; self.levels.len()];
+        self.last_level_ms = vec![0.0; self.levels.len() + 1];
         for l in (0..self.levels.len()).rev() {
-            let n = (s.iterations as usize).saturating_mul(1 << l.min(16)).min(MAX_LEVEL_ITERATIONS.max(s.iterations as usize));
+            let started = std::time::Instant::now();
+            // Cold solves start from the identity and need the coarse levels
+            // to carry the bulk of the warp: `iterations · 2^l` there. Warm
+            // solves only correct last frame's warp: `iterations` on every
+            // level but the three coarsest (which are tiny).
+            let coarse = l + 3 >= self.levels.len();
+            let n = if warm && !coarse {
+                s.iterations as usize
+            } else {
+                (s.iterations as usize).saturating_mul(1 << l.min(16)).min(MAX_LEVEL_ITERATIONS.max(s.iterations as usize))
+            };
             self.last_iterations[l] = n;
             let (fine, rest) = self.levels.split_at_mut(l);
             let lv = &mut rest[0];
@@ -408,8 +422,11 @@ impl Solver {
                 lv.gd = gd;
                 prolong(lv, &mut fine[l - 1]);
             }
+            self.last_level_ms[l] = started.elapsed().as_secs_f64() * 1e3;
         }
+        let started = std::time::Instant::now();
         self.last_repair = repair_folds(&mut self.levels[0]);
+        self.last_level_ms[self.levels.len()] = started.elapsed().as_secs_f64() * 1e3;
     }
 }
 
