@@ -12,6 +12,9 @@
 //!
 //! Everything is computed in f64; only the results are stored in f32.
 
+// `!(x > limit)` on purpose throughout: a NaN must fail these checks, not pass them.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 

@@ -1,5 +1,7 @@
 //! Solver tests on hand-made constraints, independent of pyramid coordinates.
 
+#![allow(clippy::needless_range_loop)] // the dense reference reads like the textbook
+
 use glam::Vec3;
 
 use super::*;
