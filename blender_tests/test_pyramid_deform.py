@@ -162,7 +162,6 @@ def test_save_reload_play_back_and_render(limb, tmp_path):
 
     # Render the baked frame, the same frame without Tegument, and a plain mesh
     # built from the cached positions: the first must match the third, not the second.
-    import scene as demo
 
     camera_target = frames[4].mean(axis=0)
     bpy.ops.object.camera_add(location=(camera_target[0], camera_target[1], camera_target[2] + 3.0))

@@ -10,7 +10,6 @@ from __future__ import annotations
 import os
 
 import bpy
-import numpy as np
 
 from .. import mesh_arrays, pc2
 from ..deform import bake, evaluate

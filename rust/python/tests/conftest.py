@@ -8,7 +8,7 @@ import pathlib
 import numpy as np
 import pytest
 
-SHARED_DATA = pathlib.Path(__file__).resolve().parents[3] / "shared" / "data"
+SHARED_DATA = pathlib.Path(__file__).resolve().parents[4] / "shared" / "data"  # ../shared/data beside the checkout
 
 
 def cube_arrays():

@@ -3,27 +3,12 @@
 from __future__ import annotations
 
 import math
-import os
-import pathlib
 
 import numpy as np
 import pytest
 
 import tegument
-
-# ../shared/data relative to the project root (this file is rust/python/tests/).
-SHARED_DATA = pathlib.Path(__file__).resolve().parents[3].parent / "shared" / "data"
-
-
-def shared_data(*parts: str) -> pathlib.Path:
-    """A path under ``../shared/data``; skips where it is absent, fails under CI."""
-    path = SHARED_DATA.joinpath(*parts)
-    if not path.exists():
-        message = f"{path} is absent: the shared test data sits beside the checkout in ../shared/data"
-        if os.environ.get("CI") == "true":
-            pytest.fail(message + " (required under CI)")
-        pytest.skip(message)
-    return path
+from conftest import shared_data
 
 N = 128
 
