@@ -5,7 +5,12 @@
 //! time for the comparison plot.
 //!
 //! `cargo bench -p tegument-core --bench pyramid` (set `TEGUMENT_BENCH_QUICK=1`
-//! to skip the 1M mesh).
+//! to skip the 1M mesh). To measure one case repeatedly on a noisy machine:
+//! `TEGUMENT_BENCH_SIZES=100k` (comma-separated labels: 10k, 100k, 1M),
+//! `TEGUMENT_BENCH_FORMULATIONS=targets` (targets, laplacian),
+//! `TEGUMENT_BENCH_NO_CURVE=1` (skip the residual-against-time rows), and
+//! `TEGUMENT_BENCH_DIR=/tmp/somewhere` so the partial run does not replace
+//! `bench/results/pyramid.json`.
 
 mod common;
 
@@ -45,7 +50,11 @@ fn main() {
     let cpu = machine();
     report.add("machine", &cpu, 0.0, "", 0, "");
     let sizes: &[(&str, usize)] = if quick { &[("10k", 41), ("100k", 129)] } else { &[("10k", 41), ("100k", 129), ("1M", 408)] };
-    for &(label, n) in sizes {
+    let selected = |var: &str, name: &str| {
+        std::env::var(var).map_or(true, |list| list.split(',').any(|s| s.trim().eq_ignore_ascii_case(name)))
+    };
+    let curve = std::env::var("TEGUMENT_BENCH_NO_CURVE").is_err();
+    for &(label, n) in sizes.iter().filter(|(label, _)| selected("TEGUMENT_BENCH_SIZES", label)) {
         let mesh = quad_sphere(n, 1.0);
         let vertices = mesh.positions.len();
         let input = skinned(&mesh.positions);
@@ -58,6 +67,9 @@ fn main() {
 
         for formulation in [Formulation::VertexTargets, Formulation::Laplacian] {
             let tag = formulation.name();
+            if !selected("TEGUMENT_BENCH_FORMULATIONS", tag) {
+                continue;
+            }
             if formulation == Formulation::Laplacian && vertices > 500_000 {
                 // The factor grows faster than the mesh (18M nonzeros at 100k,
                 // 4.4 s to factorise on the reference machine): at 1M it needs
@@ -110,7 +122,7 @@ fn main() {
             }
 
             // Residual against wall time (2 threads) for the design note's plot.
-            if vertices < 500_000 {
+            if curve && vertices < 500_000 {
                 let ks: &[usize] = match (formulation, vertices > 50_000) {
                     (Formulation::Laplacian, true) => &[1, 2, 3, 5, 10],
                     _ => &[1, 2, 3, 5, 10, 20, 40],

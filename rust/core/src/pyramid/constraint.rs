@@ -14,6 +14,7 @@ use std::sync::Arc;
 use glam::Vec3;
 
 use super::encode::Encoding;
+use super::kernel::Packed;
 use super::project::frame;
 use crate::solve::{Constraint, Context, Rows};
 
@@ -21,12 +22,15 @@ use crate::solve::{Constraint, Context, Rows};
 pub struct PyramidTargets {
     encoding: Arc<Encoding>,
     rows: Rows,
+    /// The encoding laid out for the four-lane kernel (`project_rows`).
+    packed: Packed,
 }
 
 impl PyramidTargets {
     pub fn new(encoding: Arc<Encoding>) -> Self {
         let rows = Rows::identity(encoding.vertices());
-        PyramidTargets { encoding, rows }
+        let packed = Packed::new(&encoding);
+        PyramidTargets { encoding, rows, packed }
     }
 }
 
@@ -44,6 +48,11 @@ impl Constraint for PyramidTargets {
         let (encoding, x) = (&*self.encoding, context.positions);
         // No frame: stay put, which makes the row neutral.
         frame(encoding, e, x).map_or(x[encoding.vertices()[e] as usize], |f| f.target())
+    }
+
+    /// The same targets, four rows at a time (see [`super::kernel`]).
+    fn project_rows(&self, context: &Context<'_>, rows: std::ops::Range<usize>, out: &mut [Vec3]) {
+        self.packed.targets(context.positions, rows, out);
     }
 }
 

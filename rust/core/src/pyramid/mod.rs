@@ -17,6 +17,7 @@
 pub mod constraint;
 pub mod deformer;
 pub mod encode;
+pub mod kernel;
 pub mod project;
 
 pub use constraint::{PyramidLaplacian, PyramidTargets};

@@ -559,3 +559,66 @@ fn bad_input_names_the_problem() {
         .to_string();
     assert!(text.contains("vertex 99"), "{text}");
 }
+
+// ---------------------------------------------------------------- kernel
+
+/// `mesh` with every quad split into two triangles, alternating the diagonal,
+/// so rings of 3 to 8 neighbours share the kernel's four-lane blocks.
+fn triangulated(mesh: &PolyMesh) -> PolyMesh {
+    let mut out = PolyMesh { positions: mesh.positions.clone(), ..PolyMesh::default() };
+    let mut at = 0;
+    for (p, &size) in mesh.polygon_sizes.iter().enumerate() {
+        let c = &mesh.corner_verts[at..at + size as usize];
+        at += size as usize;
+        if size == 4 {
+            let (a, b) = if p % 2 == 0 { ([c[0], c[1], c[2]], [c[0], c[2], c[3]]) } else { ([c[0], c[1], c[3]], [c[1], c[2], c[3]]) };
+            out.corner_verts.extend(a.iter().chain(&b));
+            out.polygon_sizes.extend([3, 3]);
+        } else {
+            out.corner_verts.extend(c);
+            out.polygon_sizes.push(size);
+        }
+    }
+    out
+}
+
+#[test]
+fn four_lane_kernel_gives_the_scalar_targets() {
+    let length = 4.0;
+    let cyl = cylinder(24, 16, 0.5, length);
+    let meshes = [
+        ("sphere", quad_sphere(12, 1.0)),
+        ("triangulated sphere", triangulated(&quad_sphere(12, 1.0))),
+        ("grid (pinned border)", grid(9, 7, 2.0)),
+        ("triangulated cylinder", triangulated(&cyl)),
+    ];
+    for (name, mesh) in &meshes {
+        let topology = Topology::build(mesh.input()).unwrap();
+        let bent: Vec<Vec3> = mesh
+            .positions
+            .iter()
+            .map(|p| *p * Vec3::new(1.3, 0.8, 1.0) + Vec3::splat(p.x * p.y))
+            .collect();
+        // Some rings collapsed to a point: no frame, the row stays put.
+        let mut collapsed = bent.clone();
+        for p in collapsed.iter_mut().take(40) {
+            *p = Vec3::new(0.25, 0.5, 0.75);
+        }
+        for scale_safe in [false, true] {
+            let encoding = encode(&topology, &mesh.positions, scale_safe).unwrap();
+            let packed = kernel::Packed::new(&encoding);
+            for x in [&mesh.positions, &bent, &collapsed] {
+                let scalar: Vec<Vec3> = (0..encoding.len())
+                    .map(|e| project::target(&encoding, e, x).unwrap_or(x[encoding.vertices()[e] as usize]))
+                    .collect();
+                // Whole range, and ranges that start and end inside blocks.
+                for rows in [0..encoding.len(), 1..encoding.len() - 2, 5..6, 3..3] {
+                    let mut out = vec![Vec3::NAN; rows.len()];
+                    packed.targets(x, rows.clone(), &mut out);
+                    // `==`: equal up to the sign of an exact zero.
+                    assert!(out == scalar[rows.clone()], "{name}, scale_safe={scale_safe}, rows {rows:?}");
+                }
+            }
+        }
+    }
+}

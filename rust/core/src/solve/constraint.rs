@@ -144,6 +144,17 @@ pub trait Constraint: Send + Sync {
     /// global matrix is diagonal; otherwise through [`Constraint::project`].
     fn project_row(&self, context: &Context<'_>, row: usize) -> Vec3;
 
+    /// The local step for the contiguous rows `rows`, one target per row
+    /// into `out[..rows.len()]`. The fused diagonal path calls this once per
+    /// chunk of vertices, so a constraint with a batched (vectorised) kernel
+    /// overrides it; it must give what [`Constraint::project_row`] gives (up
+    /// to the sign of an exact zero).
+    fn project_rows(&self, context: &Context<'_>, rows: std::ops::Range<usize>, out: &mut [Vec3]) {
+        for (o, r) in out.iter_mut().zip(rows) {
+            *o = self.project_row(context, r);
+        }
+    }
+
     /// The local step for all rows: writes one target per row into `out`
     /// (`out.len()` is the number of rows). Parallel by default.
     fn project(&self, context: &Context<'_>, out: &mut [Vec3]) {

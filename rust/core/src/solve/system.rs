@@ -107,10 +107,28 @@ impl Gather {
     }
 }
 
+/// Vertices per task of the fused diagonal step: fixed, so that the work
+/// split (and nothing else) depends on the thread count; small enough that
+/// a chunk's positions and targets stay in L1/L2.
+pub(crate) const CHUNK: usize = 4096;
+
+/// One variable identity block of a diagonal system, by rows: the vertex of
+/// each row, its weight, and where each vertex chunk's rows start. Only built
+/// when the rows' vertices are strictly ascending, so that a chunk of
+/// vertices is a contiguous range of rows.
+struct BatchedBlock {
+    vertex: Vec<u32>,
+    weight: Vec<f32>,
+    /// `chunks + 1` row boundaries.
+    chunk_rows: Vec<u32>,
+}
+
 /// The factorised global matrix.
 enum Factor {
     Diagonal {
         inverse: Vec<f32>,
+        /// Per variable block, when every block allows it (see [`BatchedBlock`]).
+        batched: Option<Vec<BatchedBlock>>,
     },
     Cholesky {
         symbolic: Arc<SymbolicCholesky<usize>>,
@@ -160,6 +178,7 @@ impl System {
             }
             Factor::Diagonal {
                 inverse: sum.iter().map(|s| 1.0 / s).collect(),
+                batched: batched(vertex_count, variable),
             }
         } else {
             cholesky(vertex_count, variable.iter().chain(constant), symbolic)?
@@ -212,9 +231,31 @@ impl System {
         context: &Context<'_>,
         out: &mut [Vec3],
     ) -> bool {
-        let Factor::Diagonal { inverse } = &self.factor else {
+        let Factor::Diagonal { inverse, batched } = &self.factor else {
             return false;
         };
+        if let Some(blocks) = batched {
+            // By chunks of vertices: start from the constant right-hand side,
+            // add each constraint's weighted targets (batched projection, in
+            // block then row order: the same sums as the gather below), divide.
+            out.par_chunks_mut(CHUNK).enumerate().for_each_init(Vec::new, |targets, (c, o)| {
+                let base = c * CHUNK;
+                o.copy_from_slice(&rhs_constant[base..base + o.len()]);
+                for (block, &(constraint, _)) in blocks.iter().zip(constraints) {
+                    let rows = block.chunk_rows[c] as usize..block.chunk_rows[c + 1] as usize;
+                    targets.resize(rows.len(), Vec3::ZERO);
+                    constraint.project_rows(context, rows.clone(), targets);
+                    for ((t, &v), &w) in targets.iter().zip(&block.vertex[rows.clone()]).zip(&block.weight[rows]) {
+                        let o = &mut o[v as usize - base];
+                        *o += *t * w;
+                    }
+                }
+                for (o, &inv) in o.iter_mut().zip(&inverse[base..]) {
+                    *o = *o * inv;
+                }
+            });
+            return true;
+        }
         let variable = &self.variable;
         out.par_iter_mut().enumerate().with_min_len(512).for_each(|(k, o)| {
             let mut sum = rhs_constant[k];
@@ -235,7 +276,7 @@ impl System {
     pub fn solve(&mut self, rhs_constant: &[Vec3], projections: &[Vec3], out: &mut [Vec3]) {
         let variable = &self.variable;
         match &mut self.factor {
-            Factor::Diagonal { inverse } => {
+            Factor::Diagonal { inverse, .. } => {
                 // Fused gather and divide: one pass over the vertices.
                 out.par_iter_mut()
                     .enumerate()
@@ -286,6 +327,27 @@ impl System {
             }
         }
     }
+}
+
+/// The by-chunk layout of the variable blocks of a diagonal system, if every
+/// block's rows select strictly ascending vertices.
+fn batched(vertex_count: usize, variable: &[RowBlock<'_>]) -> Option<Vec<BatchedBlock>> {
+    let chunks = vertex_count.div_ceil(CHUNK);
+    variable
+        .iter()
+        .map(|block| {
+            let vertex: Vec<u32> = (0..block.rows.len()).map(|r| block.rows.row(r).0[0]).collect();
+            if vertex.windows(2).any(|p| p[0] >= p[1]) {
+                return None;
+            }
+            let chunk_rows = (0..=chunks)
+                .map(|c| vertex.partition_point(|&v| (v as usize) < c * CHUNK) as u32)
+                .collect();
+            // Identity rows have coefficient 1: the gather's `1 · w` is `w`.
+            let weight = block.weights.to_vec();
+            Some(BatchedBlock { vertex, weight, chunk_rows })
+        })
+        .collect()
 }
 
 /// Assembles the lower triangle of `Σ w AᵀA` and factorises it.

@@ -1,0 +1,382 @@
+//! The hot loop of the default solve: Algorithm 1 for four encoded vertices
+//! at once (structure of arrays across vertices, SSE2 on x86-64, plain arrays
+//! elsewhere).
+//!
+//! [`project::frame`](super::project::frame) is the reference; this kernel
+//! evaluates the same formulas with the same operations in the same order,
+//! one vertex per lane, so its targets equal the scalar ones (IEEE
+//! operations are correctly rounded whatever the lane; Rust never contracts
+//! to FMA). The only difference is the sign of an exact zero, from padding:
+//! rows are packed four by four into *blocks*, and a block's slots run to the
+//! longest ring of its four rows; a shorter ring is padded by repeating its
+//! last neighbour with weight 0, which adds `cross(a, a) = 0` to the vector
+//! area and `0·x = 0` to the weighted sums.
+//!
+//! Only SSE2 is used, which every x86-64 CPU has, so the wheel keeps running
+//! anywhere; no runtime dispatch is needed.
+
+use glam::Vec3;
+
+use super::encode::Encoding;
+
+/// Rows per block.
+pub const LANES: usize = 4;
+
+/// The encoding repacked for the kernel. Entry `(b, j, l)` (block `b`, ring
+/// slot `j`, lane `l`) lives at `offsets[b] + LANES·j + l`.
+#[derive(Debug, Clone)]
+pub struct Packed {
+    rows: usize,
+    vertex_count: usize,
+    scale_safe: bool,
+    /// Entry offset of each block, `blocks + 1` values.
+    offsets: Vec<u32>,
+    /// The row's own vertex per lane (`blocks · LANES`; padding lanes repeat a real row).
+    vertices: Vec<u32>,
+    index: Vec<u32>,
+    weight: Vec<f32>,
+    /// Scale-safe: `w_j · t_j` (the product the scalar code forms first).
+    weighted_tangent: Vec<f32>,
+    /// Plain: 1 for a real neighbour, 0 for padding (centroid sum).
+    unit: Vec<f32>,
+    /// Plain: per lane, the ring length and the stored height.
+    valence: Vec<f32>,
+    height: Vec<f32>,
+}
+
+impl Packed {
+    pub fn new(encoding: &Encoding) -> Self {
+        let rows = encoding.len();
+        let blocks = rows.div_ceil(LANES);
+        let scale_safe = encoding.scale_safe();
+        let mut packed = Packed {
+            rows,
+            vertex_count: encoding.vertex_count(),
+            scale_safe,
+            offsets: Vec::with_capacity(blocks + 1),
+            vertices: Vec::with_capacity(blocks * LANES),
+            index: Vec::new(),
+            weight: Vec::new(),
+            weighted_tangent: Vec::new(),
+            unit: Vec::new(),
+            valence: Vec::new(),
+            height: Vec::new(),
+        };
+        packed.offsets.push(0);
+        for b in 0..blocks {
+            // Padding lanes of the last block repeat its first row.
+            let lane_row = |l: usize| if b * LANES + l < rows { b * LANES + l } else { b * LANES };
+            let slots = (0..LANES).map(|l| encoding.ring(lane_row(l)).len()).max().unwrap_or(0);
+            for l in 0..LANES {
+                let e = lane_row(l);
+                packed.vertices.push(encoding.vertices()[e]);
+                if !scale_safe {
+                    packed.valence.push(encoding.ring(e).len() as f32);
+                    packed.height.push(encoding.height(e));
+                }
+            }
+            for j in 0..slots {
+                for l in 0..LANES {
+                    let e = lane_row(l);
+                    let ring = encoding.ring(e);
+                    let real = j < ring.len();
+                    let jj = j.min(ring.len() - 1);
+                    packed.index.push(ring[jj]);
+                    let w = if real { encoding.weights(e)[j] } else { 0.0 };
+                    packed.weight.push(w);
+                    if scale_safe {
+                        packed
+                            .weighted_tangent
+                            .push(if real { w * encoding.tangents(e)[j] } else { 0.0 });
+                    } else {
+                        packed.unit.push(if real { 1.0 } else { 0.0 });
+                    }
+                }
+            }
+            packed.offsets.push(packed.index.len() as u32);
+        }
+        packed
+    }
+
+    pub fn rows(&self) -> usize {
+        self.rows
+    }
+
+    /// Targets `m + s n` of rows `rows` (a range of encoded vertices) at
+    /// positions `x`, written to `out[..rows.len()]`; a row whose ring has
+    /// collapsed stays put.
+    pub fn targets(&self, x: &[Vec3], rows: std::ops::Range<usize>, out: &mut [Vec3]) {
+        assert_eq!(x.len(), self.vertex_count, "positions of another mesh");
+        assert!(rows.end <= self.rows && out.len() >= rows.len());
+        if rows.is_empty() {
+            return;
+        }
+        let (first, last) = (rows.start / LANES, (rows.end - 1) / LANES);
+        let mut cache = [[F4::ZERO; 3]; super::encode::MAX_VALENCE];
+        for b in first..=last {
+            // The common ring sizes get a copy with a constant slot count:
+            // fully unrolled, the gathered positions stay in registers.
+            let lanes = match self.slots(b) {
+                3 => self.block(b, x, &mut [[F4::ZERO; 3]; 3]),
+                4 => self.block(b, x, &mut [[F4::ZERO; 3]; 4]),
+                5 => self.block(b, x, &mut [[F4::ZERO; 3]; 5]),
+                6 => self.block(b, x, &mut [[F4::ZERO; 3]; 6]),
+                _ => self.block(b, x, &mut cache),
+            };
+            for (l, t) in lanes.iter().enumerate() {
+                let r = b * LANES + l;
+                if rows.contains(&r) {
+                    out[r - rows.start] = *t;
+                }
+            }
+        }
+    }
+
+    /// Gathers slot entries of `x` into lanes.
+    #[inline(always)]
+    fn gather(&self, x: &[Vec3], at: usize) -> [F4; 3] {
+        let index = &self.index[at..at + LANES];
+        // SAFETY: every stored index is a vertex of the encoding's mesh
+        // (checked when the topology was built) and `targets` checked that
+        // `x` has that many vertices.
+        let p = |l: usize| unsafe { *x.get_unchecked(index[l] as usize) };
+        let (a, b, c, d) = (p(0), p(1), p(2), p(3));
+        [
+            F4::new(a.x, b.x, c.x, d.x),
+            F4::new(a.y, b.y, c.y, d.y),
+            F4::new(a.z, b.z, c.z, d.z),
+        ]
+    }
+
+    #[inline(always)]
+    fn slots(&self, b: usize) -> usize {
+        (self.offsets[b + 1] - self.offsets[b]) as usize / LANES
+    }
+
+    /// The four targets of block `b`; `cache` has one entry per slot.
+    #[inline(always)]
+    fn block<const K: usize>(&self, b: usize, x: &[Vec3], cache: &mut [[F4; 3]; K]) -> [Vec3; LANES] {
+        let start = self.offsets[b] as usize;
+        // Small caches are only used for blocks of exactly that many slots.
+        let slots = if K < super::encode::MAX_VALENCE { K } else { self.slots(b) };
+        let zero = F4::ZERO;
+
+        // Pass 1: gather, vector area relative to the first neighbour, mean.
+        let [ox, oy, oz] = self.gather(x, start);
+        cache[0] = [ox, oy, oz];
+        let w0 = F4::load(&self.weight[start..]);
+        let (mut mx, mut my, mut mz) = (zero + w0 * ox, zero + w0 * oy, zero + w0 * oz);
+        let (mut ax, mut ay, mut az) = (zero, zero, zero);
+        let mut previous = [zero; 3];
+        for (j, cached) in cache.iter_mut().enumerate().take(slots).skip(1) {
+            let at = start + LANES * j;
+            let [px, py, pz] = self.gather(x, at);
+            *cached = [px, py, pz];
+            let w = F4::load(&self.weight[at..]);
+            mx = mx + w * px;
+            my = my + w * py;
+            mz = mz + w * pz;
+            let current = [px - ox, py - oy, pz - oz];
+            if j >= 2 {
+                let [bx, by, bz] = previous;
+                let [cx, cy, cz] = current;
+                ax = ax + (by * cz - cy * bz);
+                ay = ay + (bz * cx - cz * bx);
+                az = az + (bx * cy - cx * by);
+            }
+            previous = current;
+        }
+        let length = (ax * ax + ay * ay + az * az).sqrt();
+        let (nx, ny, nz) = (ax / length, ay / length, az / length);
+
+        // Pass 2: the offset along the normal.
+        let offset = if self.scale_safe {
+            let mut s = zero;
+            for (j, &[px, py, pz]) in cache.iter().enumerate().take(slots) {
+                let at = start + LANES * j;
+                let (dx, dy, dz) = (mx - px, my - py, mz - pz);
+                let along = dx * nx + dy * ny + dz * nz;
+                let q = (dx * dx + dy * dy + dz * dz) - along * along;
+                s = s + F4::load(&self.weighted_tangent[at..]) * q.max_zero().sqrt();
+            }
+            s
+        } else {
+            let (mut cx, mut cy, mut cz) = (zero, zero, zero);
+            for (j, &[px, py, pz]) in cache.iter().enumerate().take(slots) {
+                let u = F4::load(&self.unit[start + LANES * j..]);
+                cx = cx + u * px;
+                cy = cy + u * py;
+                cz = cz + u * pz;
+            }
+            let k = F4::load(&self.valence[b * LANES..]);
+            let (cx, cy, cz) = (cx / k, cy / k, cz / k);
+            let dot = (mx - cx) * nx + (my - cy) * ny + (mz - cz) * nz;
+            F4::load(&self.height[b * LANES..]) - dot
+        };
+        let (tx, ty, tz) = (mx + offset * nx, my + offset * ny, mz + offset * nz);
+        let valid = length.gt(zero)
+            & length.finite()
+            & mx.finite()
+            & my.finite()
+            & mz.finite()
+            & offset.finite();
+        let (tx, ty, tz, valid) = (tx.to_array(), ty.to_array(), tz.to_array(), valid.to_mask());
+        let mut out = [Vec3::ZERO; LANES];
+        for l in 0..LANES {
+            out[l] = if valid[l] {
+                Vec3::new(tx[l], ty[l], tz[l])
+            } else {
+                // No frame: stay put (the row is neutral).
+                x[self.vertices[b * LANES + l] as usize]
+            };
+        }
+        out
+    }
+}
+
+pub use f4::F4;
+
+#[cfg(target_arch = "x86_64")]
+mod f4 {
+    #![allow(unused_unsafe)]
+    use std::arch::x86_64::*;
+    use std::ops::{Add, BitAnd, Div, Mul, Sub};
+
+    /// Four f32 lanes (SSE2, part of every x86-64 CPU).
+    #[derive(Clone, Copy, Debug)]
+    pub struct F4(__m128);
+
+    impl F4 {
+        pub const ZERO: F4 = F4(unsafe { std::mem::transmute::<[f32; 4], __m128>([0.0; 4]) });
+
+        #[inline(always)]
+        pub fn new(a: f32, b: f32, c: f32, d: f32) -> F4 {
+            F4(unsafe { _mm_setr_ps(a, b, c, d) })
+        }
+        /// The first four values of `s`.
+        #[inline(always)]
+        pub fn load(s: &[f32]) -> F4 {
+            let s = &s[..4];
+            F4(unsafe { _mm_loadu_ps(s.as_ptr()) })
+        }
+        #[inline(always)]
+        pub fn sqrt(self) -> F4 {
+            F4(unsafe { _mm_sqrt_ps(self.0) })
+        }
+        /// `max(self, 0)`, NaN → 0 like `f32::max`.
+        #[inline(always)]
+        pub fn max_zero(self) -> F4 {
+            // MAXPS returns the second operand when either is NaN.
+            F4(unsafe { _mm_max_ps(self.0, _mm_setzero_ps()) })
+        }
+        /// Lane mask `self > other`.
+        #[inline(always)]
+        pub fn gt(self, other: F4) -> F4 {
+            F4(unsafe { _mm_cmpgt_ps(self.0, other.0) })
+        }
+        /// Lane mask "finite": `x − x == 0` fails exactly for ±∞ and NaN.
+        #[inline(always)]
+        pub fn finite(self) -> F4 {
+            F4(unsafe { _mm_cmpeq_ps(_mm_sub_ps(self.0, self.0), _mm_setzero_ps()) })
+        }
+        #[inline(always)]
+        pub fn to_array(self) -> [f32; 4] {
+            unsafe { std::mem::transmute::<__m128, [f32; 4]>(self.0) }
+        }
+        /// Lanes of a comparison mask as booleans.
+        #[inline(always)]
+        pub fn to_mask(self) -> [bool; 4] {
+            let bits = unsafe { _mm_movemask_ps(self.0) };
+            [bits & 1 != 0, bits & 2 != 0, bits & 4 != 0, bits & 8 != 0]
+        }
+    }
+
+    macro_rules! op {
+        ($trait:ident, $method:ident, $intrinsic:ident) => {
+            impl $trait for F4 {
+                type Output = F4;
+                #[inline(always)]
+                fn $method(self, rhs: F4) -> F4 {
+                    F4(unsafe { $intrinsic(self.0, rhs.0) })
+                }
+            }
+        };
+    }
+    op!(Add, add, _mm_add_ps);
+    op!(Sub, sub, _mm_sub_ps);
+    op!(Mul, mul, _mm_mul_ps);
+    op!(Div, div, _mm_div_ps);
+    op!(BitAnd, bitand, _mm_and_ps);
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+mod f4 {
+    use std::ops::{Add, BitAnd, Div, Mul, Sub};
+
+    /// Four f32 lanes as a plain array (the compiler vectorises it where it can).
+    #[derive(Clone, Copy, Debug)]
+    pub struct F4([f32; 4]);
+
+    const TRUE: f32 = f32::from_bits(u32::MAX);
+
+    impl F4 {
+        pub const ZERO: F4 = F4([0.0; 4]);
+
+        #[inline(always)]
+        pub fn new(a: f32, b: f32, c: f32, d: f32) -> F4 {
+            F4([a, b, c, d])
+        }
+        #[inline(always)]
+        pub fn load(s: &[f32]) -> F4 {
+            F4([s[0], s[1], s[2], s[3]])
+        }
+        #[inline(always)]
+        pub fn sqrt(self) -> F4 {
+            F4(self.0.map(f32::sqrt))
+        }
+        #[inline(always)]
+        pub fn max_zero(self) -> F4 {
+            F4(self.0.map(|v| if v > 0.0 { v } else { 0.0 }))
+        }
+        #[inline(always)]
+        pub fn gt(self, other: F4) -> F4 {
+            F4(std::array::from_fn(|l| if self.0[l] > other.0[l] { TRUE } else { 0.0 }))
+        }
+        #[inline(always)]
+        pub fn finite(self) -> F4 {
+            F4(self.0.map(|v| if v.is_finite() { TRUE } else { 0.0 }))
+        }
+        #[inline(always)]
+        pub fn to_array(self) -> [f32; 4] {
+            self.0
+        }
+        #[inline(always)]
+        pub fn to_mask(self) -> [bool; 4] {
+            self.0.map(|v| v.to_bits() != 0)
+        }
+    }
+
+    macro_rules! op {
+        ($trait:ident, $method:ident, $op:tt) => {
+            impl $trait for F4 {
+                type Output = F4;
+                #[inline(always)]
+                fn $method(self, rhs: F4) -> F4 {
+                    F4(std::array::from_fn(|l| self.0[l] $op rhs.0[l]))
+                }
+            }
+        };
+    }
+    op!(Add, add, +);
+    op!(Sub, sub, -);
+    op!(Mul, mul, *);
+    op!(Div, div, /);
+
+    impl BitAnd for F4 {
+        type Output = F4;
+        #[inline(always)]
+        fn bitand(self, rhs: F4) -> F4 {
+            F4(std::array::from_fn(|l| f32::from_bits(self.0[l].to_bits() & rhs.0[l].to_bits())))
+        }
+    }
+}
