@@ -50,14 +50,20 @@ def evaluated_positions(obj, depsgraph) -> tuple[np.ndarray, np.ndarray]:
     return local, to_world(local, evaluated.matrix_world)
 
 
+def _apply(positions: np.ndarray, m: np.ndarray) -> np.ndarray:
+    if np.array_equal(m, np.eye(4)):
+        return positions  # the common case of an untransformed rig: no pass over the data
+    out = positions @ m[:3, :3].T.astype(np.float32)
+    out += m[:3, 3].astype(np.float32)
+    return out
+
+
 def to_world(local: np.ndarray, matrix) -> np.ndarray:
-    m = np.array(matrix, dtype=np.float64)
-    return (local @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
+    return _apply(local, np.array(matrix, dtype=np.float64))
 
 
 def to_local(world: np.ndarray, matrix) -> np.ndarray:
-    m = np.linalg.inv(np.array(matrix, dtype=np.float64))
-    return (world @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
+    return _apply(world, np.linalg.inv(np.array(matrix, dtype=np.float64)))
 
 
 def rest_positions(obj) -> np.ndarray:
