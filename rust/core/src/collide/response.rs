@@ -431,9 +431,15 @@ impl<'a> ColliderSet<'a> {
     /// Outward direction at collider edge `e`: the normalised sum of its
     /// faces' outward normals at the current positions.
     fn edge_outward(&self, c: usize, e: usize) -> Option<DVec3> {
+        self.mean_outward(c, self.colliders[c].edge_triangles(e))
+    }
+
+    /// Unit mean of the current normals of collider `c`'s `triangles`,
+    /// turned to face out of the collider.
+    fn mean_outward(&self, c: usize, triangles: &[u32]) -> Option<DVec3> {
         let col = self.colliders[c];
         let mut sum = DVec3::ZERO;
-        for &t in col.edge_triangles(e) {
+        for &t in triangles {
             let [a, b, cc] = col.triangles()[t as usize].map(|v| d(col.current()[v as usize]));
             if let Some(n) = triangle_normal(a, b, cc) {
                 sum += n;
@@ -514,15 +520,7 @@ impl<'a> ColliderSet<'a> {
 
     /// Outward direction at collider vertex `v` (sum of its faces' normals).
     fn vertex_outward(&self, c: usize, v: usize) -> Option<DVec3> {
-        let col = self.colliders[c];
-        let mut sum = DVec3::ZERO;
-        for &t in col.vertex_triangles(v) {
-            let [a, b, cc] = col.triangles()[t as usize].map(|i| d(col.current()[i as usize]));
-            if let Some(n) = triangle_normal(a, b, cc) {
-                sum += n;
-            }
-        }
-        unit(sum * self.outward[c])
+        self.mean_outward(c, self.colliders[c].vertex_triangles(v))
     }
 
     /// Edge–edge and collider-vertex–skin-triangle corrections of one round,
