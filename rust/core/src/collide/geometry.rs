@@ -45,51 +45,111 @@ pub fn segment_crosses_triangle(p: DVec3, q: DVec3, a: DVec3, b: DVec3, c: DVec3
 /// Squared distance from `p` to triangle `a b c` (Ericson, Real-Time Collision
 /// Detection, 5.1.5), robust to degenerate triangles.
 pub fn point_triangle_distance_squared(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> f64 {
+    let (v, w) = closest_on_triangle(p, a, b, c);
+    (p - (a + v * (b - a) + w * (c - a))).length_squared()
+}
+
+/// Barycentric weights `(v, w)` of `b` and `c` of the point of triangle
+/// `a b c` closest to `p` (Ericson, Real-Time Collision Detection, 5.1.5);
+/// for a degenerate triangle, the closest point of its three edges.
+pub fn closest_on_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> (f64, f64) {
     let ab = b - a;
     let ac = c - a;
     let ap = p - a;
     let d1 = ab.dot(ap);
     let d2 = ac.dot(ap);
     if d1 <= 0.0 && d2 <= 0.0 {
-        return ap.length_squared();
+        return (0.0, 0.0);
     }
     let bp = p - b;
     let d3 = ab.dot(bp);
     let d4 = ac.dot(bp);
     if d3 >= 0.0 && d4 <= d3 {
-        return bp.length_squared();
+        return (1.0, 0.0);
     }
     let vc = d1 * d4 - d3 * d2;
     if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        let v = d1 / (d1 - d3);
-        return (p - (a + v * ab)).length_squared();
+        return (d1 / (d1 - d3), 0.0);
     }
     let cp = p - c;
     let d5 = ab.dot(cp);
     let d6 = ac.dot(cp);
     if d6 >= 0.0 && d5 <= d6 {
-        return cp.length_squared();
+        return (0.0, 1.0);
     }
     let vb = d5 * d2 - d1 * d6;
     if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        let w = d2 / (d2 - d6);
-        return (p - (a + w * ac)).length_squared();
+        return (0.0, d2 / (d2 - d6));
     }
     let va = d3 * d6 - d5 * d4;
     if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
         let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return (p - (b + w * (c - b))).length_squared();
+        return (1.0 - w, w);
     }
     let denom = va + vb + vc;
     if denom.abs() < 1e-300 || !denom.is_finite() {
-        // Degenerate triangle: distance to its three edges.
-        return segment_point_distance_squared(p, a, b)
-            .min(segment_point_distance_squared(p, b, c))
-            .min(segment_point_distance_squared(p, c, a));
+        // Degenerate triangle: the closest point of its three edges.
+        let on = |x: DVec3, y: DVec3| {
+            let xy = y - x;
+            let len2 = xy.length_squared();
+            let t = if len2 > 0.0 { ((p - x).dot(xy) / len2).clamp(0.0, 1.0) } else { 0.0 };
+            (t, (p - (x + t * xy)).length_squared())
+        };
+        let (t_ab, d_ab) = on(a, b);
+        let (t_bc, d_bc) = on(b, c);
+        let (t_ca, d_ca) = on(c, a);
+        return if d_ab <= d_bc && d_ab <= d_ca {
+            (t_ab, 0.0)
+        } else if d_bc <= d_ca {
+            (1.0 - t_bc, t_bc)
+        } else {
+            (0.0, 1.0 - t_ca)
+        };
     }
-    let v = vb / denom;
-    let w = vc / denom;
-    (p - (a + ab * v + ac * w)).length_squared()
+    (vb / denom, vc / denom)
+}
+
+/// Squared distance between segments `p0 p1` and `q0 q1` (Ericson, Real-Time
+/// Collision Detection, 5.1.9): the parameters of the closest points are
+/// clamped to the segments, so the result is the exact minimum up to rounding,
+/// also for parallel and zero-length segments.
+pub fn segment_segment_distance_squared(p0: DVec3, p1: DVec3, q0: DVec3, q1: DVec3) -> f64 {
+    let d1 = p1 - p0;
+    let d2 = q1 - q0;
+    let r = p0 - q0;
+    let a = d1.length_squared();
+    let e = d2.length_squared();
+    let f = d2.dot(r);
+    if a <= f64::MIN_POSITIVE && e <= f64::MIN_POSITIVE {
+        return r.length_squared();
+    }
+    if a <= f64::MIN_POSITIVE {
+        return segment_point_distance_squared(p0, q0, q1);
+    }
+    if e <= f64::MIN_POSITIVE {
+        return segment_point_distance_squared(q0, p0, p1);
+    }
+    let c = d1.dot(r);
+    let b = d1.dot(d2);
+    let denom = a * e - b * b;
+    // Closest point on the first line to the second, clamped; for parallel
+    // segments any s works, 0 is as good as any.
+    let mut s = if denom > 0.0 { ((b * f - c * e) / denom).clamp(0.0, 1.0) } else { 0.0 };
+    let mut t = (b * s + f) / e;
+    if t < 0.0 {
+        t = 0.0;
+        s = (-c / a).clamp(0.0, 1.0);
+    } else if t > 1.0 {
+        t = 1.0;
+        s = ((b - c) / a).clamp(0.0, 1.0);
+    }
+    // Re-evaluating the endpoint distances guards against the clamped pair
+    // not being the true minimum when rounding pushed `s` or `t` across a bound.
+    let pair = (p0 + d1 * s - (q0 + d2 * t)).length_squared();
+    pair.min(segment_point_distance_squared(p0, q0, q1))
+        .min(segment_point_distance_squared(p1, q0, q1))
+        .min(segment_point_distance_squared(q0, p0, p1))
+        .min(segment_point_distance_squared(q1, p0, p1))
 }
 
 fn segment_point_distance_squared(p: DVec3, a: DVec3, b: DVec3) -> f64 {

@@ -8,6 +8,8 @@
 //! * [`collider`]: a triangle mesh moving from last frame to this frame, with
 //!   thickness, friction and a BVH over its swept triangles.
 //! * [`geometry`]: f64 helpers (normals, distances, crossing tests).
+//! * [`proximity`]: cheap exact-distance proofs that a pair stays apart,
+//!   which spare resting contacts the interval CCD.
 //! * [`response`]: [`ColliderSet::resolve_path`], the building block of both
 //!   collision passes (projection, friction, pinched vertices); its module doc
 //!   shows the intended use in seed 000's Algorithm 2.
@@ -19,6 +21,7 @@ pub mod bvh;
 pub mod ccd;
 pub mod collider;
 pub mod geometry;
+pub mod proximity;
 pub mod response;
 
 pub use audit::{audit, AuditParams, AuditReport};

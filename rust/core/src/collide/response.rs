@@ -61,6 +61,7 @@ use super::bvh::Bounds;
 use super::ccd::{self, CcdParams};
 use super::collider::Collider;
 use super::geometry::{triangle_normal, unit};
+use super::proximity;
 use crate::mesh::{validate_positions, MeshInput};
 use crate::{Error, Result};
 
@@ -302,7 +303,21 @@ impl<'a> ColliderSet<'a> {
                     params.t_max = b.hit.toi.max(f64::MIN_POSITIVE);
                 }
                 let ([a0, b0, c0], [a1, b1, c1]) = self.triangle_ends(c, t, motion);
-                if let Some(hit) = ccd::vertex_triangle(s64, a0, b0, c0, e64, a1, b1, c1, &params) {
+                if proximity::vertex_triangle_apart(s64, [a0, b0, c0], e64, [a1, b1, c1], params.min_separation) {
+                    return true;
+                }
+                // A still or rigidly translating triangle has a closed-form
+                // first contact; its deviation from a translation is added to
+                // the separation so the answer stays conservative.
+                let shift = a1 - a0;
+                let deviation = (b1 - b0 - shift).length().max((c1 - c0 - shift).length());
+                let found = if deviation <= params.tolerance {
+                    let separation = params.min_separation + params.tolerance + deviation;
+                    ccd::vertex_triangle_translating(s64, e64, [a0, b0, c0], shift, separation, params.t_max)
+                } else {
+                    ccd::vertex_triangle(s64, a0, b0, c0, e64, a1, b1, c1, &params)
+                };
+                if let Some(hit) = found {
                     if best.is_none_or(|b| hit.toi < b.hit.toi) {
                         best = Some(VertexHit { collider: c, triangle: t, hit });
                     }
@@ -383,6 +398,9 @@ impl<'a> ColliderSet<'a> {
                         ccd_params.t_max = b.toi.max(f64::MIN_POSITIVE);
                     }
                     let ([c0, c1], [c0e, c1e]) = self.edge_ends(c, e as usize, params.motion);
+                    if proximity::edge_edge_apart([sa, sb], [c0, c1], [ea, eb], [c0e, c1e], ccd_params.min_separation) {
+                        continue;
+                    }
                     if let Some(hit) = ccd::edge_edge(sa, sb, c0, c1, ea, eb, c0e, c1e, &ccd_params) {
                         if best.is_none_or(|(_, _, b)| hit.toi < b.toi) {
                             best = Some((c, e as usize, hit));
@@ -469,6 +487,9 @@ impl<'a> ColliderSet<'a> {
                     ccd_params.t_max = b.toi.max(f64::MIN_POSITIVE);
                 }
                 let (r0, r1) = self.vertex_ends(c, v, params.motion);
+                if proximity::vertex_triangle_apart(r0, [s0, s1, s2], r1, [e0, e1, e2], ccd_params.min_separation) {
+                    return true;
+                }
                 if let Some(hit) = ccd::vertex_triangle(r0, s0, s1, s2, r1, e0, e1, e2, &ccd_params) {
                     if best.is_none_or(|(_, _, b)| hit.toi < b.toi) {
                         best = Some((c, v, hit));
