@@ -5,7 +5,11 @@ use std::sync::Mutex;
 use numpy::{PyArray1, PyArray2, PyUntypedArray};
 use pyo3::prelude::*;
 use tegument_core::mesh::MeshInput;
-use tegument_core::pyramid::{Closeness, DeformerOptions, PyramidDeformer as Core};
+use pyo3::types::PyDict;
+use tegument_core::collide::Collider as CoreCollider;
+use tegument_core::pyramid::{Closeness, DeformerOptions, PyramidDeformer as Core, StepReport};
+
+use crate::collide::collider_refs;
 
 use crate::convert::{float_array_arg, indices_to_py, int_array_arg, positions_arg, positions_to_py, run_detached, TegumentError};
 
@@ -25,6 +29,7 @@ pub struct PyramidDeformer {
     // Python thread calling in meanwhile waits instead of getting an error.
     inner: Mutex<Core>,
     vertex_count: usize,
+    last_step: Mutex<Option<StepReport>>,
 }
 
 impl PyramidDeformer {
@@ -59,7 +64,7 @@ impl PyramidDeformer {
                 DeformerOptions { scale_safe, ..DeformerOptions::default() },
             )
         })?;
-        Ok(PyramidDeformer { vertex_count: core.vertex_count(), inner: Mutex::new(core) })
+        Ok(PyramidDeformer { vertex_count: core.vertex_count(), inner: Mutex::new(core), last_step: Mutex::new(None) })
     }
 
     /// Number of vertices of the bound mesh.
@@ -97,31 +102,77 @@ impl PyramidDeformer {
         if iterations < 0 {
             return Err(TegumentError::new_err(format!("iterations is {iterations}; it must be 0 or more")));
         }
-        let weights = match closeness {
-            None => None,
-            Some(obj) if obj.cast::<PyUntypedArray>().is_ok() => Some(Weights::PerVertex(float_array_arg("closeness", obj, Some(n))?)),
-            Some(obj) if obj.is_instance_of::<pyo3::types::PyBool>() => {
-                return Err(TegumentError::new_err("closeness: expected None, a float or a float32 (N,) array; got a bool"))
-            }
-            Some(obj) => match obj.extract::<f64>() {
-                Ok(c) => Some(Weights::Uniform(c as f32)),
-                Err(_) => {
-                    let kind = obj.get_type().name().map(|s| s.to_string()).unwrap_or_default();
-                    return Err(TegumentError::new_err(format!(
-                        "closeness: expected None, a float or a float32 ({n},) array; got a {kind}"
-                    )));
-                }
-            },
-        };
-        let output = self.with(py, move |core| {
-            let closeness = match &weights {
-                None => Closeness::Default,
-                Some(Weights::Uniform(c)) => Closeness::Uniform(*c),
-                Some(Weights::PerVertex(w)) => Closeness::PerVertex(w),
-            };
-            core.solve(&input, iterations as usize, closeness)
-        })?;
+        let weights = closeness_arg(closeness, n)?;
+        let output = self.with(py, move |core| core.solve(&input, iterations as usize, weights.as_closeness()))?;
         Ok(positions_to_py(py, &output))
+    }
+
+    /// Solves the next frame of an animation against ``colliders`` and
+    /// returns float32 ``(N, 3)`` positions.
+    ///
+    /// History-based (seed 000, Algorithm 2): the deformer keeps its last
+    /// output, which is free of collisions. Each vertex first moves from there
+    /// towards this frame's ``positions`` while the colliders (a sequence of
+    /// :class:`Collider`, already :meth:`Collider.update`-d to this frame)
+    /// sweep from their previous to their current positions, stopping at
+    /// contacts with friction; then the solve runs, and after every iteration
+    /// contacts along each vertex's move are detected and resolved again.
+    /// The first call, and the first after :meth:`reset`, starts from
+    /// ``positions`` itself. Vertices squeezed between colliders are pinched:
+    /// kept near the solve's result, never NaN, and listed in
+    /// :attr:`last_step`. ``iterations`` and ``closeness`` as in :meth:`solve`.
+    #[pyo3(signature = (positions, colliders = None, iterations = 10, closeness = None))]
+    fn step<'py>(
+        &self,
+        py: Python<'py>,
+        positions: &Bound<'py, PyAny>,
+        colliders: Option<&Bound<'py, PyAny>>,
+        iterations: i64,
+        closeness: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let n = self.vertex_count;
+        let input = positions_arg("positions", positions, Some(n))?;
+        if iterations < 0 {
+            return Err(TegumentError::new_err(format!("iterations is {iterations}; it must be 0 or more")));
+        }
+        let weights = closeness_arg(closeness, n)?;
+        let refs = match colliders {
+            Some(c) => collider_refs(c)?,
+            None => Vec::new(),
+        };
+        let cols: Vec<&CoreCollider> = refs.iter().map(|r| &r.inner).collect();
+        let (output, report) =
+            self.with(py, move |core| core.step(&input, &cols, iterations as usize, weights.as_closeness()))?;
+        *self.last_step.lock().unwrap_or_else(|e| e.into_inner()) = Some(report);
+        Ok(positions_to_py(py, &output))
+    }
+
+    /// Forgets the last output of :meth:`step`: the next step starts from its input.
+    fn reset(&self, py: Python<'_>) -> PyResult<()> {
+        *self.last_step.lock().unwrap_or_else(|e| e.into_inner()) = None;
+        self.with(py, |core| {
+            core.reset();
+            Ok(())
+        })
+    }
+
+    /// What the last :meth:`step` did about contacts, or ``None``: a dict with
+    /// ``first_pass_contacts`` (vertex, edge and collider-vertex contacts of
+    /// the first pass), ``first_pass_moved`` (vertices it moved),
+    /// ``in_loop_contacts`` (over all iterations), ``max_in_loop_correction``
+    /// and ``pinched`` (int32 array of the vertices left pinched).
+    #[getter]
+    fn last_step<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let guard = self.last_step.lock().unwrap_or_else(|e| e.into_inner());
+        let Some(report) = guard.as_ref() else { return Ok(None) };
+        let first = &report.first_pass;
+        let dict = PyDict::new(py);
+        dict.set_item("first_pass_contacts", first.vertex_contacts + first.edge_contacts + first.collider_vertex_contacts)?;
+        dict.set_item("first_pass_moved", first.moved.len())?;
+        dict.set_item("in_loop_contacts", report.in_loop_contacts)?;
+        dict.set_item("max_in_loop_correction", report.max_in_loop_correction)?;
+        dict.set_item("pinched", indices_to_py(py, &report.pinched))?;
+        Ok(Some(dict))
     }
 
     /// Mean pyramid residual of ``positions`` (float32 ``(N, 3)``): the mean
@@ -138,8 +189,39 @@ impl PyramidDeformer {
 }
 
 enum Weights {
+    Default,
     Uniform(f32),
     PerVertex(Vec<f32>),
+}
+
+impl Weights {
+    fn as_closeness(&self) -> Closeness<'_> {
+        match self {
+            Weights::Default => Closeness::Default,
+            Weights::Uniform(c) => Closeness::Uniform(*c),
+            Weights::PerVertex(w) => Closeness::PerVertex(w),
+        }
+    }
+}
+
+/// The ``closeness`` argument: ``None``, a float, or a float32 ``(N,)`` array.
+fn closeness_arg(closeness: Option<&Bound<'_, PyAny>>, n: usize) -> PyResult<Weights> {
+    Ok(match closeness {
+        None => Weights::Default,
+        Some(obj) if obj.cast::<PyUntypedArray>().is_ok() => Weights::PerVertex(float_array_arg("closeness", obj, Some(n))?),
+        Some(obj) if obj.is_instance_of::<pyo3::types::PyBool>() => {
+            return Err(TegumentError::new_err("closeness: expected None, a float or a float32 (N,) array; got a bool"))
+        }
+        Some(obj) => match obj.extract::<f64>() {
+            Ok(c) => Weights::Uniform(c as f32),
+            Err(_) => {
+                let kind = obj.get_type().name().map(|s| s.to_string()).unwrap_or_default();
+                return Err(TegumentError::new_err(format!(
+                    "closeness: expected None, a float or a float32 ({n},) array; got a {kind}"
+                )));
+            }
+        },
+    })
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

@@ -166,3 +166,43 @@ def test_no_colliders_means_a_clean_audit():
     positions, corner_verts, polygon_sizes = grid_arrays(3, 3)
     result = tegument.audit(positions, corner_verts, polygon_sizes, [])
     assert (result["vertices_inside"], result["edges_crossing"], result["collider_edges_crossing"]) == (0, 0, 0)
+
+
+def _skin(n: int = 24):
+    positions, corner_verts, polygon_sizes = grid_arrays(n, n)
+    return positions, corner_verts, polygon_sizes, tegument.PyramidDeformer(positions, corner_verts, polygon_sizes)
+
+
+def test_step_keeps_skin_outside_a_sphere_pushed_through_it_and_remembers():
+    positions, corner_verts, polygon_sizes, deformer = _skin()
+    sphere, tris = uv_sphere(0.4, center=(0.0, 0.0, -0.6))
+    collider = tegument.Collider(sphere, tris, thickness=0.01)
+    assert deformer.last_step is None
+    raised = []
+    for dz in np.linspace(0.0, 0.9, 7):  # ends with the centre 0.3 above the skin
+        collider.update(sphere + np.float32([0.0, 0.0, dz]))
+        out = deformer.step(positions, [collider], iterations=10, closeness=0.05)
+        assert out.dtype == np.float32 and out.shape == positions.shape and np.isfinite(out).all()
+        found = tegument.audit(out, corner_verts, polygon_sizes, [collider])
+        assert (found["vertices_inside"], found["edges_crossing"], found["collider_edges_crossing"]) == (0, 0, 0)
+        assert len(deformer.last_step["pinched"]) == 0
+        raised.append(out[:, 2].max())
+    # The skin rides over the sphere's top (0.3 + 0.4 + thickness).
+    assert raised[-1] > 0.7
+    assert deformer.last_step["first_pass_contacts"] > 0
+    # Without colliders a step is the plain solve from the input; reset forgets the history.
+    deformer.reset()
+    assert deformer.last_step is None
+    np.testing.assert_array_equal(deformer.step(positions), deformer.solve(positions))
+
+
+def test_step_refuses_bad_colliders_and_positions():
+    positions, _, _, deformer = _skin(4)
+    with pytest.raises(tegument.TegumentError, match=r"colliders\[0\]: expected a tegument.Collider"):
+        deformer.step(positions, [object()])
+    with pytest.raises(tegument.TegumentError, match="positions"):
+        deformer.step(positions[:-1], [])
+    bad = positions.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(tegument.TegumentError, match="not finite"):
+        deformer.step(bad)

@@ -16,6 +16,7 @@ use super::constraint::{PyramidLaplacian, PyramidTargets};
 use super::encode::{encode, Encoding, PinReason};
 use super::project::residual;
 use crate::mesh::{validate_positions, MeshInput, Topology};
+use crate::collide::Skin;
 use crate::solve::{self, ConstraintId, IterationHook, Solver, SystemKind};
 use crate::{Error, Result};
 
@@ -102,6 +103,13 @@ pub struct PyramidDeformer {
     /// frame with the same closeness as the last one skips rebuilding and
     /// checking two weight arrays (a measurable part of a 10-iteration solve).
     applied: Option<Applied>,
+    /// Edges and triangles for the collision passes (vertices only when
+    /// built from a bare encoding: [`PyramidDeformer::step`] then handles
+    /// vertex contacts only).
+    pub(super) skin: Skin,
+    /// Last output of [`PyramidDeformer::step`]: collision-free, where the
+    /// next frame's first pass starts from.
+    pub(super) history: Option<Vec<Vec3>>,
 }
 
 /// What [`PyramidDeformer::set_closeness`] last applied.
@@ -116,7 +124,9 @@ impl PyramidDeformer {
     pub fn bind(mesh: MeshInput<'_>, options: DeformerOptions) -> Result<Self> {
         let topology = Topology::build(mesh)?;
         let encoding = Arc::new(encode(&topology, mesh.positions, options.scale_safe)?);
-        Self::from_encoding(encoding, options.formulation)
+        let mut deformer = Self::from_encoding(encoding, options.formulation)?;
+        deformer.skin = Skin::from_mesh(mesh)?;
+        Ok(deformer)
     }
 
     /// A deformer over an existing encoding (shared, e.g. to compare formulations).
@@ -142,6 +152,8 @@ impl PyramidDeformer {
             pyramid,
             closeness,
             applied: None,
+            skin: Skin::vertices_only(n),
+            history: None,
         };
         deformer.set_closeness(Closeness::Default)?;
         Ok(deformer)

@@ -10,6 +10,7 @@
 //!   current positions of its neighbours.
 //! * [`constraint`]: the two formulations as [`crate::solve::Constraint`]s.
 //! * [`deformer`]: bind + solve + residual, what the bindings call.
+//! * [`step`]: frame-to-frame solving with the two collision passes.
 //!
 //! The design and the measurements behind the default formulation are in
 //! `docs/design/pyramid-solver.md`.
@@ -19,6 +20,7 @@ pub mod deformer;
 pub mod encode;
 pub mod kernel;
 pub mod project;
+pub mod step;
 
 pub use constraint::{PyramidLaplacian, PyramidTargets};
 pub use deformer::{
@@ -26,6 +28,7 @@ pub use deformer::{
     MAX_ITERATIONS, MIN_CLOSENESS,
 };
 pub use encode::{encode, Encoding, PinReason, MAX_VALENCE};
+pub use step::StepReport;
 
 #[cfg(test)]
 mod tests;

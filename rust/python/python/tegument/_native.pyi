@@ -63,6 +63,21 @@ class PyramidDeformer:
         closeness: float | npt.NDArray[np.float32] | None = None,
     ) -> npt.NDArray[np.float32]:
         """Solves one frame; ``closeness`` is None (0.1), a float or a float32 ``(N,)`` array in ``[0, 1]``."""
+    def step(
+        self,
+        positions: npt.NDArray[np.float32],
+        colliders: Sequence[Collider] | None = None,
+        iterations: int = 10,
+        closeness: float | npt.NDArray[np.float32] | None = None,
+    ) -> npt.NDArray[np.float32]:
+        """Solves the next frame of an animation against ``colliders`` (updated to this frame),
+        starting from the last output (history-based, two collision passes); float32 ``(N, 3)``."""
+    def reset(self) -> None:
+        """Forgets the last output: the next ``step`` starts from its input."""
+    @property
+    def last_step(self) -> dict[str, Any] | None:
+        """What the last ``step`` did about contacts: ``first_pass_contacts``, ``first_pass_moved``,
+        ``in_loop_contacts``, ``max_in_loop_correction``, ``pinched`` (int32 array)."""
     def residual(self, positions: npt.NDArray[np.float32]) -> float:
         """Mean pyramid residual relative to the mean rest edge length (0 at rest)."""
 
