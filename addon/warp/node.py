@@ -319,8 +319,9 @@ def frame_file(directory: str, stem: str, udim: int, frame: int) -> str:
 
 
 def all_nodes():
-    """Every Tegument UV Warp node, in materials and in node groups."""
-    trees = [m.node_tree for m in bpy.data.materials if m.node_tree is not None]
+    """Every Tegument UV Warp node, in any shader tree (a group used by none is an orphan)."""
+    owners = (*bpy.data.materials, *bpy.data.worlds, *bpy.data.lights, *bpy.data.linestyles)
+    trees = [o.node_tree for o in owners if getattr(o, "node_tree", None) is not None]
     trees += [g for g in bpy.data.node_groups if g.bl_idname == "ShaderNodeTree"]
     for tree in trees:
         for node in tree.nodes:
