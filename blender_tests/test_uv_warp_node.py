@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pathlib
 import re
+import signal
 
 import bpy
 import numpy as np
@@ -221,8 +222,11 @@ def test_create_bake_save_reload_matches_the_wheel_and_plays_as_a_sequence(saved
             assert np.abs(got[inside] - o[inside]).max() > 5e-3, f"frame {other} was sampled at frame {frame}"
 
 
-def sample(data: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """What the inner tree computes: bilinear (clamped) redirection and validity, mixed with the UV."""
+def sample(data: np.ndarray, u: np.ndarray, v: np.ndarray, tile_u: int = 0) -> np.ndarray:
+    """What the inner tree computes: bilinear (clamped) redirection and validity, mixed with the UV.
+
+    ``u``, ``v`` are within the tile; the redirection in ``data`` is absolute (tile offset included).
+    """
     n = data.shape[0]
     fx = np.clip(u * n - 0.5, 0, n - 1)
     fy = np.clip(v * n - 0.5, 0, n - 1)
@@ -231,7 +235,7 @@ def sample(data: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     tx, ty = (fx - x0)[..., None], (fy - y0)[..., None]
     c = ((data[y0, x0] * (1 - tx) + data[y0, x0 + 1] * tx) * (1 - ty)
          + (data[y0 + 1, x0] * (1 - tx) + data[y0 + 1, x0 + 1] * tx) * ty)
-    uv = np.stack([u, v], -1)
+    uv = np.stack([u + tile_u, v], -1)
     return uv + c[..., 2:3] * (c[..., :2] - uv)
 
 
@@ -401,3 +405,103 @@ def test_copy_and_delete_leave_no_orphan_group(saved, tmp_path):
     bpy.ops.wm.save_mainfile()
     bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "warp.blend"))
     assert warp_groups() == [], "an inner group outlived its node"
+
+
+def rigid_group(obj, name="Rigid"):
+    """Vertex group: weight 1 within RIGID_RADIUS of the plane's centre in the rest UVs."""
+    group = obj.vertex_groups.new(name=name)
+    co = np.array([v.co[:] for v in obj.data.vertices], np.float32)
+    inside = np.nonzero(np.linalg.norm(co[:, :2] / 2, axis=1) < RIGID_RADIUS)[0]  # plane 2 wide = UV 1 wide
+    group.add([int(i) for i in inside], 1.0, "REPLACE")
+    return name
+
+
+def test_udim_tiles_get_one_sequence_each_and_the_tree_picks_the_tile(saved, tmp_path):
+    import tegument
+
+    obj = saved
+    # The right half of the plane moves to tile 1002 (u + 1): two charts, two tiles.
+    layer = obj.data.uv_layers.active
+    uv = np.empty(len(layer.data) * 2, np.float32)
+    layer.uv.foreach_get("vector", uv)
+    uv = uv.reshape(-1, 2)
+    sizes = np.array([p.loop_total for p in obj.data.polygons])
+    owner = np.repeat(np.arange(len(sizes)), sizes)
+    centre_u = np.bincount(owner, uv[:, 0]) / sizes
+    uv[centre_u[owner] > 0.5, 0] += 1.0
+    layer.uv.foreach_set("vector", uv.ravel())
+    material, node = warp_material(obj, show="uv")
+    node.rigidity_group = rigid_group(obj)
+    bind(material, node)
+    assert bpy.ops.tegument.warp_bake(material=material.name, node=node.name) == {"FINISHED"}
+    assert "fold-overs 0" in node.report
+    out = tmp_path / "tegument" / "warp"
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(f"Skin_Tegument_UV_Warp_{t}_{f:04d}.exr" for t in (1001, 1002) for f in range(1, 6))
+    assert sorted(n.name for n in node.node_tree.nodes if n.bl_idname == "ShaderNodeTexImage") == ["Warp 1001", "Warp 1002"]
+    right = tegument.read_exr(out / "Skin_Tegument_UV_Warp_1002_0005.exr")[0]
+    assert right[..., 0][right[..., 2] > 0].min() >= 1.0  # absolute UVs of tile 1002
+
+    n = 24
+    scene = camera_and_cycles(n, samples=1)
+    scene.render.filter_size = 0.01
+    centres = -1 + (np.arange(n) + 0.5) * 2 / n
+    x, y = np.meshgrid(centres, centres)
+    pixels = render(scene, 5, tmp_path / "udim.exr")
+    width = 0.5
+    u = (x / width + 1) / 2
+    v = (y + 1) / 2
+    left = (x < -0.05) & (x > -width + 0.1)
+    right_px = (x > 0.05) & (x < width - 0.1)
+    want_left = sample(tegument.read_exr(out / "Skin_Tegument_UV_Warp_1001_0005.exr")[0], u, v)
+    want_right = sample(right, u, v, tile_u=1)
+    assert np.abs(pixels[..., :2][left] - want_left[left]).max() < 2e-3
+    assert np.abs(pixels[..., :2][right_px] - want_right[right_px]).max() < 2e-3
+    assert pixels[..., 0][right_px].min() > 1.0 and pixels[..., 0][left].max() < 1.0
+
+
+def staged_leftovers(directory: pathlib.Path) -> list[str]:
+    return [p.name for p in directory.iterdir() if p.name.startswith(".tegument-warp-")]
+
+
+def test_failing_bake_keeps_the_previous_sequence_and_cancel_keeps_frames_done(saved, tmp_path):
+    obj = saved
+    material, node = warp_material(obj, show="uv")
+    node.rigidity_image = float_image("Rigidity", disc(RIGID_RADIUS))
+    bind(material, node)
+    names = dict(material=material.name, node=node.name)
+    assert bpy.ops.tegument.warp_bake(**names) == {"FINISHED"}
+    out = tmp_path / "tegument" / "warp"
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert len(before) == 5
+
+    # From frame 3 on a Mirror modifier doubles the vertices: the bake stops there.
+    mirror = obj.modifiers.new("Mirror", "MIRROR")
+    mirror.use_mirror_merge = False
+    for frame, shown in ((1, False), (3, True)):
+        mirror.show_viewport = shown
+        mirror.keyframe_insert("show_viewport", frame=frame)
+    node.iterations = 8
+    with pytest.raises(RuntimeError, match=r"at frame 3 Skin evaluates to \d+ vertices but was bound with 2401"):
+        bpy.ops.tegument.warp_bake(**names)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before, "a failed bake changed the sequence"
+    assert staged_leftovers(out) == []
+    assert node.baked_frames == 5
+    obj.modifiers.remove(mirror)
+
+    # Ctrl-C after the second frame: the two frames done replace the sequence, the rest is gone.
+    seen = []
+
+    def interrupt_after_two(scene, depsgraph=None):
+        seen.append(scene.frame_current)
+        if len(seen) == 2:
+            signal.raise_signal(signal.SIGINT)
+
+    bpy.app.handlers.frame_change_post.append(interrupt_after_two)
+    try:
+        assert bpy.ops.tegument.warp_bake(**names) == {"CANCELLED"}
+    finally:
+        bpy.app.handlers.frame_change_post.remove(interrupt_after_two)
+    assert sorted(p.name for p in out.iterdir()) == [f"Skin_Tegument_UV_Warp_1001_{f:04d}.exr" for f in (1, 2)]
+    assert (node.baked_start, node.baked_frames) == (1, 2)
+    assert node.node_tree.nodes["Warp 1001"].image_user.frame_duration == 2
