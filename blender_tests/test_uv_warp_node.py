@@ -287,7 +287,17 @@ def test_rigidity_from_a_vertex_group_matches_the_image(saved, tmp_path, capfd):
     group_report = node.report
     node.rigidity_group = ""
     node.rigidity_image = float_image("Rigidity", disc(RIGID_RADIUS))
+    node.write_heatmap = True
     assert bpy.ops.tegument.warp_bake(material=material.name, node=node.name) == {"FINISHED"}
+    # The heat map of the last frame agrees with the wheel's figure for the rigid texels.
+    import tegument
+
+    heat, meta = tegument.read_exr(tmp_path / "tegument" / "warp" / "Skin_Tegument_UV_Warp_1001_stretch.exr")
+    assert meta["frame"] == "5" and heat.shape == (RES, RES, 1) and np.isfinite(heat).all()
+    rigid = disc(RIGID_RADIUS) > 0.5
+    last_frame = re.findall(r"frame 5 \(5/5\).*?rigid stretch [\d.]+ → ([\d.]+)", capfd.readouterr().out)
+    assert abs(heat[..., 0][rigid].mean() - float(last_frame[-1])) < 0.25 * float(last_frame[-1]) + 0.005
+    assert heat[..., 0][~rigid].mean() > 3 * heat[..., 0][rigid].mean()  # the skin took the squash
     from_image = feature_aspect(tmp_path, scene, "image")
     print(f"feature aspect ratio: {from_group:.3f} from the vertex group, {from_image:.3f} from the image")
     assert from_group < 1.1 and from_image < 1.1, (from_group, from_image)

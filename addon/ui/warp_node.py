@@ -32,6 +32,7 @@ def draw(node, context, layout, *, extended: bool = False) -> None:
         column.prop(node, "iterations")
         column.prop(node, "orientation")
         column.prop(node, "smoothing")
+        column.prop(node, "write_heatmap")
     frames = column.row(align=True)
     frames.prop(node, "frame_start")
     frames.prop(node, "frame_end")

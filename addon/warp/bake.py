@@ -25,7 +25,7 @@ import numpy as np
 
 from .. import mesh_arrays
 from ..deform.bake import sigint_requests_cancel
-from . import inputs, node as warp_node
+from . import heatmap, inputs, node as warp_node
 from .inputs import WarpError
 
 
@@ -157,6 +157,7 @@ class WarpBakeJob:
                 self.warp.write_exr(self._staged(udim, frame), udim=udim)
         except tegument.TegumentError as error:
             raise WarpError(f"{self.label}, frame {frame}: {error}") from None
+        self.last_positions = positions
         identity, warped, worst, folds = _combine(metrics, self.inputs.tiles)
         stats = FrameStats(frame, time.perf_counter() - started, identity, warped, worst, folds)
         self.summary.frames.append(stats)
@@ -182,6 +183,8 @@ class WarpBakeJob:
                 for frame in baked:
                     os.replace(self._staged(udim, frame), warp_node.frame_file(directory, self.stem, udim, frame))
             self._remove_stale(baked)
+            if self.node.write_heatmap:
+                self._write_heatmaps(baked.stop - 1)
             self._point_node_at(baked)
         finally:
             self._restore()
@@ -194,6 +197,31 @@ class WarpBakeJob:
         shutil.rmtree(self.staging, ignore_errors=True)
         self._stack.close()
         self.scene.frame_set(self.frame_before)
+
+    def _write_heatmaps(self, frame: int) -> None:
+        """The remaining stretch of the last frame done, one single-channel EXR per tile."""
+        import tegument
+
+        data = self.inputs
+        displacement = self.warp.displacement()
+        self.heatmaps = {}
+        for udim in data.tiles:
+            d = displacement if len(data.tiles) == 1 else displacement[udim]
+            error = heatmap.stretch_map(data.rest, self.last_positions, data.corner_verts, data.polygon_sizes,
+                                        data.corner_uvs, udim, d)
+            path = warp_node.heatmap_file(data.directory, self.stem, udim)
+            staged = warp_node.heatmap_file(self.staging, self.stem, udim)
+            tegument.write_exr(staged, np.ascontiguousarray(error), {
+                "frame": str(frame), "udim": str(udim),
+                "measure": "max(|log s1|, |log s2|) of the texture detail's deformation gradient",
+            })
+            os.replace(staged, path)
+            self.heatmaps[udim] = path
+            image = bpy.data.images.get(os.path.basename(path))
+            if image is None:
+                image = bpy.data.images.load(path, check_existing=True)
+            image.colorspace_settings.name = "Non-Color"
+            image.reload()
 
     def _remove_stale(self, baked: range) -> None:
         """Frames and tiles of an earlier bake of this node that the new sequence does not cover."""
@@ -225,6 +253,8 @@ class WarpBakeJob:
             )
         warp_node.build_sampler(node, images)
         node.report = self.summary.text()
+        if getattr(self, "heatmaps", None):
+            node.report += f"; heat map of frame {baked.stop - 1}: {', '.join(os.path.basename(p) for p in self.heatmaps.values())}"
 
 
 def bake_blocking(context, material, node, frames: range | None = None, *, report=print) -> tuple[int, bool, WarpBakeJob]:

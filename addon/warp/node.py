@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 
 import bpy
-from bpy.props import IntProperty, FloatProperty, PointerProperty, StringProperty
+from bpy.props import BoolProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
 from . import raster
 
@@ -88,6 +88,11 @@ class TEGUMENT_NT_uv_warp(bpy.types.ShaderNodeCustomGroup):
     directory: StringProperty(
         name="Directory", subtype="DIR_PATH", default="//tegument/warp/", options=_RELATIVE_PATH,
         description="Folder of the baked OpenEXR sequence (one file per frame and UDIM tile)",
+    )
+    write_heatmap: BoolProperty(
+        name="Stretch Heat Map", default=False,
+        description="Also write the remaining stretch error of the last baked frame as an image "
+        "(<name>_<tile>_stretch.exr: 0 = undistorted, 0.69 = a factor of 2)",
     )
     # Status, written by the bake and shown on the node.
     report: StringProperty(name="Last Bake", default="", options={"HIDDEN"})
@@ -307,6 +312,10 @@ def tile_images(node) -> dict[int, bpy.types.Image]:
         if inner.bl_idname == "ShaderNodeTexImage" and inner.name.startswith("Warp ") and inner.image is not None:
             out[int(inner.name.split()[1])] = inner.image
     return out
+
+
+def heatmap_file(directory: str, stem: str, udim: int) -> str:
+    return os.path.join(directory, f"{stem}_{udim}_stretch.exr")
 
 
 def file_stem(material_name: str, node_name: str) -> str:

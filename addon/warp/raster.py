@@ -64,22 +64,39 @@ def triangulate(polygon_sizes: np.ndarray) -> np.ndarray:
 
 
 def rasterise(corner_uvs: np.ndarray, polygon_sizes: np.ndarray, corner_values: np.ndarray,
-              udim: int, width: int, height: int, *, chunk_texels: int = 1 << 22) -> np.ndarray:
+              udim: int, width: int, height: int) -> np.ndarray:
     """Linear interpolation of per-corner values over the UV triangles of one tile.
 
-    Texels whose centre lies in no triangle are 0. Triangles are processed in
-    chunks of similar bounding-box size, each chunk as one array operation
-    over every candidate texel of its triangles.
+    Texels whose centre lies in no triangle are 0.
     """
-    out = np.zeros((height, width), np.float32)
-    if len(polygon_sizes) == 0:
+    tris = triangulate(polygon_sizes)
+    return rasterise_triangles(corner_uvs[tris], corner_values[tris], udim, width, height)
+
+
+def triangle_ids(corner_uvs: np.ndarray, polygon_sizes: np.ndarray, udim: int, width: int, height: int) -> np.ndarray:
+    """Index (into :func:`triangulate`'s triangles) of the triangle under each texel centre, −1 for none."""
+    tris = triangulate(polygon_sizes)
+    ids = np.repeat(np.arange(1, len(tris) + 1, dtype=np.float64)[:, None], 3, axis=1)
+    # Ids + 1 so that 0 means "no triangle"; float64 holds every id exactly.
+    grid = rasterise_triangles(corner_uvs[tris], ids, udim, width, height, dtype=np.float64)
+    return np.rint(grid).astype(np.int64) - 1
+
+
+def rasterise_triangles(uv: np.ndarray, values: np.ndarray, udim: int, width: int, height: int, *,
+                        dtype=np.float32, chunk_texels: int = 1 << 22) -> np.ndarray:
+    """Rasterises triangles ``uv (T, 3, 2)`` carrying ``values (T, 3)`` at texel centres.
+
+    Triangles are processed in chunks of similar bounding-box size, each chunk
+    as one array operation over every candidate texel of its triangles.
+    """
+    out = np.zeros((height, width), dtype)
+    if len(uv) == 0:
         return out
     tu, tv = tile_origin(udim)
-    tris = triangulate(polygon_sizes)
-    p = corner_uvs[tris].astype(np.float64)  # (T, 3, 2)
+    p = uv.astype(np.float64)
     p[..., 0] = (p[..., 0] - tu) * width - 0.5  # texel-centre coordinates: centre (i, j) at (i, j)
     p[..., 1] = (p[..., 1] - tv) * height - 0.5
-    values = corner_values[tris].astype(np.float64)
+    values = values.astype(np.float64)
     lo = np.ceil(p.min(axis=1)).astype(np.int64)
     hi = np.floor(p.max(axis=1)).astype(np.int64)
     lo = np.maximum(lo, 0)
