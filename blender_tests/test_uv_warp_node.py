@@ -515,3 +515,36 @@ def test_failing_bake_keeps_the_previous_sequence_and_cancel_keeps_frames_done(s
     assert sorted(p.name for p in out.iterdir()) == [f"Skin_Tegument_UV_Warp_1001_{f:04d}.exr" for f in (1, 2)]
     assert (node.baked_start, node.baked_frames) == (1, 2)
     assert node.node_tree.nodes["Warp 1001"].image_user.frame_duration == 2
+
+
+class RecordingLayout:
+    """Stands in for a UILayout (none exists without a window): records what the node draws."""
+
+    def __init__(self, log):
+        self.log = log
+
+    def __getattr__(self, name):
+        def call(*args, **kwargs):
+            self.log.append((name, args, kwargs))
+            return RecordingLayout(self.log)
+
+        return call
+
+
+def test_node_is_in_the_add_menu_and_draws_its_settings(saved):
+    obj = saved
+    menu = bpy.types.NODE_MT_category_shader_vector
+    assert any(f.__module__.endswith("warp.node") for f in menu._dyn_ui_initialize())
+    material, node = warp_material(obj)
+    log = []
+    from bl_ext.user_default.tegument.ui import warp_node  # what draw_buttons_ext calls
+
+    warp_node.draw(node, bpy.context, RecordingLayout(log), extended=True)
+    drawn = {args[1] for name, args, _ in log if name in ("prop", "prop_search", "template_ID")}
+    expected = {"object", "uv_map", "rigidity_image", "rigidity_group", "mask_image", "resolution", "iterations",
+                "orientation", "smoothing", "frame_start", "frame_end", "directory", "write_heatmap"}
+    assert drawn == expected
+    assert all(name in node.bl_rna.properties for name in drawn)
+    operators = [args[0] for name, args, _ in log if name == "operator"]
+    assert operators == ["tegument.warp_bind", "tegument.warp_bake"]
+    assert any(name == "label" and "not bound" in kwargs.get("text", "") for name, _, kwargs in log)
