@@ -221,6 +221,15 @@ def test_create_bake_save_reload_matches_the_wheel_and_plays_as_a_sequence(saved
             o = sample(tegument.read_exr(files[other - 1])[0], u, v)
             assert np.abs(got[inside] - o[inside]).max() > 5e-3, f"frame {other} was sampled at frame {frame}"
 
+    # A new bake replaces what renders (no stale image cache): a smaller rigid disc warps differently.
+    first = got
+    node.rigidity_image = float_image("Smaller", disc(0.6 * RIGID_RADIUS))
+    assert bpy.ops.tegument.warp_bake(material="Skin", node=node.name) == {"FINISHED"}
+    got = render(scene, 5, tmp_path / "uv_5_again.exr")[..., :2]
+    want = sample(tegument.read_exr(files[4])[0], u, v)
+    assert np.abs(got[inside] - want[inside]).max() < 2e-3
+    assert np.abs(got[inside] - first[inside]).max() > 5e-3
+
 
 def sample(data: np.ndarray, u: np.ndarray, v: np.ndarray, tile_u: int = 0) -> np.ndarray:
     """What the inner tree computes: bilinear (clamped) redirection and validity, mixed with the UV.
