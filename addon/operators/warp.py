@@ -8,12 +8,14 @@ previous sequence stays as it was and nothing is half-written.
 from __future__ import annotations
 
 import bpy
+import numpy as np
 from bpy.props import StringProperty
 
+from .. import mesh_arrays
+from ..deform import evaluate
 from ..deform.evaluate import DeformError
 from ..warp import bake
 from ..warp.inputs import WarpError
-from . import deform
 
 _EXPECTED = (WarpError, DeformError)
 
@@ -98,6 +100,28 @@ class TEGUMENT_OT_warp_bake(bpy.types.Operator):
         return {"CANCELLED"} if cancelled else {"FINISHED"}
 
 
+def bind_rest(context, obj) -> str:
+    """Stores the rest shape in the `tegument_rest` attribute, the same bind Pyramid Deform reads.
+
+    Unlike Pyramid Deform's Bind it does not build the pyramid encoding: the
+    warp needs only the positions, and a mesh the deformer cannot encode can
+    still carry a warped texture.
+    """
+    if obj.tegument.bind_source == "EVALUATED":
+        with evaluate.upstream_only(obj):
+            rest, _ = evaluate.evaluated_positions(obj, context.evaluated_depsgraph_get())
+        if len(rest) != len(obj.data.vertices):
+            raise WarpError(f"{obj.name}: the modifier stack gives {len(rest)} vertices, the mesh has "
+                            f"{len(obj.data.vertices)}; bind to the original positions (Bind Pose: Original)")
+    else:
+        rest = mesh_arrays.positions(obj.data)
+    if not np.isfinite(rest).all():
+        raise WarpError(f"{obj.name}: vertex {int(np.argwhere(~np.isfinite(rest))[0][0])} has a non-finite position")
+    evaluate.store_rest(obj, rest)
+    obj.tegument.bound_vertices = len(rest)
+    return f"Bound {obj.name}: {len(rest)} vertices"
+
+
 class TEGUMENT_OT_warp_bind(bpy.types.Operator):
     """Bind the UV Warp node's object: store its current shape as the rest shape whose texture looks right"""
 
@@ -113,8 +137,7 @@ class TEGUMENT_OT_warp_bind(bpy.types.Operator):
             _, node = bake.find_node(context, self.material, self.node)
             if node.object is None or node.object.type != "MESH":
                 raise WarpError(f"{node.name}: set the node's Object to a mesh first")
-            # The same bind as Pyramid Deform's: both read the `tegument_rest` attribute.
-            message = deform.bind(context, node.object)
+            message = bind_rest(context, node.object)
         except _EXPECTED as error:
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
