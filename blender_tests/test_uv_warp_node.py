@@ -338,6 +338,9 @@ def test_bad_input_is_reported_and_writes_nothing(saved, tmp_path):
     node.resolution = 300
     assert_refused(r"resolution 300 is not a power of two between 8 and 16384 \(try 256\)", **names)
     node.resolution = RES
+    node.frame_end = 0
+    assert_refused(r"the frame range 1–0 is empty", **names)
+    node.frame_end = FRAMES[1]
 
     missing = bpy.data.images.new("Scales", 8, 8)
     missing.filepath = str(tmp_path / "scales.png")

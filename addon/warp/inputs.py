@@ -132,10 +132,6 @@ def read(node, label: str) -> WarpInputs:
     if not is_power_of_two(resolution) or not MIN_RESOLUTION <= resolution <= MAX_RESOLUTION:
         raise WarpError(f"{label}: resolution {resolution} is not a power of two between {MIN_RESOLUTION} and "
                         f"{MAX_RESOLUTION} (try {1 << max(3, min(14, round(np.log2(max(resolution, 1)))))})")
-    if node.frame_end < node.frame_start:
-        raise WarpError(f"{label}: the frame range {node.frame_start}–{node.frame_end} is empty")
-    if node.frame_start < 0:
-        raise WarpError(f"{label}: frame {node.frame_start} is negative: image sequences number frames from 0")
     mesh = obj.data
     uv_map = uv_layer_name(obj, node.uv_map, label)
     if node.rigidity_image is None and not node.rigidity_group:
