@@ -93,7 +93,8 @@ def main(argv: list[str]) -> int:
 
 
 def warp_bake(args) -> int:
-    from .warp import bake as warp_bake_module, node as warp_node
+    from .warp import bake as warp_bake_module
+    from .warp import node as warp_node
     from .warp.inputs import WarpError
 
     if args.material:
@@ -116,7 +117,7 @@ def warp_bake(args) -> int:
     for material, node in targets:
         frames = _frames(args.frames, node)
         try:
-            written, cancelled, job = warp_bake_module.bake_blocking(bpy.context, material, node, frames, report=print)
+            _, cancelled, _ = warp_bake_module.bake_blocking(bpy.context, material, node, frames, report=print)
         except WarpError as error:
             print(f"error: {error}", file=sys.stderr)
             failed += 1

@@ -15,7 +15,7 @@ RES = 256  # warp grid
 RADIUS = 0.15  # of the round feature, in UV units
 RIGID_RADIUS = 1.3 * RADIUS
 FRAMES = (1, 5)
-SOLVER = dict(iterations=16, orientation=0.0, smoothing=0.0)
+SOLVER = {"iterations": 16, "orientation": 0.0, "smoothing": 0.0}
 
 
 def texel_centres(n=RES):
@@ -328,7 +328,7 @@ def assert_refused(match: str, **kwargs):
 def test_bad_input_is_reported_and_writes_nothing(saved, tmp_path):
     obj = saved
     material, node = warp_material(obj)
-    names = dict(material=material.name, node=node.name)
+    names = {"material": material.name, "node": node.name}
     out_dir = tmp_path / "tegument" / "warp"
 
     assert_refused("no rigidity: set a Rigidity Image or a Rigidity Group", **names)
@@ -491,7 +491,7 @@ def test_failing_bake_keeps_the_previous_sequence_and_cancel_keeps_frames_done(s
     material, node = warp_material(obj, show="uv")
     node.rigidity_image = float_image("Rigidity", disc(RIGID_RADIUS))
     bind(material, node)
-    names = dict(material=material.name, node=node.name)
+    names = {"material": material.name, "node": node.name}
     assert bpy.ops.tegument.warp_bake(**names) == {"FINISHED"}
     out = tmp_path / "tegument" / "warp"
     before = {p.name: p.read_bytes() for p in out.iterdir()}
@@ -547,7 +547,7 @@ def test_node_is_in_the_add_menu_and_draws_its_settings(saved):
     obj = saved
     menu = bpy.types.NODE_MT_category_shader_vector
     assert any(f.__module__.endswith("warp.node") for f in menu._dyn_ui_initialize())
-    material, node = warp_material(obj)
+    _, node = warp_material(obj)
     log = []
     from bl_ext.user_default.tegument.ui import warp_node  # what draw_buttons_ext calls
 

@@ -41,7 +41,7 @@ class TEGUMENT_OT_warp_bake(bpy.types.Operator):
         if target is None:
             return {"CANCELLED"}
         try:
-            written, cancelled, job = bake.bake_blocking(context, *target)
+            _, cancelled, job = bake.bake_blocking(context, *target)
         except _EXPECTED as error:
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}

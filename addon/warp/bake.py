@@ -25,7 +25,8 @@ import numpy as np
 
 from .. import mesh_arrays
 from ..deform.bake import sigint_requests_cancel
-from . import heatmap, inputs, node as warp_node
+from . import heatmap, inputs
+from . import node as warp_node
 from .inputs import WarpError
 
 
