@@ -8,8 +8,9 @@ per-vertex work happens in the wheel.
 
 from . import cli, operators, ui
 from .deform import live, properties
+from .warp import node as warp_node
 
-_modules = (properties, operators, ui, live, cli)
+_modules = (properties, warp_node, operators, ui, live, cli)
 
 
 def register() -> None:

@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""Headless bakes: ``blender -b scene.blend --command tegument bake [--objects A,B] [--frames S-E]``.
+"""Headless bakes: ``blender -b scene.blend --command tegument bake [--objects A,B] [--frames S-E]``
+and ``... --command tegument warp-bake [--material M] [--node N] [--frames S-E]``.
 
 The same entry point serves the PyPI ``bpy`` module, which has no ``--command``::
 
@@ -27,6 +28,12 @@ def _parser() -> argparse.ArgumentParser:
     baking.add_argument("--objects", help="comma-separated object names (default: every object with Pyramid Deform)")
     baking.add_argument("--frames", help="frame range S-E (default: each object's own range)")
     baking.add_argument("--save", action="store_true", help="save the .blend afterwards (status fields)")
+    warping = commands.add_parser("warp-bake", help="bake Tegument UV Warp nodes into their OpenEXR sequences")
+    warping.add_argument("--material", help="material holding the node (default: every material with one)")
+    warping.add_argument("--node", help="node name (default: every Tegument UV Warp node of the material)")
+    warping.add_argument("--frames", help="frame range S-E (default: each node's own range)")
+    warping.add_argument("--save", action="store_true",
+                         help="save the .blend afterwards (so the nodes point at the new sequences)")
     return parser
 
 
@@ -46,6 +53,8 @@ def main(argv: list[str]) -> int:
         args = _parser().parse_args(argv)
     except SystemExit as stop:
         return int(stop.code or 0)
+    if args.command == "warp-bake":
+        return warp_bake(args)
     scene = bpy.context.scene
     if args.objects:
         names = [name.strip() for name in args.objects.split(",") if name.strip()]
@@ -76,6 +85,43 @@ def main(argv: list[str]) -> int:
             failed += 1
             continue
         print(f"Tegument: {obj.name}: {written} frames in {evaluate.cache_file(obj)}")
+        if cancelled:
+            return 130
+    if args.save and bpy.data.filepath:
+        bpy.ops.wm.save_mainfile()
+    return 1 if failed else 0
+
+
+def warp_bake(args) -> int:
+    from .warp import bake as warp_bake_module
+    from .warp import node as warp_node
+    from .warp.inputs import WarpError
+
+    if args.material:
+        material = bpy.data.materials.get(args.material)
+        if material is None:
+            print(f"error: no material named {args.material}", file=sys.stderr)
+            return 2
+        targets = [(m, n) for m, n in warp_node.find_nodes() if m == material and (not args.node or n.name == args.node)]
+        if not targets:
+            what = f"a Tegument UV Warp node named {args.node}" if args.node else "a Tegument UV Warp node"
+            print(f"error: material {material.name} has no {what}", file=sys.stderr)
+            return 2
+    else:
+        targets = [(m, n) for m, n in warp_node.find_nodes() if not args.node or n.name == args.node]
+        if not targets:
+            print("error: nothing to bake: no material has a Tegument UV Warp node"
+                  + (f" named {args.node}" if args.node else ""), file=sys.stderr)
+            return 2
+    failed = 0
+    for material, node in targets:
+        frames = _frames(args.frames, node)
+        try:
+            _, cancelled, _ = warp_bake_module.bake_blocking(bpy.context, material, node, frames, report=print)
+        except WarpError as error:
+            print(f"error: {error}", file=sys.stderr)
+            failed += 1
+            continue
         if cancelled:
             return 130
     if args.save and bpy.data.filepath:

@@ -3,9 +3,9 @@
 
 import bpy
 
-from . import check_mesh, deform
+from . import check_mesh, deform, warp
 
-_classes = (check_mesh.TEGUMENT_OT_check_mesh, *deform.classes)
+_classes = (check_mesh.TEGUMENT_OT_check_mesh, *deform.classes, *warp.classes)
 
 
 def register() -> None:
