@@ -7,10 +7,10 @@ per-vertex work happens in the wheel.
 """
 
 from . import cli, operators, ui
-from .deform import live, properties
+from .deform import colliders, live, properties
 from .warp import node as warp_node
 
-_modules = (properties, warp_node, operators, ui, live, cli)
+_modules = (properties, colliders, warp_node, operators, ui, live, cli)
 
 
 def register() -> None:

@@ -17,7 +17,7 @@ import bpy
 import numpy as np
 
 from .. import mesh_arrays, pc2
-from . import evaluate
+from . import colliders, evaluate
 from .evaluate import DeformError
 
 # Deformers are cheap to rebuild but not free (topology + encoding of every
@@ -46,7 +46,7 @@ def build_deformer(obj):
             raise DeformError(f"{obj.name}: {error}") from None
         _deformers.clear()  # one bind at a time is the common case; keep memory bounded
         _deformers[key] = deformer
-    return deformer, rest
+    return deformer, rest, corners, sizes
 
 
 class BakeJob:
@@ -61,7 +61,7 @@ class BakeJob:
             raise DeformError(f"{obj.name} has no Tegument modifier: use Add Pyramid Deform (tegument.deform_add)")
         if len(frames) == 0:
             raise DeformError(f"{obj.name}: the frame range {frames.start}–{frames.stop - 1} is empty")
-        self.deformer, self.rest = build_deformer(obj)
+        self.deformer, self.rest, self.corners, self.sizes = build_deformer(obj)
         self.closeness = evaluate.closeness_weights(obj)
         self.path = evaluate.cache_file(obj)
         self.start_frame = self.settings.frame_start
@@ -79,6 +79,11 @@ class BakeJob:
                 self._existing = existing if existing.shape[1] == len(self.rest) else None
             if self._existing is not None:
                 self._copy_existing(frames.start - self.start_frame)
+            self.rig = colliders.ColliderRig(obj)
+            self.audit_totals = {"vertices_inside": 0, "edges_crossing": 0, "collider_edges_crossing": 0}
+            self.most_pinched = 0
+            if self.rig:
+                self._start_history(frames.start)
         except BaseException:
             self._stack.close()
             raise
@@ -93,6 +98,19 @@ class BakeJob:
         for frame in existing[:count]:
             self.writer.append(frame)
 
+    def _start_history(self, first: int) -> None:
+        """Collisions are history-based: a bake that continues cached frames
+        starts from the last of them, with the colliders where they were then."""
+        self.deformer.reset()
+        before = first - self.start_frame - 1
+        if self._existing is None or not 0 <= before < len(self._existing) or first - 1 < self.start_frame:
+            return
+        self.scene.frame_set(first - 1)
+        depsgraph = bpy.context.evaluated_depsgraph_get()
+        self.rig.update(depsgraph, first - 1)
+        matrix = self.obj.evaluated_get(depsgraph).matrix_world
+        self.deformer.reset(np.ascontiguousarray(evaluate.to_world(self._existing[before], matrix), dtype=np.float32))
+
     @property
     def finished(self) -> bool:
         return self.done >= len(self.frames)
@@ -105,10 +123,26 @@ class BakeJob:
         """Solves and writes the next frame; returns it."""
         frame = self.frames[self.done]
         started = time.perf_counter()
-        self.writer.append(solve_frame(self.scene, self.obj, frame, self.deformer, self.closeness))
+        solved, self._world = solve_frame(self.scene, self.obj, frame, self.deformer, self.closeness, self.rig)
+        self.writer.append(solved)
         self.times.append(time.perf_counter() - started)
+        if self.rig:
+            self._audit(frame)
         self.done += 1
         return frame
+
+    def _audit(self, frame: int) -> None:
+        """Counts what the audit finds in this frame's result (not timed: it is a check)."""
+        import tegument
+
+        step = self.deformer.last_step
+        self.most_pinched = max(self.most_pinched, len(step["pinched"]) if step else 0)
+        if not self.settings.audit:
+            return
+        found = tegument.audit(self._world, self.corners, self.sizes, self.rig.colliders)
+        for key in self.audit_totals:
+            self.audit_totals[key] += found[key]
+
 
     def eta_seconds(self) -> float:
         if not self.times:
@@ -130,10 +164,22 @@ class BakeJob:
             self._restore()
         if self.times:
             self.settings.last_frame_ms = 1000.0 * float(np.mean(self.times))
+        self._report_contacts()
         modifier = evaluate.tegument_modifier(self.obj)
         modifier.filepath = self.settings.cache_path
         modifier.frame_start = self.start_frame
         self.obj.update_tag()
+
+    def _report_contacts(self) -> None:
+        settings = self.settings
+        settings.audit_vertices_inside = self.audit_totals["vertices_inside"]
+        settings.audit_edges_crossing = self.audit_totals["edges_crossing"]
+        settings.audit_collider_edges_crossing = self.audit_totals["collider_edges_crossing"]
+        settings.pinched_vertices = self.most_pinched
+        notes = list(self.rig.warnings)
+        if self.most_pinched:
+            notes.append(f"{self.most_pinched} vertices pinched between colliders")
+        settings.warnings = "; ".join(notes)
 
     def abort(self) -> None:
         """Discards everything this job wrote; the previous cache stays as it was."""
@@ -145,8 +191,12 @@ class BakeJob:
         self.scene.frame_set(self.frame_before)
 
 
-def solve_frame(scene, obj, frame: int, deformer, closeness) -> np.ndarray:
-    """Object-space result of one frame; the caller hides Tegument's modifier."""
+def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(object space, world space)`` result of one frame; the caller hides Tegument's modifier.
+
+    With colliders (``rig``) the frame is a history-based step from the
+    deformer's last output; without, a plain solve from the input.
+    """
     import tegument
 
     scene.frame_set(frame)
@@ -162,11 +212,16 @@ def solve_frame(scene, obj, frame: int, deformer, closeness) -> np.ndarray:
         vertex = int(np.argwhere(~np.isfinite(world))[0][0])
         raise DeformError(f"{obj.name}: at frame {frame} the input position of vertex {vertex} is not finite")
     matrix = obj.evaluated_get(depsgraph).matrix_world
+    iterations = obj.tegument.iterations
     try:
-        solved = deformer.solve(world, iterations=obj.tegument.iterations, closeness=closeness)
+        if rig:
+            rig.update(depsgraph, frame)
+            solved = deformer.step(world, rig.colliders, iterations=iterations, closeness=closeness)
+        else:
+            solved = deformer.solve(world, iterations=iterations, closeness=closeness)
     except tegument.TegumentError as error:
         raise DeformError(f"{obj.name}, frame {frame}: {error}") from None
-    return evaluate.to_local(solved, matrix)
+    return evaluate.to_local(solved, matrix), solved
 
 
 @contextlib.contextmanager

@@ -69,10 +69,23 @@ class TEGUMENT_PG_deform(bpy.types.PropertyGroup):
         description="Solve and cache each frame as the timeline advances by one frame",
     )
 
+    audit: BoolProperty(
+        name="Audit", default=True,
+        description="After each baked frame, count skin vertices inside colliders and edges crossing "
+        "(independent of the solver); the totals show below",
+    )
     # Status, written by bind and bake, shown in the panel.
     bound_vertices: IntProperty(name="Bound Vertices", default=0, options={"HIDDEN"})
     last_frame_ms: FloatProperty(name="Time per Frame", default=0.0, options={"HIDDEN"})
     warnings: StringProperty(name="Warnings", default="", options={"HIDDEN"})
+    # Audit totals of the last bake with colliders, over all its frames.
+    audit_vertices_inside: IntProperty(name="Vertices Inside", default=0, options={"HIDDEN"})
+    audit_edges_crossing: IntProperty(name="Edges Crossing", default=0, options={"HIDDEN"})
+    audit_collider_edges_crossing: IntProperty(name="Collider Edges Crossing", default=0, options={"HIDDEN"})
+    pinched_vertices: IntProperty(
+        name="Pinched", default=0, options={"HIDDEN"},
+        description="Most vertices pinched between colliders in one frame of the last bake",
+    )
 
 
 def register() -> None:

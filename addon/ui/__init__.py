@@ -3,9 +3,9 @@
 
 import bpy
 
-from . import modifier_panel
+from . import collider_panel, modifier_panel
 
-_classes = (modifier_panel.TEGUMENT_PT_modifier,)
+_classes = (modifier_panel.TEGUMENT_PT_modifier, collider_panel.TEGUMENT_PT_collider)
 
 
 def register() -> None:

@@ -38,6 +38,8 @@ class TEGUMENT_PT_modifier(bpy.types.Panel):
             column.prop(settings, "scale_safe")
             column.prop(settings, "bind_source")
             column.prop(settings, "collider_collection")
+            if settings.collider_collection is not None:
+                column.prop(settings, "audit")
             frames = column.column(align=True)
             frames.prop(settings, "frame_start", text="Frame Start")
             frames.prop(settings, "frame_end", text="End")
@@ -52,6 +54,14 @@ class TEGUMENT_PT_modifier(bpy.types.Panel):
             status = layout.column(align=True)
             status.label(text=f"Bound: {settings.bound_vertices} vertices · cached: {cached} frames"
                          + (f" · {settings.last_frame_ms:.1f} ms/frame" if settings.last_frame_ms else ""), icon="INFO")
+            if settings.collider_collection is not None and settings.audit and cached:
+                status.label(
+                    text=f"Audit: {settings.audit_vertices_inside} vertices inside · "
+                    f"{settings.audit_edges_crossing} + {settings.audit_collider_edges_crossing} edges crossing · "
+                    f"{settings.pinched_vertices} pinched",
+                    icon="CHECKMARK" if not (settings.audit_vertices_inside or settings.audit_edges_crossing
+                                             or settings.audit_collider_edges_crossing) else "ERROR",
+                )
             if settings.warnings:
                 status.label(text=settings.warnings, icon="ERROR")
         layout.operator("tegument.check_mesh", icon="CHECKMARK")

@@ -147,12 +147,20 @@ impl PyramidDeformer {
         Ok(positions_to_py(py, &output))
     }
 
-    /// Forgets the last output of :meth:`step`: the next step starts from its input.
-    fn reset(&self, py: Python<'_>) -> PyResult<()> {
+    /// Forgets the last output of :meth:`step`: the next step starts from its
+    /// input. With ``history`` (float32 ``(N, 3)``, free of collisions), the
+    /// next step starts from there instead, as if a step had produced it: how
+    /// a bake resumes after frames it has already cached.
+    #[pyo3(signature = (history = None))]
+    fn reset(&self, py: Python<'_>, history: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
+        let history = history.map(|h| positions_arg("history", h, Some(self.vertex_count))).transpose()?;
         *self.last_step.lock().unwrap_or_else(|e| e.into_inner()) = None;
-        self.with(py, |core| {
-            core.reset();
-            Ok(())
+        self.with(py, move |core| match &history {
+            Some(h) => core.set_history(h),
+            None => {
+                core.reset();
+                Ok(())
+            }
         })
     }
 

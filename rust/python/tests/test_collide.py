@@ -194,6 +194,14 @@ def test_step_keeps_skin_outside_a_sphere_pushed_through_it_and_remembers():
     deformer.reset()
     assert deformer.last_step is None
     np.testing.assert_array_equal(deformer.step(positions), deformer.solve(positions))
+    # A history given to reset is where the next step's first pass starts:
+    # from the skin lifted over the sphere, the sphere (still) keeps it there.
+    collider.update(collider.positions)
+    deformer.reset(out)
+    again = deformer.step(positions, [collider], iterations=10, closeness=0.05)
+    assert again[:, 2].max() > 0.7
+    with pytest.raises(tegument.TegumentError, match="history"):
+        deformer.reset(out[:-1])
 
 
 def test_step_refuses_bad_colliders_and_positions():

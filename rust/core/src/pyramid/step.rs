@@ -107,6 +107,19 @@ impl PyramidDeformer {
         self.history = None;
     }
 
+    /// Makes `positions` the last output, as if a step had produced them:
+    /// a bake resuming after frames already cached starts from the last of
+    /// them. They must be free of collisions for the next step's guarantee.
+    pub fn set_history(&mut self, positions: &[Vec3]) -> Result<()> {
+        let n = self.vertex_count();
+        if positions.len() != n {
+            return Err(Error::invalid(format!("history: {} vertices given, the deformer has {n}", positions.len())));
+        }
+        validate_positions("history", positions)?;
+        self.history = Some(positions.to_vec());
+        Ok(())
+    }
+
     /// The last output of [`Self::step`], if any.
     pub fn history(&self) -> Option<&[Vec3]> {
         self.history.as_deref()

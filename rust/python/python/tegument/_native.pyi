@@ -72,8 +72,9 @@ class PyramidDeformer:
     ) -> npt.NDArray[np.float32]:
         """Solves the next frame of an animation against ``colliders`` (updated to this frame),
         starting from the last output (history-based, two collision passes); float32 ``(N, 3)``."""
-    def reset(self) -> None:
-        """Forgets the last output: the next ``step`` starts from its input."""
+    def reset(self, history: npt.NDArray[np.float32] | None = None) -> None:
+        """Forgets the last output: the next ``step`` starts from its input, or from ``history``
+        (collision-free positions, e.g. the last cached frame of a bake being resumed)."""
     @property
     def last_step(self) -> dict[str, Any] | None:
         """What the last ``step`` did about contacts: ``first_pass_contacts``, ``first_pass_moved``,

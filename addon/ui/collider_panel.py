@@ -1,0 +1,26 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Collider settings in the Physics tab, where Blender keeps its own collision settings."""
+
+import bpy
+
+
+class TEGUMENT_PT_collider(bpy.types.Panel):
+    bl_label = "Tegument Collider"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "physics"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    @classmethod
+    def poll(cls, context):
+        obj = context.object
+        return obj is not None and obj.type == "MESH"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        settings = context.object.tegument_collider
+        layout.label(text="Used when this object is in a skin's Tegument collider collection")
+        layout.prop(settings, "thickness")
+        layout.prop(settings, "friction")
+        layout.prop(settings, "kinetic_friction")

@@ -1,0 +1,178 @@
+"""Collisions through the installed extension: colliders in a collection, baked and audited.
+
+Every bake is audited twice: by the add-on's own totals (``obj.tegument.audit_*``)
+and here, independently, from the PC2 cache and the colliders' evaluated
+triangles at each frame.
+"""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+import pytest
+
+from test_pyramid_deform import read_pc2
+
+
+def world_mesh(obj, frame: int) -> tuple[np.ndarray, np.ndarray]:
+    """World positions and triangles of `obj` evaluated at `frame`, read without the add-on."""
+    bpy.context.scene.frame_set(frame)
+    evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    mesh = evaluated.to_mesh()
+    mesh.calc_loop_triangles()
+    local = np.array([v.co[:] for v in mesh.vertices], dtype=np.float64)
+    triangles = np.array([t.vertices[:] for t in mesh.loop_triangles], dtype=np.int32)
+    evaluated.to_mesh_clear()
+    m = np.array(evaluated.matrix_world)
+    return (local @ m[:3, :3].T + m[:3, 3]).astype(np.float32), triangles
+
+
+def make_skin(tmp_path, frames: int, name: str = "Skin", location=(0.0, 0.0, 0.0)):
+    """A flat 2 × 2 grid of ~1,600 vertices, saved so `//` paths resolve in tmp_path."""
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=40, y_subdivisions=40, size=2.0, location=location)
+    skin = bpy.context.object
+    skin.name = name
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = 1, frames
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "skin.blend"))
+    return skin
+
+
+def add_sphere(name: str, centres, *, radius: float = 0.3, thickness: float = 0.01, friction: float = 0.0,
+               collection: str = "Colliders"):
+    """A UV sphere keyed at every frame to `centres[frame - 1]`, in the Colliders collection."""
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=32, ring_count=16, radius=radius, location=centres[0])
+    sphere = bpy.context.object
+    sphere.name = name
+    for frame, centre in enumerate(centres, start=1):
+        sphere.location = centre
+        sphere.keyframe_insert("location", frame=frame)
+    settings = sphere.tegument_collider
+    settings.thickness = thickness
+    settings.friction = settings.kinetic_friction = friction
+    collection = bpy.data.collections.get(collection) or bpy.data.collections.new(collection)
+    if collection.name not in bpy.context.scene.collection.children:
+        bpy.context.scene.collection.children.link(collection)
+    for owner in list(sphere.users_collection):
+        owner.objects.unlink(sphere)
+    collection.objects.link(sphere)
+    return sphere
+
+
+def bake(skin, frames: int, closeness: float = 0.02, collection: str = "Colliders"):
+    bpy.context.view_layer.objects.active = skin
+    assert bpy.ops.tegument.deform_add() == {"FINISHED"}
+    settings = skin.tegument
+    settings.collider_collection = bpy.data.collections[collection]
+    settings.closeness = closeness
+    settings.frame_start, settings.frame_end = 1, frames
+    assert bpy.ops.tegument.bake() == {"FINISHED"}
+    cache, _ = read_pc2(bpy.path.abspath(settings.cache_path))
+    assert cache.shape[0] == frames and np.isfinite(cache).all()
+    return cache
+
+
+def independent_audit(skin, cache, colliders) -> dict[str, int]:
+    """Totals of tegument.audit over the cached frames against the colliders at each frame."""
+    import tegument
+
+    mesh = skin.data
+    corners = np.array([l.vertex_index for l in mesh.loops], dtype=np.int32)
+    sizes = np.array([p.loop_total for p in mesh.polygons], dtype=np.int32)
+    m = np.array(skin.matrix_world)
+    totals = {"vertices_inside": 0, "edges_crossing": 0, "collider_edges_crossing": 0}
+    for k, frame_positions in enumerate(cache):
+        world = (frame_positions.astype(np.float64) @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
+        bodies = [tegument.Collider(*world_mesh(c, k + 1)) for c in colliders]
+        found = tegument.audit(world, corners, sizes, bodies)
+        for key in totals:
+            totals[key] += found[key]
+    return totals
+
+
+def assert_clean(skin, cache, colliders):
+    settings = skin.tegument
+    assert (settings.audit_vertices_inside, settings.audit_edges_crossing, settings.audit_collider_edges_crossing) == (0, 0, 0)
+    assert settings.pinched_vertices == 0
+    assert independent_audit(skin, cache, colliders) == {"vertices_inside": 0, "edges_crossing": 0, "collider_edges_crossing": 0}
+
+
+def slide_path(offset: float):
+    """Sphere centres: rising into the skin for 6 frames, then sliding along +x for 6."""
+    rise = [(offset - 0.2, 0.0, -0.32 + 0.025 * k) for k in range(7)]
+    top = rise[-1]
+    return rise + [(top[0] + 0.03 * k, 0.0, top[2]) for k in range(1, 7)]
+
+
+def test_sphere_pushed_in_and_slid_drags_the_skin_only_with_friction(tmp_path):
+    # Two skins side by side in one scene, each with its own sphere: rough and smooth.
+    drift = {}
+    for name, offset, friction in (("Rough", 0.0, 1.0), ("Smooth", 10.0, 0.0)):
+        centres = slide_path(offset)
+        skin = make_skin(tmp_path, len(centres), name=name, location=(offset, 0.0, 0.0))
+        sphere = add_sphere(f"{name}Sphere", centres, friction=friction, collection=f"{name}Colliders")
+        cache = bake(skin, len(centres), collection=f"{name}Colliders")
+        assert_clean(skin, cache, [sphere])
+        rest = np.array([v.co[:] for v in skin.data.vertices], dtype=np.float32)
+        out = cache[-1]
+        top = np.array(centres[-1]) - (offset, 0.0, 0.0)  # object space of the skin
+        over = (np.linalg.norm(out[:, :2] - top[:2], axis=1) < 0.1) & (out[:, 2] > 0.0)
+        assert over.any(), "the sphere raised no skin"
+        drift[name] = float((out[over, 0] - rest[over, 0]).mean())
+    assert drift["Rough"] > 0.05, f"high friction should drag the skin along: {drift}"
+    assert abs(drift["Smooth"]) < 0.4 * drift["Rough"], f"zero friction should let it slide: {drift}"
+
+
+def test_a_collider_fast_enough_to_cross_the_skin_in_one_frame_does_not_tunnel(tmp_path):
+    centres = [(0.0, 0.0, -0.5), (0.0, 0.0, 0.5), (0.0, 0.0, 0.5)]
+    skin = make_skin(tmp_path, len(centres))
+    sphere = add_sphere("Bullet", centres)
+    cache = bake(skin, len(centres))
+    assert_clean(skin, cache, [sphere])
+    # The skin rides on top of the sphere instead of being left behind below it.
+    middle = cache[1][np.argmin(np.linalg.norm(cache[1][:, :2], axis=1))]
+    assert middle[2] > 0.5 + 0.3 - 0.05
+
+
+def test_skin_squeezed_between_two_colliders_reports_pinched_vertices(tmp_path):
+    below = [(0.0, 0.0, -0.35 + 0.04 * k) for k in range(9)]
+    above = [(x, y, -z) for x, y, z in below]
+    skin = make_skin(tmp_path, len(below))
+    add_sphere("Below", below)
+    add_sphere("Above", above)
+    cache = bake(skin, len(below))
+    assert skin.tegument.pinched_vertices > 0
+    assert "pinched" in skin.tegument.warnings
+    rest = np.array([v.co[:] for v in skin.data.vertices], dtype=np.float32)
+    assert np.linalg.norm(cache - rest, axis=2).max() < 1.0, "pinched skin must stay near where it was"
+
+
+def test_an_empty_collider_collection_bakes_without_collisions_and_says_so(tmp_path):
+    skin = make_skin(tmp_path, 2)
+    collection = bpy.data.collections.new("Colliders")
+    bpy.context.scene.collection.children.link(collection)
+    cache = bake(skin, 2)
+    assert 'collider collection "Colliders" holds no mesh objects' in skin.tegument.warnings
+    rest = np.array([v.co[:] for v in skin.data.vertices], dtype=np.float32)
+    np.testing.assert_allclose(cache[0], rest, atol=1e-5)
+
+
+def test_a_collider_whose_topology_changes_stops_the_bake_and_keeps_the_cache(tmp_path):
+    centres = [(0.0, 0.0, -0.5)] * 3
+    skin = make_skin(tmp_path, 3)
+    sphere = add_sphere("Growing", centres)
+    subdivision = sphere.modifiers.new("Subdivision", "SUBSURF")
+    subdivision.levels = 0
+    subdivision.keyframe_insert("levels", frame=1)
+    subdivision.levels = 1
+    subdivision.keyframe_insert("levels", frame=3)
+    bpy.context.view_layer.objects.active = skin
+    assert bpy.ops.tegument.deform_add() == {"FINISHED"}
+    skin.tegument.collider_collection = bpy.data.collections["Colliders"]
+    skin.tegument.frame_start, skin.tegument.frame_end = 1, 3
+    path = bpy.path.abspath(skin.tegument.cache_path)
+    with pytest.raises(RuntimeError, match="collider Growing had .* vertices .* must keep its topology"):
+        bpy.ops.tegument.bake()
+    import os
+
+    assert not os.path.exists(path), "a failed bake must not leave a cache"
