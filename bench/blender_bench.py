@@ -57,6 +57,8 @@ def main() -> int:
     parser.add_argument("--out", type=pathlib.Path, default=ROOT / "bench" / "results")
     parser.add_argument("--zip", type=pathlib.Path, default=os.environ.get("TEGUMENT_EXTENSION_ZIP"))
     parser.add_argument("--frames", type=int, default=12)
+    parser.add_argument("--collide-grid", type=int, default=316, help="skin grid subdivisions of the collision case (316: ~100k vertices)")
+    parser.add_argument("--collide-frames", type=int, default=8)
     args = parser.parse_args()
     user = tempfile.mkdtemp(prefix="tegument-bench-user-")
     os.environ["BLENDER_USER_RESOURCES"] = user
@@ -130,6 +132,8 @@ def main() -> int:
     rows.add(case, "Tegument (10 it.): solve only", solve, "ms", threads, "PyramidDeformer.solve")
     rows.add(case, "Tegument frame / Corrective Smooth frame", tegument_frame / corrective, "x", threads, "target ≤ 0.5")
 
+    collisions(bpy, np, rows, threads, workdir, args.collide_grid, args.collide_frames)
+
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "blender.json").write_text(json.dumps(rows.rows, indent=1))
     (args.out / "machine.txt").write_text(machine() + f"\nBlender {bpy.app.version_string} (PyPI bpy)\n")
@@ -137,6 +141,137 @@ def main() -> int:
     shutil.rmtree(user, ignore_errors=True)
     print(f"wrote {args.out / 'blender.json'}")
     return 0
+
+
+def collisions(bpy, np, rows, threads, workdir, grid: int, frame_count: int) -> None:
+    """A skin grid against a ~20k-triangle sphere that rises into it and slides:
+    Tegument with collisions, Cloth pinned towards the animation (collision
+    quality 5), and Shrinkwrap (Outside) + Corrective Smooth, each timed per
+    frame and audited with tegument.audit against the sphere at every frame."""
+    import tegument
+    from bl_ext.user_default.tegument.deform import bake
+
+    frames = list(range(1, frame_count + 1))
+
+    def centre(frame):
+        k = frame - 1
+        rise = min(k, 5)
+        return (-0.3 + 0.04 * max(k - 5, 0), 0.05, -0.32 + 0.03 * rise)
+
+    def build():
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.preferences.addon_enable(module="bl_ext.user_default.tegument")
+        bpy.ops.wm.save_as_mainfile(filepath=str(workdir / "collide.blend"))
+        scene = bpy.context.scene
+        scene.frame_start, scene.frame_end = 1, frame_count
+        bpy.ops.mesh.primitive_grid_add(x_subdivisions=grid, y_subdivisions=grid, size=2.0)
+        skin = bpy.context.object
+        skin.name = "Skin"
+        bpy.ops.mesh.primitive_uv_sphere_add(segments=128, ring_count=80, radius=0.3)
+        sphere = bpy.context.object
+        sphere.name = "Sphere"
+        for frame in frames:
+            sphere.location = centre(frame)
+            sphere.keyframe_insert("location", frame=frame)
+        sphere.tegument_collider.thickness = 0.005
+        return scene, skin, sphere
+
+    def world(obj):
+        evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        mesh = evaluated.data
+        positions = np.empty(len(mesh.vertices) * 3, dtype=np.float32)
+        mesh.attributes["position"].data.foreach_get("vector", positions)
+        m = np.array(evaluated.matrix_world)
+        return (positions.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]).astype(np.float32), mesh
+
+    def triangles(mesh):
+        tris = np.empty(len(mesh.loop_triangles) * 3, dtype=np.int32)
+        mesh.loop_triangles.foreach_get("vertices", tris)
+        return tris.reshape(-1, 3)
+
+    def audit_at(scene, skin, sphere, frame, positions=None):
+        scene.frame_set(frame)
+        body_positions, body_mesh = world(sphere)
+        collider = tegument.Collider(body_positions, triangles(body_mesh))
+        if positions is None:
+            positions, _ = world(skin)
+        mesh = skin.data
+        corners = np.empty(len(mesh.loops), dtype=np.int32)
+        mesh.loops.foreach_get("vertex_index", corners)
+        sizes = np.empty(len(mesh.polygons), dtype=np.int32)
+        mesh.polygons.foreach_get("loop_total", sizes)
+        return tegument.audit(positions, corners, sizes, [collider])
+
+    def record(label, times, totals, note):
+        median = sorted(times)[len(times) // 2]
+        rows.add(case, f"{label}: frame", median, "ms", threads, note)
+        rows.add(case, f"{label}: vertices inside (all frames)", totals["vertices_inside"], "", threads)
+        rows.add(case, f"{label}: edges crossing (all frames)", totals["edges_crossing"] + totals["collider_edges_crossing"], "", threads, "skin and collider edges")
+
+    # Tegument.
+    scene, skin, sphere = build()
+    collection = bpy.data.collections.new("Colliders")
+    scene.collection.children.link(collection)
+    for owner in list(sphere.users_collection):
+        owner.objects.unlink(sphere)
+    collection.objects.link(sphere)
+    case = f"skin {len(skin.data.vertices) // 1000}k vertices vs sphere {len(sphere.data.polygons) * 2 // 1000}k triangles"
+    bpy.context.view_layer.objects.active = skin
+    assert bpy.ops.tegument.deform_add() == {"FINISHED"}
+    skin.tegument.collider_collection = collection
+    skin.tegument.frame_start, skin.tegument.frame_end = 1, frame_count
+    job = bake.BakeJob(bpy.context, skin, range(1, frame_count + 1))
+    while not job.finished:
+        job.step()
+    job.commit()
+    times = [1000 * t for t in job.times]
+    record("Tegument collisions (10 it.)", times, job.audit_totals, "input + refit + CCD passes + solve + cache write")
+    rows.add(case, "Tegument collisions: pinched (most in a frame)", job.most_pinched, "", threads)
+
+    # Cloth pinned towards the animation (the skin does not move by itself,
+    # so the pins hold it where it is, softly).
+    scene, skin, sphere = build()
+    group = skin.vertex_groups.new(name="pin")
+    group.add(range(len(skin.data.vertices)), 0.5, "REPLACE")
+    cloth = skin.modifiers.new("Cloth", "CLOTH")
+    cloth.settings.vertex_group_mass = "pin"
+    cloth.settings.pin_stiffness = 1.0
+    cloth.settings.effector_weights.gravity = 0.0
+    cloth.collision_settings.collision_quality = 5
+    cloth.collision_settings.distance_min = 0.005
+    cloth.point_cache.frame_start, cloth.point_cache.frame_end = 1, frame_count
+    sphere.modifiers.new("Collision", "COLLISION").settings.thickness_outer = 0.005
+    times, totals = [], {"vertices_inside": 0, "edges_crossing": 0, "collider_edges_crossing": 0}
+    for frame in frames:
+        started = time.perf_counter()
+        scene.frame_set(frame)
+        positions, _ = world(skin)
+        times.append(1000 * (time.perf_counter() - started))
+        found = audit_at(scene, skin, sphere, frame, positions)
+        for key in totals:
+            totals[key] += found[key]
+    record("Cloth (pinned, collision quality 5)", times[1:] or times, totals, "frame_set + simulation step + read positions")
+
+    # Shrinkwrap (Outside) + Corrective Smooth (10 it.).
+    scene, skin, sphere = build()
+    wrap = skin.modifiers.new("Shrinkwrap", "SHRINKWRAP")
+    wrap.target = sphere
+    wrap.wrap_method = "NEAREST_SURFACEPOINT"
+    wrap.wrap_mode = "OUTSIDE_SURFACE"
+    wrap.offset = 0.005
+    smooth = skin.modifiers.new("CorrectiveSmooth", "CORRECTIVE_SMOOTH")
+    smooth.iterations = 10
+    smooth.rest_source = "ORCO"
+    times, totals = [], {"vertices_inside": 0, "edges_crossing": 0, "collider_edges_crossing": 0}
+    for frame in frames:
+        started = time.perf_counter()
+        scene.frame_set(frame)
+        positions, _ = world(skin)
+        times.append(1000 * (time.perf_counter() - started))
+        found = audit_at(scene, skin, sphere, frame, positions)
+        for key in totals:
+            totals[key] += found[key]
+    record("Shrinkwrap (Outside) + Corrective Smooth", times, totals, "frame_set + both modifiers + read positions")
 
 
 if __name__ == "__main__":
