@@ -109,47 +109,56 @@ pub fn closest_on_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> (f64, f64)
     (vb / denom, vc / denom)
 }
 
-/// Squared distance between segments `p0 p1` and `q0 q1` (Ericson, Real-Time
-/// Collision Detection, 5.1.9): the parameters of the closest points are
-/// clamped to the segments, so the result is the exact minimum up to rounding,
-/// also for parallel and zero-length segments.
+/// Squared distance between segments `p0 p1` and `q0 q1`.
 pub fn segment_segment_distance_squared(p0: DVec3, p1: DVec3, q0: DVec3, q1: DVec3) -> f64 {
+    closest_on_segments(p0, p1, q0, q1).2
+}
+
+/// Parameters `(s, t)` of the closest points `p0 + s (p1 − p0)` and
+/// `q0 + t (q1 − q0)` of two segments, and their squared distance (Ericson,
+/// Real-Time Collision Detection, 5.1.9). The clamped pair is compared with
+/// the four endpoint projections, so the result is the true minimum up to
+/// rounding also where rounding pushed a parameter across a bound, and for
+/// parallel and zero-length segments.
+pub fn closest_on_segments(p0: DVec3, p1: DVec3, q0: DVec3, q1: DVec3) -> (f64, f64, f64) {
     let d1 = p1 - p0;
     let d2 = q1 - q0;
     let r = p0 - q0;
     let a = d1.length_squared();
     let e = d2.length_squared();
     let f = d2.dot(r);
-    if a <= f64::MIN_POSITIVE && e <= f64::MIN_POSITIVE {
-        return r.length_squared();
-    }
-    if a <= f64::MIN_POSITIVE {
-        return segment_point_distance_squared(p0, q0, q1);
-    }
-    if e <= f64::MIN_POSITIVE {
-        return segment_point_distance_squared(q0, p0, p1);
-    }
     let c = d1.dot(r);
     let b = d1.dot(d2);
-    let denom = a * e - b * b;
-    // Closest point on the first line to the second, clamped; for parallel
-    // segments any s works, 0 is as good as any.
-    let mut s = if denom > 0.0 { ((b * f - c * e) / denom).clamp(0.0, 1.0) } else { 0.0 };
-    let mut t = (b * s + f) / e;
-    if t < 0.0 {
-        t = 0.0;
-        s = (-c / a).clamp(0.0, 1.0);
-    } else if t > 1.0 {
-        t = 1.0;
-        s = ((b - c) / a).clamp(0.0, 1.0);
+    let on = |x: DVec3, from: DVec3, dir: DVec3, len2: f64| {
+        if len2 > 0.0 { ((x - from).dot(dir) / len2).clamp(0.0, 1.0) } else { 0.0 }
+    };
+    let mut best = (0.0, 0.0, f64::INFINITY);
+    let mut consider = |s: f64, t: f64| {
+        let d = (p0 + d1 * s - (q0 + d2 * t)).length_squared();
+        if d < best.2 {
+            best = (s, t, d);
+        }
+    };
+    if a > f64::MIN_POSITIVE && e > f64::MIN_POSITIVE {
+        let denom = a * e - b * b;
+        // Closest point on the first line to the second, clamped; for
+        // parallel segments any s works, 0 is as good as any.
+        let mut s = if denom > 0.0 { ((b * f - c * e) / denom).clamp(0.0, 1.0) } else { 0.0 };
+        let mut t = (b * s + f) / e;
+        if t < 0.0 {
+            t = 0.0;
+            s = (-c / a).clamp(0.0, 1.0);
+        } else if t > 1.0 {
+            t = 1.0;
+            s = ((b - c) / a).clamp(0.0, 1.0);
+        }
+        consider(s, t);
     }
-    // Re-evaluating the endpoint distances guards against the clamped pair
-    // not being the true minimum when rounding pushed `s` or `t` across a bound.
-    let pair = (p0 + d1 * s - (q0 + d2 * t)).length_squared();
-    pair.min(segment_point_distance_squared(p0, q0, q1))
-        .min(segment_point_distance_squared(p1, q0, q1))
-        .min(segment_point_distance_squared(q0, p0, p1))
-        .min(segment_point_distance_squared(q1, p0, p1))
+    consider(0.0, on(p0, q0, d2, e));
+    consider(1.0, on(p1, q0, d2, e));
+    consider(on(q0, p0, d1, a), 0.0);
+    consider(on(q1, p0, d1, a), 1.0);
+    best
 }
 
 fn segment_point_distance_squared(p: DVec3, a: DVec3, b: DVec3) -> f64 {

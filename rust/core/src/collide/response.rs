@@ -265,7 +265,7 @@ impl<'a> ColliderSet<'a> {
     /// conservative, and the projection then decides whether anything is
     /// violated at the end of the step.
     fn ccd_params(&self, thickness: f64) -> CcdParams {
-        CcdParams { min_separation: thickness, tolerance: 1e-6 * self.scale, max_iterations: 400, t_max: 1.0 }
+        CcdParams { min_separation: thickness, tolerance: (1e-6 * self.scale).max(0.25 * self.slack(thickness)), max_iterations: 400, t_max: 1.0 }
     }
 
     /// Triangle corners of collider `c` at the start and end of the step.
@@ -315,7 +315,7 @@ impl<'a> ColliderSet<'a> {
                     let separation = params.min_separation + params.tolerance + deviation;
                     ccd::vertex_triangle_translating(s64, e64, [a0, b0, c0], shift, separation, params.t_max)
                 } else {
-                    ccd::vertex_triangle(s64, a0, b0, c0, e64, a1, b1, c1, &params)
+                    proximity::vertex_triangle_advance(s64, [a0, b0, c0], e64, [a1, b1, c1], params.min_separation, params.tolerance, params.t_max)
                 };
                 if let Some(hit) = found {
                     if best.is_none_or(|b| hit.toi < b.hit.toi) {
@@ -389,6 +389,16 @@ impl<'a> ColliderSet<'a> {
             let mut ccd_params = self.ccd_params(col.settings().thickness as f64);
             seen.clear();
             col.tree().query(&query, |t| {
+                let (tri0, tri1) = self.triangle_ends(c, t, params.motion);
+                if proximity::beyond_triangle_plane(tri0, tri1, &[sa, sb], &[ea, eb], ccd_params.min_separation) {
+                    // Apart from the triangle's plane, so from its three edges.
+                    for &e in &col.triangle_edges()[t] {
+                        if !seen.contains(&e) {
+                            seen.push(e);
+                        }
+                    }
+                    return true;
+                }
                 for &e in &col.triangle_edges()[t] {
                     if seen.contains(&e) {
                         continue;
@@ -401,7 +411,7 @@ impl<'a> ColliderSet<'a> {
                     if proximity::edge_edge_apart([sa, sb], [c0, c1], [ea, eb], [c0e, c1e], ccd_params.min_separation) {
                         continue;
                     }
-                    if let Some(hit) = ccd::edge_edge(sa, sb, c0, c1, ea, eb, c0e, c1e, &ccd_params) {
+                    if let Some(hit) = proximity::edge_edge_advance([sa, sb], [c0, c1], [ea, eb], [c0e, c1e], ccd_params.min_separation, ccd_params.tolerance, ccd_params.t_max) {
                         if best.is_none_or(|(_, _, b)| hit.toi < b.toi) {
                             best = Some((c, e as usize, hit));
                         }
@@ -490,7 +500,7 @@ impl<'a> ColliderSet<'a> {
                 if proximity::vertex_triangle_apart(r0, [s0, s1, s2], r1, [e0, e1, e2], ccd_params.min_separation) {
                     return true;
                 }
-                if let Some(hit) = ccd::vertex_triangle(r0, s0, s1, s2, r1, e0, e1, e2, &ccd_params) {
+                if let Some(hit) = proximity::vertex_triangle_advance(r0, [s0, s1, s2], r1, [e0, e1, e2], ccd_params.min_separation, ccd_params.tolerance, ccd_params.t_max) {
                     if best.is_none_or(|(_, _, b)| hit.toi < b.toi) {
                         best = Some((c, v, hit));
                     }
