@@ -6,6 +6,7 @@
 #   make test       every test suite: Rust core, the wheel, real Blender
 #   make extension  dist/tegument-<version>-linux_x64.zip
 #   make bench      benchmarks -> bench/results.json and docs/performance-table.md
+#   make fuzz       cargo-fuzz targets (mesh topology, CCD), 60 s each; not part of CI
 
 SHELL := /bin/bash
 PYTHON ?= python3.11
@@ -14,7 +15,8 @@ PY := $(VENV)/bin/python
 VERSION := $(shell sed -n 's/^version = "\(.*\)"/\1/p' Cargo.toml | head -n1)
 WHEEL_DIR := dist/wheels
 EXTENSION_ZIP := dist/tegument-$(VERSION)-linux_x64.zip
-RUST_SOURCES := $(shell find rust -name '*.rs' -o -name 'Cargo.toml' -o -name 'pyproject.toml' -o -name '*.py' -o -name '*.pyi') Cargo.toml
+# rust/fuzz is not part of the wheel (and its target/ is large): left out.
+RUST_SOURCES := $(shell find rust -path rust/fuzz -prune -o \( -name '*.rs' -o -name 'Cargo.toml' -o -name 'pyproject.toml' -o -name '*.py' -o -name '*.pyi' \) -print) Cargo.toml
 ADDON_SOURCES := $(shell find addon -name '*.py' -o -name '*.toml')
 
 .PHONY: all demo test test-rust test-wheel test-blender extension wheel bench venv clean fuzz api-docs
@@ -60,8 +62,19 @@ bench: $(EXTENSION_ZIP)
 	TEGUMENT_EXTENSION_ZIP=$(EXTENSION_ZIP) $(PY) bench/blender_bench.py --out bench/results
 	$(PY) bench/collect.py --results bench/results --json bench/results.json --markdown docs/performance-table.md
 
+# cargo-fuzz targets of the core (rust/fuzz, its own workspace: CI never builds
+# it). Needs the nightly toolchain and `cargo install cargo-fuzz`. Each target
+# runs FUZZ_SECONDS; findings land in rust/fuzz/artifacts/<target>/.
+FUZZ_SECONDS ?= 60
+FUZZ_TARGETS := topology ccd
 fuzz:
-	@echo "cargo-fuzz targets arrive with the robustness work (issue 10)"; exit 1
+	@command -v cargo-fuzz >/dev/null || { echo "error: cargo-fuzz is missing: cargo install cargo-fuzz"; exit 1; }
+	@rustup toolchain list | grep -q nightly || { echo "error: cargo-fuzz needs a nightly toolchain: rustup toolchain install nightly"; exit 1; }
+	cargo +nightly fuzz build --fuzz-dir rust/fuzz
+	set -e; for target in $(FUZZ_TARGETS); do \
+		mkdir -p rust/fuzz/corpus/$$target; \
+		cargo +nightly fuzz run --fuzz-dir rust/fuzz $$target rust/fuzz/corpus/$$target -- -max_total_time=$(FUZZ_SECONDS) -rss_limit_mb=2048 -timeout=10 -len_control=0; \
+	done
 
 api-docs: $(WHEEL_DIR)/.stamp
 	$(PY) tools/gen_api_docs.py --out docs/python-api.md

@@ -74,7 +74,11 @@ def main(argv: list[str]) -> int:
             print(f"error: {obj.name} has no Pyramid Deform", file=sys.stderr)
             failed += 1
             continue
-        frames = _frames(args.frames, obj.tegument)
+        try:
+            frames = _frames(args.frames, obj.tegument)
+        except SystemExit as stop:  # a bad --frames is a usage error, not a reason to leave main()
+            print(stop.code, file=sys.stderr)
+            return 2
         if frames.start != obj.tegument.frame_start:
             obj.tegument.frame_start = frames.start  # the cache starts where the bake starts
         bpy.context.view_layer.objects.active = obj

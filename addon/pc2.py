@@ -74,7 +74,11 @@ class Writer:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             handle, temporary = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
         except OSError as error:
-            raise CacheError(f"cannot write the cache in {self.path.parent}: {error.strerror or error}") from None
+            # "File exists" from mkdir means a file sits where a folder should be: say which.
+            parents = [self.path.parent, *self.path.parent.parents]
+            blocker = next((p for p in parents if p.exists() and not p.is_dir()), None)
+            reason = f"{blocker} is a file, not a folder" if blocker else error.strerror or error
+            raise CacheError(f"cannot write the cache in {self.path.parent}: {reason}") from None
         self.temporary = pathlib.Path(temporary)
         self.file = os.fdopen(handle, "wb")
         self._guard(self.file.write, self._header())

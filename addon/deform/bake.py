@@ -24,6 +24,16 @@ from .evaluate import DeformError
 # vertex); live playback reuses them while the bind is unchanged.
 _deformers: dict[tuple, object] = {}
 
+# Objects with a bake job in progress (by session_uid). A second bake of the
+# same object (the Bake button pressed again during a modal bake, the live
+# handler firing on the frame changes of a bake) would interleave frame
+# changes and race for the same cache file: it is refused instead.
+_baking: set[int] = set()
+
+
+def is_baking(obj) -> bool:
+    return obj.session_uid in _baking
+
 
 def build_deformer(obj):
     """The ``tegument.PyramidDeformer`` for the object's bind (cached per bind)."""
@@ -31,9 +41,12 @@ def build_deformer(obj):
 
     rest = evaluate.rest_positions(obj)
     mesh = obj.data
-    if len(rest) != len(mesh.vertices):
+    # Edit Mode carries the rest attribute over to added vertices (with zeros),
+    # so its length alone does not show an edit: the count stored at bind does.
+    bound = obj.tegument.bound_vertices or len(rest)
+    if len(rest) != len(mesh.vertices) or bound != len(mesh.vertices):
         raise DeformError(
-            f"{obj.name}: the mesh has {len(mesh.vertices)} vertices but was bound with {len(rest)}: rebind it"
+            f"{obj.name}: the mesh has {len(mesh.vertices)} vertices but was bound with {bound}: rebind it"
         )
     corners = mesh_arrays.corner_verts(mesh)
     sizes = mesh_arrays.polygon_sizes(mesh)
@@ -61,6 +74,8 @@ class BakeJob:
             raise DeformError(f"{obj.name} has no Tegument modifier: use Add Pyramid Deform (tegument.deform_add)")
         if len(frames) == 0:
             raise DeformError(f"{obj.name}: the frame range {frames.start}–{frames.stop - 1} is empty")
+        if is_baking(obj):
+            raise DeformError(f"{obj.name} is already being baked: wait for that bake to finish, or cancel it (Esc)")
         self.deformer, self.rest, self.corners, self.sizes = build_deformer(obj)
         self.closeness = evaluate.closeness_weights(obj)
         self.path = evaluate.cache_file(obj)
@@ -87,6 +102,8 @@ class BakeJob:
         except BaseException:
             self._stack.close()
             raise
+        self._uid = obj.session_uid  # kept: the object may be deleted before the job ends
+        _baking.add(self._uid)
 
     def _copy_existing(self, count: int) -> None:
         """Keeps the first ``count`` frames of the current cache (for partial bakes)."""
@@ -187,6 +204,7 @@ class BakeJob:
         self._restore()
 
     def _restore(self) -> None:
+        _baking.discard(self._uid)
         self._stack.close()
         self.scene.frame_set(self.frame_before)
 

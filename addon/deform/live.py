@@ -31,6 +31,8 @@ def on_frame_change(scene, depsgraph=None):
                 continue
             if not settings.frame_start <= frame <= settings.frame_end:
                 continue
+            if bake.is_baking(obj):
+                continue  # this frame change is the bake's own stepping
             cached = pc2.frame_count(evaluate.cache_file(obj))
             if settings.frame_start + cached < frame:
                 continue  # frames before this one are missing: nothing to continue from

@@ -8,6 +8,7 @@ cache and the mesh are left as they were.
 from __future__ import annotations
 
 import os
+import traceback
 
 import bpy
 
@@ -17,6 +18,19 @@ from ..deform.evaluate import DeformError
 from ..deform.properties import MODIFIER_NAME
 
 _EXPECTED = (DeformError, pc2.CacheError)
+
+
+def _message(error: Exception) -> str:
+    """The status-bar text of a failure; anything unexpected is a bug, reported as one.
+
+    Operators catch every ``Exception`` so that a bug shows a message instead of
+    a traceback dialog, after the bake job has restored the modifiers and
+    removed its temporary file; the traceback still goes to the console.
+    """
+    if isinstance(error, _EXPECTED):
+        return str(error)
+    traceback.print_exception(error)
+    return f"Tegument internal error (please report it, the console has the details): {type(error).__name__}: {error}"
 
 
 def _mesh_poll(cls, context) -> bool:
@@ -89,8 +103,8 @@ class TEGUMENT_OT_deform_add(bpy.types.Operator):
         settings.frame_start, settings.frame_end = context.scene.frame_start, context.scene.frame_end
         try:
             message = bind(context, obj)
-        except _EXPECTED as error:
-            self.report({"ERROR"}, str(error))
+        except Exception as error:
+            self.report({"ERROR"}, _message(error))
             return {"CANCELLED"}
         modifier = obj.modifiers.new(MODIFIER_NAME, "MESH_CACHE")
         modifier.cache_format = "PC2"
@@ -133,8 +147,8 @@ class TEGUMENT_OT_bind(bpy.types.Operator):
     def execute(self, context):
         try:
             self.report({"INFO"}, bind(context, context.active_object))
-        except _EXPECTED as error:
-            self.report({"ERROR"}, str(error))
+        except Exception as error:
+            self.report({"ERROR"}, _message(error))
             return {"CANCELLED"}
         return {"FINISHED"}
 
@@ -154,8 +168,8 @@ class TEGUMENT_OT_bake(bpy.types.Operator):
         obj = context.active_object
         try:
             written, cancelled = bake.bake_blocking(context, obj, self._frames(obj))
-        except _EXPECTED as error:
-            self.report({"ERROR"}, str(error))
+        except Exception as error:
+            self.report({"ERROR"}, _message(error))
             return {"CANCELLED"}
         self.report({"WARNING" if cancelled else "INFO"},
                     f"{'Cancelled' if cancelled else 'Baked'} {obj.name}: {written} frames, "
@@ -168,8 +182,8 @@ class TEGUMENT_OT_bake(bpy.types.Operator):
         obj = context.active_object
         try:
             self._job = bake.BakeJob(context, obj, self._frames(obj))
-        except _EXPECTED as error:
-            self.report({"ERROR"}, str(error))
+        except Exception as error:
+            self.report({"ERROR"}, _message(error))
             return {"CANCELLED"}
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.001, window=context.window)
@@ -185,10 +199,10 @@ class TEGUMENT_OT_bake(bpy.types.Operator):
             return {"PASS_THROUGH"}
         try:
             job.step()
-        except _EXPECTED as error:
+        except Exception as error:
             job.abort()
             self._end(context, cancelled=True, failed=True)
-            self.report({"ERROR"}, str(error))
+            self.report({"ERROR"}, _message(error))
             return {"CANCELLED"}
         context.window_manager.progress_update(job.done)
         context.workspace.status_text_set(
@@ -204,7 +218,11 @@ class TEGUMENT_OT_bake(bpy.types.Operator):
         wm.progress_end()
         context.workspace.status_text_set(None)
         if not failed:
-            self._job.commit()
+            try:
+                self._job.commit()
+            except Exception as error:  # e.g. the disk filled up while finishing the cache
+                self.report({"ERROR"}, _message(error))
+                return {"CANCELLED"}
             self.report({"WARNING" if cancelled else "INFO"},
                         f"{'Cancelled' if cancelled else 'Baked'} {self._job.obj.name}: {self._job.writer.frames} frames")
         return {"CANCELLED"} if cancelled else {"FINISHED"}
@@ -230,8 +248,8 @@ class TEGUMENT_OT_bake_frame(bpy.types.Operator):
         try:
             bake.bake_blocking(context, obj, range(first, frame + 1), keep_existing=True,
                                report=lambda line: None)
-        except _EXPECTED as error:
-            self.report({"ERROR"}, str(error))
+        except Exception as error:
+            self.report({"ERROR"}, _message(error))
             return {"CANCELLED"}
         self.report({"INFO"}, f"Baked frame {frame} of {obj.name}")
         return {"FINISHED"}

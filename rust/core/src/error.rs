@@ -66,6 +66,32 @@ pub fn check_allocation<T>(what: &str, count: u64, limit_bytes: u64) -> Result<(
     Ok(())
 }
 
+/// The default of [`memory_limit`]: 16 GiB.
+pub const DEFAULT_MEMORY_LIMIT: u64 = 16 << 30;
+
+/// The process-wide limit for work sized by the input (meshes): the
+/// `TEGUMENT_MEMORY_LIMIT` environment variable in bytes, with an optional
+/// `K`, `M` or `G` suffix (powers of 1024), read once; [`DEFAULT_MEMORY_LIMIT`]
+/// when it is unset or unreadable. A render farm sets it below a node's RAM so
+/// that an oversized job fails with a message instead of being killed.
+pub fn memory_limit() -> u64 {
+    static LIMIT: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
+    *LIMIT.get_or_init(|| {
+        std::env::var("TEGUMENT_MEMORY_LIMIT").ok().and_then(|text| parse_bytes(&text)).unwrap_or(DEFAULT_MEMORY_LIMIT)
+    })
+}
+
+fn parse_bytes(text: &str) -> Option<u64> {
+    let text = text.trim();
+    let (digits, shift) = match text.chars().last()?.to_ascii_uppercase() {
+        'K' => (&text[..text.len() - 1], 10),
+        'M' => (&text[..text.len() - 1], 20),
+        'G' => (&text[..text.len() - 1], 30),
+        _ => (text, 0),
+    };
+    digits.trim().parse::<u64>().ok()?.checked_mul(1 << shift)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -76,5 +102,33 @@ mod tests {
         let text = err.to_string();
         assert!(text.contains("a 65536² grid would need 17179869184 bytes (16.0 GiB)"), "{text}");
         assert!(text.contains("limit of 1073741824 bytes (1.0 GiB)"), "{text}");
+    }
+
+    /// The Python bindings catch panics (bugs) at the boundary with
+    /// `catch_unwind`; that needs a panic on a rayon worker to unwind back to
+    /// the caller instead of aborting the process.
+    #[test]
+    fn panic_in_parallel_work_reaches_the_caller() {
+        use rayon::prelude::*;
+        let outcome = std::panic::catch_unwind(|| {
+            (0..64).into_par_iter().for_each(|i| {
+                if i == 37 {
+                    panic!("deliberate panic in task {i}");
+                }
+            })
+        });
+        let payload = outcome.expect_err("the panic must reach the caller");
+        let text = payload.downcast_ref::<String>().cloned().unwrap_or_default();
+        assert_eq!(text, "deliberate panic in task 37");
+    }
+
+    #[test]
+    fn memory_limit_text() {
+        assert_eq!(parse_bytes("1048576"), Some(1 << 20));
+        assert_eq!(parse_bytes("64M"), Some(64 << 20));
+        assert_eq!(parse_bytes(" 2g "), Some(2 << 30));
+        assert_eq!(parse_bytes("lots"), None);
+        assert_eq!(parse_bytes(""), None);
+        assert_eq!(parse_bytes("99999999999999999999G"), None);
     }
 }

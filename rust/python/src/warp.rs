@@ -287,8 +287,9 @@ impl UvWarp {
 
 /// Writes a float32 image ``(height, width)`` or ``(height, width, C)`` with
 /// 1 ≤ C ≤ 4 (channels R, G, B, A; row 0 = lowest v, stored top row first as
-/// EXR expects) to ``path``, with ``metadata`` (str → str) as attributes.
-/// Refuses NaN and infinities; atomic (temporary file, then rename).
+/// EXR expects) to ``path``, with ``metadata`` (str → str, Latin-1 text,
+/// keys of 1 to 246 characters) as attributes. Refuses NaN and infinities;
+/// atomic (temporary file, then rename).
 #[pyfunction]
 #[pyo3(signature = (path, array, metadata=None))]
 fn write_exr(py: Python<'_>, path: PathBuf, array: &Bound<'_, PyAny>, metadata: Option<BTreeMap<String, String>>) -> PyResult<()> {
@@ -299,7 +300,30 @@ fn write_exr(py: Python<'_>, path: PathBuf, array: &Bound<'_, PyAny>, metadata: 
     };
     let channels = if shape.len() == 3 { shape[2] } else { 1 };
     let meta: Vec<(String, String)> = metadata.unwrap_or_default().into_iter().collect();
+    check_metadata(&meta)?;
     run_detached(py, || warp::exr::write_exr(&path, shape[1], shape[0], channels, &data, &meta))
+}
+
+/// OpenEXR text attributes hold Latin-1 bytes and names up to 255 bytes
+/// ending at the first NUL; anything else would make the writer panic or the
+/// file unreadable, so it is refused here with the offending entry named.
+fn check_metadata(meta: &[(String, String)]) -> PyResult<()> {
+    const PREFIX: usize = "tegument.".len();
+    for (key, value) in meta {
+        for (what, text) in [("key", key), ("value", value)] {
+            if let Some(c) = text.chars().find(|&c| c as u32 > 0xFF || c == '\0') {
+                return Err(TegumentError::new_err(format!(
+                    "metadata {what} {text:?}: OpenEXR text attributes hold Latin-1 characters only (no NUL); {c:?} is not one"
+                )));
+            }
+        }
+        if key.is_empty() || key.chars().count() + PREFIX > 255 {
+            return Err(TegumentError::new_err(format!(
+                "metadata key {key:?}: must be 1 to {} characters long", 255 - PREFIX
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// Reads an OpenEXR image: returns ``(array, metadata)`` with ``array``

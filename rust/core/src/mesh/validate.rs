@@ -2,7 +2,15 @@
 
 use glam::Vec3;
 
+use crate::error::{check_allocation, memory_limit};
 use crate::{Error, Result};
+
+/// Peak working memory per vertex and per face corner of the heaviest
+/// consumer of a mesh (a pyramid bind and solve: topology, encoding, the
+/// factorised system), measured at about 390 bytes per vertex on a quad grid
+/// (4 corners per vertex), with some headroom.
+const BYTES_PER_VERTEX: u64 = 192;
+const BYTES_PER_CORNER: u64 = 64;
 
 /// Reinterprets a flat `[x0, y0, z0, x1, ...]` slice as vectors without copying.
 pub fn as_vec3(flat: &[f32]) -> Result<&[Vec3]> {
@@ -46,6 +54,12 @@ impl<'a> MeshInput<'a> {
         if vertex_count > u32::MAX as usize - 1 {
             return Err(Error::invalid(format!("{vertex_count} vertices is more than Tegument supports")));
         }
+        let corners = self.corner_verts.len() as u64;
+        check_allocation::<u8>(
+            &format!("a mesh of {vertex_count} vertices and {corners} face corners"),
+            (vertex_count as u64).saturating_mul(BYTES_PER_VERTEX).saturating_add(corners.saturating_mul(BYTES_PER_CORNER)),
+            memory_limit(),
+        )?;
         let mut offsets = Vec::with_capacity(self.polygon_sizes.len() + 1);
         let mut total: u64 = 0;
         offsets.push(0u32);

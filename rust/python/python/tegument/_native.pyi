@@ -220,7 +220,7 @@ def write_exr(
     metadata: dict[str, str] | None = None,
 ) -> None:
     """Write a float32 ``(height, width[, C])`` image (C ≤ 4; row 0 = lowest v) as OpenEXR;
-    refuses NaN/inf; atomic (temporary file, then rename)."""
+    metadata is Latin-1 text; refuses NaN/inf; atomic (temporary file, then rename)."""
 
 def read_exr(path: str | os.PathLike[str]) -> tuple[npt.NDArray[np.float32], dict[str, str]]:
     """Read an OpenEXR image: ``(array (height, width, C) float32, metadata)``."""
