@@ -161,13 +161,6 @@ pub fn closest_on_segments(p0: DVec3, p1: DVec3, q0: DVec3, q1: DVec3) -> (f64, 
     best
 }
 
-fn segment_point_distance_squared(p: DVec3, a: DVec3, b: DVec3) -> f64 {
-    let ab = b - a;
-    let len2 = ab.length_squared();
-    let t = if len2 > 0.0 { ((p - a).dot(ab) / len2).clamp(0.0, 1.0) } else { 0.0 };
-    (p - (a + t * ab)).length_squared()
-}
-
 /// Whether the ray from `p` towards +z crosses triangle `a b c`, decided with
 /// an exact 2D containment test (f64 products of f32 differences are exact)
 /// and a symbolic perturbation of `p` by (ε, ε²) so that every ray crosses a

@@ -291,17 +291,16 @@ impl<'a> ColliderSet<'a> {
         (start, end)
     }
 
-    /// Earliest vertex–triangle contact of the path `s → e`.
-    fn earliest_vertex_hit(&self, s: Vec3, e: Vec3, motion: ColliderMotion) -> Option<VertexHit> {
+    /// Vertex–triangle contacts of the path `s → e`, earliest first. All
+    /// of them, not just the earliest: a contact reported within the
+    /// tolerance may need no correction, and the next one then decides.
+    fn vertex_hits(&self, s: Vec3, e: Vec3, motion: ColliderMotion) -> Vec<VertexHit> {
         let query = Bounds::of_points(&[s, e]);
         let (s64, e64) = (d(s), d(e));
-        let mut best: Option<VertexHit> = None;
+        let mut hits: Vec<VertexHit> = Vec::new();
         for (c, col) in self.colliders.iter().enumerate() {
-            let mut params = self.ccd_params(col.settings().thickness as f64);
+            let params = self.ccd_params(col.settings().thickness as f64);
             col.tree().query(&query, |t| {
-                if let Some(b) = &best {
-                    params.t_max = b.hit.toi.max(f64::MIN_POSITIVE);
-                }
                 let ([a0, b0, c0], [a1, b1, c1]) = self.triangle_ends(c, t, motion);
                 if proximity::vertex_triangle_apart(s64, [a0, b0, c0], e64, [a1, b1, c1], params.min_separation) {
                     return true;
@@ -316,16 +315,22 @@ impl<'a> ColliderSet<'a> {
                     ccd::vertex_triangle_translating(s64, e64, [a0, b0, c0], shift, separation, params.t_max)
                 } else {
                     proximity::vertex_triangle_advance(s64, [a0, b0, c0], e64, [a1, b1, c1], params.min_separation, params.tolerance, params.t_max)
+                        .filter(|hit| hit.converged)
+                        .or_else(|| ccd::vertex_triangle(s64, a0, b0, c0, e64, a1, b1, c1, &params))
                 };
                 if let Some(hit) = found {
-                    if best.is_none_or(|b| hit.toi < b.hit.toi) {
-                        best = Some(VertexHit { collider: c, triangle: t, hit });
-                    }
+                    hits.push(VertexHit { collider: c, triangle: t, hit });
                 }
                 true
             });
         }
-        best
+        hits.sort_by(|a, b| a.hit.toi.total_cmp(&b.hit.toi));
+        hits
+    }
+
+    /// The projected end of the first contact of `s → e` that needs one.
+    fn vertex_correction(&self, s: Vec3, e: Vec3, params: &ResolveParams) -> Option<Vec3> {
+        self.vertex_hits(s, e, params.motion).iter().find_map(|h| self.project_vertex(s, e, h, params))
     }
 
     /// The projected end position for a vertex–triangle contact, or `None`
@@ -383,10 +388,10 @@ impl<'a> ColliderSet<'a> {
         let [ia, ib] = edge.map(|v| v as usize);
         let (sa, sb, ea, eb) = (d(start[ia]), d(start[ib]), d(end[ia]), d(end[ib]));
         let query = Bounds::of_points(&[start[ia], start[ib], end[ia], end[ib]]);
-        let mut best: Option<(usize, usize, ccd::CcdHit)> = None;
+        let mut hits: Vec<(usize, usize, ccd::CcdHit)> = Vec::new();
         let mut seen: Vec<u32> = Vec::new();
         for (c, col) in self.colliders.iter().enumerate() {
-            let mut ccd_params = self.ccd_params(col.settings().thickness as f64);
+            let ccd_params = self.ccd_params(col.settings().thickness as f64);
             seen.clear();
             col.tree().query(&query, |t| {
                 let (tri0, tri1) = self.triangle_ends(c, t, params.motion);
@@ -404,23 +409,42 @@ impl<'a> ColliderSet<'a> {
                         continue;
                     }
                     seen.push(e);
-                    if let Some((_, _, b)) = &best {
-                        ccd_params.t_max = b.toi.max(f64::MIN_POSITIVE);
-                    }
                     let ([c0, c1], [c0e, c1e]) = self.edge_ends(c, e as usize, params.motion);
                     if proximity::edge_edge_apart([sa, sb], [c0, c1], [ea, eb], [c0e, c1e], ccd_params.min_separation) {
                         continue;
                     }
-                    if let Some(hit) = proximity::edge_edge_advance([sa, sb], [c0, c1], [ea, eb], [c0e, c1e], ccd_params.min_separation, ccd_params.tolerance, ccd_params.t_max) {
-                        if best.is_none_or(|(_, _, b)| hit.toi < b.toi) {
-                            best = Some((c, e as usize, hit));
-                        }
+                    let advanced = proximity::edge_edge_advance([sa, sb], [c0, c1], [ea, eb], [c0e, c1e], ccd_params.min_separation, ccd_params.tolerance, ccd_params.t_max);
+                    // Advancement that ran out of steps is only a lower bound on the
+                    // time; the interval search then finds where the contact is.
+                    let found = match advanced {
+                        Some(hit) if !hit.converged => ccd::edge_edge(sa, sb, c0, c1, ea, eb, c0e, c1e, &ccd_params),
+                        other => other,
+                    };
+                    if let Some(hit) = found {
+                        hits.push((c, e as usize, hit));
                     }
                 }
                 true
             });
         }
-        let (c, e, hit) = best?;
+        hits.sort_by(|a, b| a.2.toi.total_cmp(&b.2.toi));
+        hits.into_iter().find_map(|(c, e, hit)| self.edge_contact_correction(sa, sb, ea, eb, c, e, hit, params))
+    }
+
+    /// Corrections of a skin edge's two ends for one edge–edge contact, or
+    /// `None` if its end positions already keep the separation.
+    #[allow(clippy::too_many_arguments)]
+    fn edge_contact_correction(
+        &self,
+        sa: DVec3,
+        sb: DVec3,
+        ea: DVec3,
+        eb: DVec3,
+        c: usize,
+        e: usize,
+        hit: ccd::CcdHit,
+        params: &ResolveParams,
+    ) -> Option<(DVec3, DVec3)> {
         let col = self.colliders[c];
         let sep = col.settings().thickness as f64;
         let ([c0, c1], [c0e, c1e]) = self.edge_ends(c, e, params.motion);
@@ -489,26 +513,40 @@ impl<'a> ColliderSet<'a> {
         let (s0, s1, s2) = (d(start[i0]), d(start[i1]), d(start[i2]));
         let (e0, e1, e2) = (d(end[i0]), d(end[i1]), d(end[i2]));
         let query = Bounds::of_points(&[start[i0], start[i1], start[i2], end[i0], end[i1], end[i2]]);
-        let mut best: Option<(usize, usize, ccd::CcdHit)> = None;
+        let mut hits: Vec<(usize, usize, ccd::CcdHit)> = Vec::new();
         for (c, col) in self.colliders.iter().enumerate() {
-            let mut ccd_params = self.ccd_params(col.settings().thickness as f64);
+            let ccd_params = self.ccd_params(col.settings().thickness as f64);
             col.vertex_tree().query(&query, |v| {
-                if let Some((_, _, b)) = &best {
-                    ccd_params.t_max = b.toi.max(f64::MIN_POSITIVE);
-                }
                 let (r0, r1) = self.vertex_ends(c, v, params.motion);
                 if proximity::vertex_triangle_apart(r0, [s0, s1, s2], r1, [e0, e1, e2], ccd_params.min_separation) {
                     return true;
                 }
-                if let Some(hit) = proximity::vertex_triangle_advance(r0, [s0, s1, s2], r1, [e0, e1, e2], ccd_params.min_separation, ccd_params.tolerance, ccd_params.t_max) {
-                    if best.is_none_or(|(_, _, b)| hit.toi < b.toi) {
-                        best = Some((c, v, hit));
-                    }
+                let advanced = proximity::vertex_triangle_advance(r0, [s0, s1, s2], r1, [e0, e1, e2], ccd_params.min_separation, ccd_params.tolerance, ccd_params.t_max);
+                let found = match advanced {
+                    Some(hit) if !hit.converged => ccd::vertex_triangle(r0, s0, s1, s2, r1, e0, e1, e2, &ccd_params),
+                    other => other,
+                };
+                if let Some(hit) = found {
+                    hits.push((c, v, hit));
                 }
                 true
             });
         }
-        let (c, v, hit) = best?;
+        hits.sort_by(|a, b| a.2.toi.total_cmp(&b.2.toi));
+        let ends = ([s0, s1, s2], [e0, e1, e2]);
+        hits.into_iter().find_map(|(c, v, hit)| self.face_contact_correction(ends, c, v, hit, params))
+    }
+
+    /// Corrections of a skin triangle's corners for one collider-vertex
+    /// contact, or `None` if its end positions already keep the separation.
+    fn face_contact_correction(
+        &self,
+        ([s0, s1, s2], [e0, e1, e2]): ([DVec3; 3], [DVec3; 3]),
+        c: usize,
+        v: usize,
+        hit: ccd::CcdHit,
+        params: &ResolveParams,
+    ) -> Option<[DVec3; 3]> {
         let sep = self.colliders[c].settings().thickness as f64;
         let (r0, r1) = self.vertex_ends(c, v, params.motion);
         let (t, u, w) = (hit.toi, hit.u, hit.v);
@@ -644,8 +682,7 @@ impl<'a> ColliderSet<'a> {
                 .par_iter()
                 .filter_map(|&i| {
                     let (s, e) = (start[i as usize], end[i as usize]);
-                    let hit = self.earliest_vertex_hit(s, e, params.motion)?;
-                    self.project_vertex(s, e, &hit, params).map(|p| (i, p))
+                    self.vertex_correction(s, e, params).map(|p| (i, p))
                 })
                 .collect();
             stats.vertex_contacts += updates.len();
@@ -680,9 +717,7 @@ impl<'a> ColliderSet<'a> {
                 .copied()
                 .filter(|&i| {
                     let (s, e) = (start[i as usize], end[i as usize]);
-                    self.earliest_vertex_hit(s, e, params.motion)
-                        .and_then(|h| self.project_vertex(s, e, &h, params))
-                        .is_some()
+                    self.vertex_correction(s, e, params).is_some()
                 })
                 .collect();
             let (_, _, shared) = self.shared_corrections(start, end, skin, &active_edges, &active_triangles, params);
