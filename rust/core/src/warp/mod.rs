@@ -31,6 +31,7 @@ pub mod maps;
 pub mod metrics;
 pub mod raster;
 pub mod solver;
+pub mod sweep;
 pub mod tiles;
 
 #[cfg(test)]

@@ -36,6 +36,7 @@
 use rayon::prelude::*;
 
 use super::maps;
+use super::sweep::{self, ByTexel, ByTriangle, Metric, Sweep, TriRecord};
 use super::WarpSettings;
 
 /// Smallest side of the coarsest level.
@@ -49,7 +50,7 @@ const FOLD_MARGIN: f32 = 0.02;
 /// rest length per visit. Full steps (1.0) converge a little faster on smooth
 /// fixtures but oscillate and fold where neighbouring constraints disagree
 /// (Spot's small, unevenly stretched triangles).
-const RELAXATION: f32 = 0.5;
+pub(crate) const RELAXATION: f32 = 0.5;
 
 /// One level of the hierarchy.
 #[derive(Debug, Clone)]
@@ -250,7 +251,72 @@ impl<L: Lookup> Ctx<'_, L> {
     }
 }
 
-fn iterate<L: Lookup>(lv: &mut Level, look: L, go: &[[f32; 3]], gd: &[[f32; 3]], n: usize, s: &WarpSettings) {
+/// Levels with fewer texels than this run on the calling thread: their whole
+/// iteration takes less than a fork–join of the pool under load.
+const PARALLEL_TEXELS: usize = 128 * 128;
+
+/// Whether the CPU has AVX2 (the [`sweep`] kernels have an AVX2 build).
+fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// `n` iterations of a level with the [`sweep`] kernels.
+fn iterate<M: Metric>(lv: &mut Level, metric: M, n: usize, s: &WarpSettings, avx2: bool) {
+    let (w, h) = (lv.w, lv.h);
+    let parallel = w * h >= PARALLEL_TEXELS;
+    for _ in 0..n {
+        {
+            let sw = Sweep { w, rig: &lv.rig, mask: &lv.mask, metric: &metric, orientation: s.orientation, avx2 };
+            let row_rigid = &lv.row_rigid;
+            let phase_a = |p: usize, cx: &mut [f32], cy: &mut [f32]| {
+                let j = 2 * p;
+                let rows = cx.len() / w;
+                if row_rigid[j] || (rows == 2 && row_rigid[j + 1]) {
+                    sw.phase_a(j, rows, cx, cy);
+                }
+            };
+            let phase_b = |p: usize, cx: &mut [f32], cy: &mut [f32]| {
+                let j = 2 * p + 1;
+                if cx.len() == 2 * w && (row_rigid[j] || row_rigid[j + 1]) {
+                    sw.between(j, cx, cy);
+                }
+            };
+            if parallel {
+                lv.dx.par_chunks_mut(2 * w).zip(lv.dy.par_chunks_mut(2 * w)).enumerate().for_each(|(p, (cx, cy))| phase_a(p, cx, cy));
+                lv.dx[w..].par_chunks_mut(2 * w).zip(lv.dy[w..].par_chunks_mut(2 * w)).enumerate().for_each(|(p, (cx, cy))| phase_b(p, cx, cy));
+            } else {
+                lv.dx.chunks_mut(2 * w).zip(lv.dy.chunks_mut(2 * w)).enumerate().for_each(|(p, (cx, cy))| phase_a(p, cx, cy));
+                lv.dx[w..].chunks_mut(2 * w).zip(lv.dy[w..].chunks_mut(2 * w)).enumerate().for_each(|(p, (cx, cy))| phase_b(p, cx, cy));
+            }
+        }
+        regularise(lv, s.smoothing, parallel, avx2);
+        std::mem::swap(&mut lv.dx, &mut lv.sx);
+        std::mem::swap(&mut lv.dy, &mut lv.sy);
+    }
+}
+
+/// Seed eqs. 4–5 plus the 8-neighbourhood bounding-box clamp; `dx,dy → sx,sy`.
+fn regularise(lv: &mut Level, smoothing: f32, parallel: bool, avx2: bool) {
+    let (w, h) = (lv.w, lv.h);
+    let (dx, dy, rig, mask) = (&lv.dx, &lv.dy, &lv.rig, &lv.mask);
+    let row = |(y, (ox, oy)): (usize, (&mut [f32], &mut [f32]))| sweep::regularise_row(dx, dy, rig, mask, w, h, y, smoothing, ox, oy, avx2);
+    if parallel {
+        lv.sx.par_chunks_mut(w).zip(lv.sy.par_chunks_mut(w)).enumerate().for_each(row);
+    } else {
+        lv.sx.chunks_mut(w).zip(lv.sy.chunks_mut(w)).enumerate().for_each(row);
+    }
+}
+
+/// The reference iteration: one constraint at a time, through float
+/// midpoints (needed for `sample_warped`, and the yardstick of [`sweep`]).
+fn iterate_reference<L: Lookup>(lv: &mut Level, look: L, go: &[[f32; 3]], gd: &[[f32; 3]], n: usize, s: &WarpSettings) {
     let (w, h) = (lv.w, lv.h);
     for _ in 0..n {
         {
@@ -270,14 +336,14 @@ fn iterate<L: Lookup>(lv: &mut Level, look: L, go: &[[f32; 3]], gd: &[[f32; 3]],
                 }
             });
         }
-        regularise(lv, s.smoothing);
+        regularise_reference(lv, s.smoothing);
         std::mem::swap(&mut lv.dx, &mut lv.sx);
         std::mem::swap(&mut lv.dy, &mut lv.sy);
     }
 }
 
-/// Seed eqs. 4–5 plus the 8-neighbourhood bounding-box clamp; `dx,dy → sx,sy`.
-fn regularise(lv: &mut Level, smoothing: f32) {
+/// The reference regularisation (see [`regularise`]).
+fn regularise_reference(lv: &mut Level, smoothing: f32) {
     let (w, h) = (lv.w, lv.h);
     let (dx, dy, rig, mask) = (&lv.dx, &lv.dy, &lv.rig, &lv.mask);
     lv.sx.par_chunks_mut(w).zip(lv.sy.par_chunks_mut(w)).enumerate().for_each(|(y, (ox, oy))| {
@@ -332,6 +398,8 @@ pub struct Solver {
     /// Wall time per level in the last solve (ms), finest first; the last
     /// entry is the fold check/repair.
     pub last_level_ms: Vec<f64>,
+    /// Run the reference kernels (tests compare them with the fast ones).
+    pub(crate) reference: bool,
 }
 
 impl Solver {
@@ -354,7 +422,7 @@ impl Solver {
             level.start_y = vec![0.0; lw * lh];
             levels.push(level);
         }
-        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new() }
+        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), reference: false }
     }
 
     /// Back to the identity warp.
@@ -396,6 +464,9 @@ impl Solver {
             c.start_x.copy_from_slice(&c.dx);
             c.start_y.copy_from_slice(&c.dy);
         }
+        // One record per triangle (deformed metric, rest lengths) for the finest level's sweeps.
+        let records: Vec<TriRecord> = self.go_tri.iter().zip(gd_tri).map(|(&o, &d)| sweep::tri_record(o, d)).collect();
+        let avx2 = has_avx2();
         self.last_iterations = vec![0; self.levels.len()];
         self.last_level_ms = vec![0.0; self.levels.len() + 1];
         for l in (0..self.levels.len()).rev() {
@@ -413,11 +484,20 @@ impl Solver {
             self.last_iterations[l] = n;
             let (fine, rest) = self.levels.split_at_mut(l);
             let lv = &mut rest[0];
+            let reference = s.sample_warped || self.reference;
             if l == 0 {
-                iterate(lv, Indexed(ids, &self.tri_chart), &self.go_tri, gd_tri, n, s);
+                if reference {
+                    iterate_reference(lv, Indexed(ids, &self.tri_chart), &self.go_tri, gd_tri, n, s);
+                } else {
+                    iterate(lv, ByTriangle { ids, records: &records }, n, s, avx2);
+                }
             } else {
                 let (go, gd) = (std::mem::take(&mut lv.go), std::mem::take(&mut lv.gd));
-                iterate(lv, Direct, &go, &gd, n, s);
+                if reference {
+                    iterate_reference(lv, Direct, &go, &gd, n, s);
+                } else {
+                    iterate(lv, ByTexel { go: &go, gd: &gd }, n, s, avx2);
+                }
                 lv.go = go;
                 lv.gd = gd;
                 prolong(lv, &mut fine[l - 1]);

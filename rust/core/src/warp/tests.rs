@@ -483,3 +483,24 @@ fn gathered_inversion_matches_the_rasterised_reference() {
         assert!(worst < 1e-3, "gather and scatter differ by {worst} texel");
     }
 }
+
+#[test]
+fn fast_kernels_match_the_reference_kernels() {
+    // Cold then warm solves of the bent cylinder; equal as numbers (the
+    // reference's min/max may pick the other signed zero).
+    for orientation in [0.05, 0.0] {
+        let (m, warp) = cylinder_warp(true);
+        let mut fast = warp.clone();
+        let mut slow = warp;
+        fast.settings.orientation = orientation;
+        slow.settings.orientation = orientation;
+        slow.tiles[0].solver.reference = true;
+        for amount in [0.8, 1.0] {
+            fast.solve(&bent(&m, amount)).unwrap();
+            slow.solve(&bent(&m, amount)).unwrap();
+            let (a, b) = (fast.tiles[0].displacement(), slow.tiles[0].displacement());
+            let differ = a.0.iter().zip(b.0).chain(a.1.iter().zip(b.1)).filter(|(p, q)| p != q).count();
+            assert_eq!(differ, 0, "orientation {orientation}, bend {amount}: {differ} values differ");
+        }
+    }
+}
