@@ -59,9 +59,8 @@ pub struct Level {
     pub h: usize,
     pub rig: Vec<u8>,
     pub mask: Vec<u8>,
-    /// Whether a row holds any rigid node (rows without one are skipped by
-    /// the projection).
-    row_rigid: Vec<bool>,
+    /// The constraints the sweeps visit.
+    active: sweep::ActiveSpans,
     /// Coarse levels only: per-texel metrics of the rest and deformed surface.
     go: Vec<[f32; 3]>,
     gd: Vec<[f32; 3]>,
@@ -75,14 +74,14 @@ pub struct Level {
 
 impl Level {
     fn new(w: usize, h: usize, rig: Vec<u8>, mask: Vec<u8>) -> Self {
-        let row_rigid = rig.chunks(w).zip(mask.chunks(w)).map(|(r, m)| r.iter().zip(m).any(|(&r, &m)| r > 0 && m > 0)).collect();
         let n = w * h;
+        let active = sweep::ActiveSpans::new(w, h, &rig, &mask);
         Level {
             w,
             h,
+            active,
             rig,
             mask,
-            row_rigid,
             go: Vec::new(),
             gd: Vec::new(),
             dx: vec![0.0; n],
@@ -273,18 +272,18 @@ fn iterate<M: Metric>(lv: &mut Level, metric: M, n: usize, s: &WarpSettings, avx
     let parallel = w * h >= PARALLEL_TEXELS;
     for _ in 0..n {
         {
-            let sw = Sweep { w, rig: &lv.rig, mask: &lv.mask, metric: &metric, orientation: s.orientation, avx2 };
-            let row_rigid = &lv.row_rigid;
+            let sw = Sweep { w, active: &lv.active, rig: &lv.rig, mask: &lv.mask, metric: &metric, orientation: s.orientation, avx2 };
+            let active = &lv.active;
             let phase_a = |p: usize, cx: &mut [f32], cy: &mut [f32]| {
                 let j = 2 * p;
                 let rows = cx.len() / w;
-                if row_rigid[j] || (rows == 2 && row_rigid[j + 1]) {
+                if active.any(j, false) || (rows == 2 && active.any(j + 1, false)) {
                     sw.phase_a(j, rows, cx, cy);
                 }
             };
             let phase_b = |p: usize, cx: &mut [f32], cy: &mut [f32]| {
                 let j = 2 * p + 1;
-                if cx.len() == 2 * w && (row_rigid[j] || row_rigid[j + 1]) {
+                if cx.len() == 2 * w && active.any(j, true) {
                     sw.between(j, cx, cy);
                 }
             };
@@ -321,17 +320,17 @@ fn iterate_reference<L: Lookup>(lv: &mut Level, look: L, go: &[[f32; 3]], gd: &[
     for _ in 0..n {
         {
             let ctx = Ctx { w, h, rig: &lv.rig, mask: &lv.mask, look, go, gd, orientation: s.orientation, sample_warped: s.sample_warped };
-            let row_rigid = &lv.row_rigid;
+            let active = &lv.active;
             lv.dx.par_chunks_mut(2 * w).zip(lv.dy.par_chunks_mut(2 * w)).enumerate().for_each(|(p, (cx, cy))| {
                 let j = 2 * p;
                 let rows = cx.len() / w;
-                if row_rigid[j] || (rows == 2 && row_rigid[j + 1]) {
+                if active.any(j, false) || (rows == 2 && active.any(j + 1, false)) {
                     ctx.phase_a(j, rows, cx, cy);
                 }
             });
             lv.dx[w..].par_chunks_mut(2 * w).zip(lv.dy[w..].par_chunks_mut(2 * w)).enumerate().for_each(|(p, (cx, cy))| {
                 let j = 2 * p + 1;
-                if cx.len() == 2 * w && (row_rigid[j] || row_rigid[j + 1]) {
+                if cx.len() == 2 * w && active.any(j, true) {
                     ctx.between(j, cx, cy);
                 }
             });
@@ -443,8 +442,9 @@ impl Solver {
         if !warm {
             self.reset();
         }
+        let used = if warm { std::env::var("TEGUMENT_WARP_WARM_LEVELS").ok().and_then(|v| v.parse().ok()).unwrap_or(99usize).clamp(1, self.levels.len()) } else { self.levels.len() };
         // Deformed metrics and starting states of the coarse levels.
-        for l in 1..self.levels.len() {
+        for l in 1..used {
             let (fine, coarse) = self.levels.split_at_mut(l);
             let f = &fine[l - 1];
             let c = &mut coarse[0];
@@ -469,7 +469,7 @@ impl Solver {
         let avx2 = has_avx2();
         self.last_iterations = vec![0; self.levels.len()];
         self.last_level_ms = vec![0.0; self.levels.len() + 1];
-        for l in (0..self.levels.len()).rev() {
+        for l in (0..used).rev() {
             let started = std::time::Instant::now();
             // Cold solves start from the identity and need the coarse levels
             // to carry the bulk of the warp: `iterations · 2^l` there. Warm

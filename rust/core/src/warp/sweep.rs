@@ -10,8 +10,10 @@
 //!   values and metrics are gathered into small arrays, the projection is
 //!   evaluated branch-free over the lanes (skipped constraints get a zero
 //!   correction, not a branch), and the corrections are scattered back;
-//! - a run whose nodes are all fully elastic is skipped after a cheap test of
-//!   its rigidities (most of an elastic region costs one byte load per node);
+//! - only constraints that can be active are visited: rigidity and mask are
+//!   fixed per bind, so [`ActiveSpans`] lists, per row and set, the spans of
+//!   constraints with a rigid end and a movable end, and lanes are packed
+//!   across spans (an elastic region costs nothing);
 //! - the rest texel whose metric a constraint uses is an integer offset from
 //!   its first node (the reference finds it from float midpoints; the two agree
 //!   for the unwarped midpoint, the only one this path serves);
@@ -105,6 +107,7 @@ impl Metric for ByTexel<'_> {
 /// What one sweep reads besides the displacements.
 pub struct Sweep<'a, M: Metric> {
     pub w: usize,
+    pub active: &'a ActiveSpans,
     pub rig: &'a [u8],
     pub mask: &'a [u8],
     pub metric: M,
@@ -115,16 +118,91 @@ pub struct Sweep<'a, M: Metric> {
 
 /// One set's constraints in a slice of rows: constraint `k` joins local nodes
 /// `a0 + k·stride` and `b0 + k·stride` (global: plus `g0`); its rest texel is
-/// `rest0 + k·stride`.
+/// `rest0 + k·stride`. Only the constraints in `spans` can be active.
 #[derive(Clone, Copy)]
-struct Run {
+struct Run<'s> {
     dir: usize,
     a0: usize,
     b0: usize,
     stride: usize,
-    count: usize,
     g0: usize,
     rest0: usize,
+    spans: &'s [Span],
+}
+
+/// A half-open range of constraint indices of one set in one row (pair).
+pub type Span = (u32, u32);
+
+/// The sets of a row `j`: the even and odd horizontal sets of row `j`, and the
+/// vertical, diagonal and antidiagonal sets between rows `j` and `j + 1`.
+pub const SETS: usize = 5;
+
+/// Per level and per bind: which constraints can ever be projected. A
+/// constraint is skipped when both ends are fully elastic or both are fixed by
+/// the mask, and rigidity and mask only change when the warp is rebuilt, so
+/// the sweeps visit only these spans (in the benchmark scene, a third of the
+/// constraints).
+#[derive(Debug, Clone, Default)]
+pub struct ActiveSpans {
+    spans: Vec<Span>,
+    /// `first[j·SETS + set]` .. `first[j·SETS + set + 1]` index `spans`.
+    first: Vec<u32>,
+}
+
+impl ActiveSpans {
+    pub fn new(w: usize, h: usize, rig: &[u8], mask: &[u8]) -> Self {
+        let live = |a: usize, b: usize| (rig[a] > 0 || rig[b] > 0) && (mask[a] > 0 || mask[b] > 0);
+        let mut spans = Vec::new();
+        let mut first = Vec::with_capacity(h * SETS + 1);
+        for j in 0..h {
+            let g0 = j * w;
+            for set in 0..SETS {
+                first.push(spans.len() as u32);
+                let (count, a, b, stride): (usize, usize, usize, usize) = match set {
+                    0 | 1 => ((w - set) / 2, g0 + set, g0 + set + 1, 2),
+                    _ if j + 1 == h => (0, 0, 0, 1),
+                    2 => (w, g0, g0 + w, 1),
+                    3 => (w - 1, g0, g0 + w + 1, 1),
+                    _ => (w - 1, g0 + 1, g0 + w, 1),
+                };
+                let start = spans.len();
+                let mut k = 0;
+                while k < count {
+                    if !live(a + k * stride, b + k * stride) {
+                        k += 1;
+                        continue;
+                    }
+                    let s = k;
+                    while k < count && live(a + k * stride, b + k * stride) {
+                        k += 1;
+                    }
+                    spans.push((s as u32, k as u32));
+                }
+                // Scattered rigidity (noise) would make many tiny spans: past
+                // one span per 16 constraints, sweep the whole row instead.
+                if spans.len() - start > count / 16 + 1 {
+                    spans.truncate(start);
+                    spans.push((0, count as u32));
+                }
+            }
+        }
+        first.push(spans.len() as u32);
+        spans.shrink_to_fit();
+        ActiveSpans { spans, first }
+    }
+
+    #[inline]
+    fn of(&self, j: usize, set: usize) -> &[Span] {
+        let i = j * SETS + set;
+        &self.spans[self.first[i] as usize..self.first[i + 1] as usize]
+    }
+
+    /// Whether row `j`'s sets (`between`: only the three between rows `j` and `j + 1`) have any work.
+    #[inline]
+    pub fn any(&self, j: usize, between: bool) -> bool {
+        let i = j * SETS + if between { 2 } else { 0 };
+        self.first[i] != self.first[j * SETS + SETS]
+    }
 }
 
 impl<M: Metric> Sweep<'_, M> {
@@ -136,7 +214,8 @@ impl<M: Metric> Sweep<'_, M> {
         for r in 0..rows {
             for parity in 0..2 {
                 let a0 = r * w + parity;
-                self.run(Run { dir: HORIZONTAL, a0, b0: a0 + 1, stride: 2, count: (w - parity) / 2, g0, rest0: g0 + a0 + 1 }, dx, dy);
+                let spans = self.active.of(j + r, parity);
+                self.run(Run { dir: HORIZONTAL, a0, b0: a0 + 1, stride: 2, g0, rest0: g0 + a0 + 1, spans }, dx, dy);
             }
         }
         if rows == 2 {
@@ -148,13 +227,14 @@ impl<M: Metric> Sweep<'_, M> {
     pub fn between(&self, j: usize, dx: &mut [f32], dy: &mut [f32]) {
         let w = self.w;
         let g0 = j * w;
-        self.run(Run { dir: VERTICAL, a0: 0, b0: w, stride: 1, count: w, g0, rest0: g0 + w }, dx, dy);
-        self.run(Run { dir: DIAGONAL, a0: 0, b0: w + 1, stride: 1, count: w - 1, g0, rest0: g0 + w + 1 }, dx, dy);
-        self.run(Run { dir: ANTIDIAGONAL, a0: 1, b0: w, stride: 1, count: w - 1, g0, rest0: g0 + w + 1 }, dx, dy);
+        let a = self.active;
+        self.run(Run { dir: VERTICAL, a0: 0, b0: w, stride: 1, g0, rest0: g0 + w, spans: a.of(j, 2) }, dx, dy);
+        self.run(Run { dir: DIAGONAL, a0: 0, b0: w + 1, stride: 1, g0, rest0: g0 + w + 1, spans: a.of(j, 3) }, dx, dy);
+        self.run(Run { dir: ANTIDIAGONAL, a0: 1, b0: w, stride: 1, g0, rest0: g0 + w + 1, spans: a.of(j, 4) }, dx, dy);
     }
 
     #[inline]
-    fn run(&self, run: Run, dx: &mut [f32], dy: &mut [f32]) {
+    fn run(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
         #[cfg(target_arch = "x86_64")]
         if self.avx2 {
             // SAFETY: `avx2` is only set when the CPU reports AVX2.
@@ -166,102 +246,149 @@ impl<M: Metric> Sweep<'_, M> {
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn run_avx2(&self, run: Run, dx: &mut [f32], dy: &mut [f32]) {
+    unsafe fn run_avx2(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
         self.run_body(run, dx, dy);
     }
 
-    fn run_generic(&self, run: Run, dx: &mut [f32], dy: &mut [f32]) {
+    fn run_generic(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
         self.run_body(run, dx, dy);
     }
 
     #[inline(always)]
-    fn run_body(&self, run: Run, dx: &mut [f32], dy: &mut [f32]) {
-        let Run { dir, a0, b0, stride, count, g0, rest0 } = run;
+    fn run_body(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
+        // Constraints of one set are independent, so lanes are packed across spans.
+        let mut idx = [0usize; LANES];
+        let mut n = 0;
+        for &(s, e) in run.spans {
+            for k in s as usize..e as usize {
+                idx[n] = k * run.stride;
+                n += 1;
+                if n == LANES {
+                    self.batch(&run, &idx, n, dx, dy);
+                    n = 0;
+                }
+            }
+        }
+        if n > 0 {
+            self.batch(&run, &idx, n, dx, dy);
+        }
+    }
+
+    /// Projects the `n` constraints at offsets `idx` (constraint index · stride).
+    #[inline(always)]
+    fn batch(&self, run: &Run<'_>, idx: &[usize; LANES], n: usize, dx: &mut [f32], dy: &mut [f32]) {
+        let Run { dir, a0, b0, g0, rest0, .. } = *run;
         let (ex, ey) = rest_segment(dir);
         let el = (ex * ex + ey * ey).sqrt();
         let (rig, mask) = (self.rig, self.mask);
-        let mut k = 0;
-        while k < count {
-            let n = LANES.min(count - k);
-            let mut any = 0u8;
-            for l in 0..n {
-                let a = g0 + a0 + (k + l) * stride;
-                any |= rig[a] | rig[a - a0 + b0];
-            }
-            if any == 0 {
-                k += n;
-                continue;
-            }
-            let mut ra = [0.0f32; LANES];
-            let mut rb = [0.0f32; LANES];
-            let mut mka = [0.0f32; LANES];
-            let mut mkb = [0.0f32; LANES];
-            let mut pax = [0.0f32; LANES];
-            let mut pay = [0.0f32; LANES];
-            let mut pbx = [0.0f32; LANES];
-            let mut pby = [0.0f32; LANES];
-            let mut m = [[1.0f32; 4]; LANES];
-            for l in 0..n {
-                let c = (k + l) * stride;
-                let (la, lb) = (a0 + c, b0 + c);
-                ra[l] = rig[g0 + la] as f32;
-                rb[l] = rig[g0 + lb] as f32;
-                mka[l] = mask[g0 + la] as f32;
-                mkb[l] = mask[g0 + lb] as f32;
-                pax[l] = dx[la];
-                pay[l] = dy[la];
-                pbx[l] = dx[lb];
-                pby[l] = dy[lb];
-                m[l] = self.metric.fetch(rest0 + c, dir);
-            }
-            let mut ca = [[0.0f32; 2]; LANES];
-            let mut cb = [[0.0f32; 2]; LANES];
-            for l in 0..LANES {
-                // The reference projection (solver::Ctx::project), branch-free.
-                let k8 = ra[l].max(rb[l]);
-                let ma = mka[l] * (1.0 - 0.9 / 255.0 * ra[l]);
-                let mb = mkb[l] * (1.0 - 0.9 / 255.0 * rb[l]);
-                let ms = ma + mb;
-                let kk = k8 * (1.0 / 255.0);
-                let vx = ex + pbx[l] - pax[l];
-                let vy = ey + pby[l] - pay[l];
-                let [g0, g1, g2, l02] = m[l];
-                let ld2 = g0 * vx * vx + 2.0 * g1 * vx * vy + g2 * vy * vy;
-                let active = k8 > 0.0 && ms > 0.0 && l02 > 0.0 && ld2 > l02 * 1e-6;
-                let (l02s, ld2s) = if active { (l02, ld2) } else { (1.0, 1.0) };
-                let ratio = (l02s / ld2s).sqrt().clamp(0.25, 4.0);
-                let s = 1.0 + RELAXATION * kk * (ratio - 1.0);
-                let (mut tx, mut ty) = (vx * s, vy * s);
-                if self.orientation > 0.0 {
-                    let o = self.orientation * kk;
-                    let len = (tx * tx + ty * ty).sqrt();
-                    let len_ok = len > 1e-12;
-                    let lens = if len_ok { len } else { 1.0 };
-                    let ux = tx / lens * (1.0 - o) + ex / el * o;
-                    let uy = ty / lens * (1.0 - o) + ey / el * o;
-                    let ul = (ux * ux + uy * uy).sqrt();
-                    let ul_ok = ul > 1e-12;
-                    let uls = if ul_ok { ul } else { 1.0 };
-                    let turn = len_ok && ul_ok;
-                    tx = if turn { ux / uls * len } else { tx };
-                    ty = if turn { uy / uls * len } else { ty };
-                }
-                let (cx, cy) = if active { (tx - vx, ty - vy) } else { (0.0, 0.0) };
-                let mss = if ms > 0.0 { ms } else { 1.0 };
-                let (fa, fb) = (ma / mss, mb / mss);
-                ca[l] = [cx * fa, cy * fa];
-                cb[l] = [cx * fb, cy * fb];
-            }
-            for l in 0..n {
-                let c = (k + l) * stride;
-                let (la, lb) = (a0 + c, b0 + c);
-                dx[la] = pax[l] - ca[l][0];
-                dy[la] = pay[l] - ca[l][1];
-                dx[lb] = pbx[l] + cb[l][0];
-                dy[lb] = pby[l] + cb[l][1];
-            }
-            k += n;
+        let mut ra = [0.0f32; LANES];
+        let mut rb = [0.0f32; LANES];
+        let mut mka = [0.0f32; LANES];
+        let mut mkb = [0.0f32; LANES];
+        let mut pax = [0.0f32; LANES];
+        let mut pay = [0.0f32; LANES];
+        let mut pbx = [0.0f32; LANES];
+        let mut pby = [0.0f32; LANES];
+        let mut mg0 = [1.0f32; LANES];
+        let mut mg1 = [0.0f32; LANES];
+        let mut mg2 = [1.0f32; LANES];
+        let mut ml0 = [1.0f32; LANES];
+        for l in 0..n {
+            let c = idx[l];
+            let (la, lb) = (a0 + c, b0 + c);
+            ra[l] = rig[g0 + la] as f32;
+            rb[l] = rig[g0 + lb] as f32;
+            mka[l] = mask[g0 + la] as f32;
+            mkb[l] = mask[g0 + lb] as f32;
+            pax[l] = dx[la];
+            pay[l] = dy[la];
+            pbx[l] = dx[lb];
+            pby[l] = dy[lb];
+            [mg0[l], mg1[l], mg2[l], ml0[l]] = self.metric.fetch(rest0 + c, dir);
         }
+        let mut cax = [0.0f32; LANES];
+        let mut cay = [0.0f32; LANES];
+        let mut cbx = [0.0f32; LANES];
+        let mut cby = [0.0f32; LANES];
+        let lanes = Lanes { ra: &ra, rb: &rb, mka: &mka, mkb: &mkb, pax: &pax, pay: &pay, pbx: &pbx, pby: &pby, g0: &mg0, g1: &mg1, g2: &mg2, l02: &ml0 };
+        if self.orientation > 0.0 {
+            project_lanes::<true>(&lanes, ex, ey, el, self.orientation, [&mut cax, &mut cay, &mut cbx, &mut cby]);
+        } else {
+            project_lanes::<false>(&lanes, ex, ey, el, 0.0, [&mut cax, &mut cay, &mut cbx, &mut cby]);
+        }
+        for l in 0..n {
+            let c = idx[l];
+            let (la, lb) = (a0 + c, b0 + c);
+            dx[la] = pax[l] - cax[l];
+            dy[la] = pay[l] - cay[l];
+            dx[lb] = pbx[l] + cbx[l];
+            dy[lb] = pby[l] + cby[l];
+        }
+    }
+}
+
+/// Inputs of [`project_lanes`], one entry per lane.
+struct Lanes<'a> {
+    ra: &'a [f32; LANES],
+    rb: &'a [f32; LANES],
+    mka: &'a [f32; LANES],
+    mkb: &'a [f32; LANES],
+    pax: &'a [f32; LANES],
+    pay: &'a [f32; LANES],
+    pbx: &'a [f32; LANES],
+    pby: &'a [f32; LANES],
+    g0: &'a [f32; LANES],
+    g1: &'a [f32; LANES],
+    g2: &'a [f32; LANES],
+    l02: &'a [f32; LANES],
+}
+
+/// The reference projection (`solver::Ctx::project`), branch-free over
+/// [`LANES`] independent constraints; writes the corrections of node a
+/// (subtracted) and node b (added).
+#[inline(always)]
+fn project_lanes<const ORIENT: bool>(i: &Lanes<'_>, ex: f32, ey: f32, el: f32, orientation: f32, out: [&mut [f32; LANES]; 4]) {
+    let [cax, cay, cbx, cby] = out;
+    for l in 0..LANES {
+        let k8 = i.ra[l].max(i.rb[l]);
+        let ma = i.mka[l] * (1.0 - 0.9 / 255.0 * i.ra[l]);
+        let mb = i.mkb[l] * (1.0 - 0.9 / 255.0 * i.rb[l]);
+        let ms = ma + mb;
+        let kk = k8 * (1.0 / 255.0);
+        let vx = ex + i.pbx[l] - i.pax[l];
+        let vy = ey + i.pby[l] - i.pay[l];
+        let ld2 = i.g0[l] * vx * vx + 2.0 * i.g1[l] * vx * vy + i.g2[l] * vy * vy;
+        let l02 = i.l02[l];
+        let active = (k8 > 0.0) & (ms > 0.0) & (l02 > 0.0) & (ld2 > l02 * 1e-6);
+        let l02s = if active { l02 } else { 1.0 };
+        let ld2s = if active { ld2 } else { 1.0 };
+        let ratio = (l02s / ld2s).sqrt().max(0.25).min(4.0);
+        let s = 1.0 + RELAXATION * kk * (ratio - 1.0);
+        let mut tx = vx * s;
+        let mut ty = vy * s;
+        if ORIENT {
+            let o = orientation * kk;
+            let len = (tx * tx + ty * ty).sqrt();
+            let len_ok = len > 1e-12;
+            let lens = if len_ok { len } else { 1.0 };
+            let ux = tx / lens * (1.0 - o) + ex / el * o;
+            let uy = ty / lens * (1.0 - o) + ey / el * o;
+            let ul = (ux * ux + uy * uy).sqrt();
+            let ul_ok = ul > 1e-12;
+            let uls = if ul_ok { ul } else { 1.0 };
+            let turn = len_ok & ul_ok;
+            tx = if turn { ux / uls * len } else { tx };
+            ty = if turn { uy / uls * len } else { ty };
+        }
+        let cx = if active { tx - vx } else { 0.0 };
+        let cy = if active { ty - vy } else { 0.0 };
+        let mss = if ms > 0.0 { ms } else { 1.0 };
+        let fa = ma / mss;
+        let fb = mb / mss;
+        cax[l] = cx * fa;
+        cay[l] = cy * fa;
+        cbx[l] = cx * fb;
+        cby[l] = cy * fb;
     }
 }
 
