@@ -97,41 +97,55 @@ fn rest_point(ci: usize, cj: usize, t: usize, l: [f32; 3]) -> (f32, f32) {
 }
 
 /// Finds the warped triangle holding the centre of texel `(x, y)`; returns the
-/// rest coordinates there.
+/// rest coordinates there. Inside tests use unnormalised edge functions
+/// (compared with a tolerance scaled by the area), so the only division is the
+/// one of the triangle finally taken.
+#[inline]
 fn locate(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y: usize) -> (f32, f32) {
     let n = y * w + x;
     let clamp_cell = |v: f32, hi: usize| (v.floor().max(0.0) as usize).min(hi);
     // First guess: the rest position the texel's own node displacement points back to.
     let (mut ci, mut cj) = (clamp_cell(x as f32 - dx[n], w - 2), clamp_cell(y as f32 - dy[n], h - 2));
+    let cross = |o: (f32, f32), u: (f32, f32), v: (f32, f32)| (u.0 - o.0) * (v.1 - o.1) - (u.1 - o.1) * (v.0 - o.0);
     for _ in 0..MAX_WALK {
-        let t = cell_weights(dx, dy, w, ci, cj, x, y);
-        for (k, l) in t.iter().enumerate() {
-            if let Some(l) = l {
-                if l[0] >= -EDGE_TOLERANCE && l[1] >= -EDGE_TOLERANCE && l[2] >= -EDGE_TOLERANCE {
-                    return rest_point(ci, cj, k, *l);
-                }
-            }
+        let a = cj * w + ci;
+        let (b, c, d) = (a + 1, a + w + 1, a + w);
+        // Relative to the cell's rest corner, so that everything is O(1) and f32 is exact enough at 16384².
+        let pa = (dx[a], dy[a]);
+        let pb = (1.0 + dx[b], dy[b]);
+        let pc = (1.0 + dx[c], 1.0 + dy[c]);
+        let pd = (dx[d], 1.0 + dy[d]);
+        let p = (x as f32 - ci as f32, y as f32 - cj as f32);
+        // Lower-right triangle (a, b, c): edge functions = weights × area.
+        let area0 = cross(pa, pb, pc);
+        let (ea, eb) = (cross(pb, pc, p), cross(pc, pa, p));
+        let ec = area0 - ea - eb;
+        let tol0 = -EDGE_TOLERANCE * area0;
+        if area0 > 0.0 && ea >= tol0 && eb >= tol0 && ec >= tol0 {
+            let inv = 1.0 / area0;
+            return rest_point(ci, cj, 0, [ea * inv, eb * inv, ec * inv]);
         }
-        // Step across the cell edges the centre lies beyond: in the lower-right
-        // triangle (a, b, c) the weight of a is the side of the right edge b–c and
-        // that of c the bottom edge a–b; in the upper-left (a, c, d) the weight
-        // of a is the top edge c–d and that of c the left edge d–a.
+        // Upper-left triangle (a, c, d).
+        let area1 = cross(pa, pc, pd);
+        let (fa, fc) = (cross(pc, pd, p), cross(pd, pa, p));
+        let fd = area1 - fa - fc;
+        let tol1 = -EDGE_TOLERANCE * area1;
+        if area1 > 0.0 && fa >= tol1 && fc >= tol1 && fd >= tol1 {
+            let inv = 1.0 / area1;
+            return rest_point(ci, cj, 1, [fa * inv, fc * inv, fd * inv]);
+        }
+        // Step across the cell edges the centre lies beyond: in (a, b, c) the
+        // weight of a is the side of the right edge b–c and that of c the
+        // bottom edge a–b; in (a, c, d) the weight of a is the top edge c–d and
+        // that of c the left edge d–a.
         let (mut sx, mut sy) = (0i64, 0i64);
-        if let Some(l) = t[0] {
-            if l[0] < -EDGE_TOLERANCE {
-                sx += 1;
-            }
-            if l[2] < -EDGE_TOLERANCE {
-                sy -= 1;
-            }
+        if area0 > 0.0 {
+            sx += (ea < tol0) as i64;
+            sy -= (ec < tol0) as i64;
         }
-        if let Some(l) = t[1] {
-            if l[0] < -EDGE_TOLERANCE {
-                sy += 1;
-            }
-            if l[1] < -EDGE_TOLERANCE {
-                sx -= 1;
-            }
+        if area1 > 0.0 {
+            sy += (fa < tol1) as i64;
+            sx -= (fc < tol1) as i64;
         }
         let nx = (ci as i64 + sx).clamp(0, w as i64 - 2) as usize;
         let ny = (cj as i64 + sy).clamp(0, h as i64 - 2) as usize;

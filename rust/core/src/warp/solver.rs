@@ -41,6 +41,8 @@ use super::WarpSettings;
 
 /// Smallest side of the coarsest level.
 const COARSEST: usize = 8;
+/// Levels a warm solve iterates (finest first).
+const WARM_LEVELS: usize = 3;
 /// Most iterations on any level.
 const MAX_LEVEL_ITERATIONS: usize = 96;
 /// Triangles of the warped grid with a doubled area below this (in texel²,
@@ -397,6 +399,9 @@ pub struct Solver {
     /// Wall time per level in the last solve (ms), finest first; the last
     /// entry is the fold check/repair.
     pub last_level_ms: Vec<f64>,
+    /// Wall time of the per-frame preparation (restriction to the coarse
+    /// levels, metric records) in the last solve (ms).
+    pub last_prepare_ms: f64,
     /// Run the reference kernels (tests compare them with the fast ones).
     pub(crate) reference: bool,
 }
@@ -421,7 +426,7 @@ impl Solver {
             level.start_y = vec![0.0; lw * lh];
             levels.push(level);
         }
-        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), reference: false }
+        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, reference: false }
     }
 
     /// Back to the identity warp.
@@ -442,7 +447,13 @@ impl Solver {
         if !warm {
             self.reset();
         }
-        let used = if warm { std::env::var("TEGUMENT_WARP_WARM_LEVELS").ok().and_then(|v| v.parse().ok()).unwrap_or(99usize).clamp(1, self.levels.len()) } else { self.levels.len() };
+        let prepare = std::time::Instant::now();
+        // A warm solve corrects last frame's warp for a small change of the
+        // surface: the three finest levels carry that change (the coarser
+        // levels would only restrict and prolong an unchanged warp). On the
+        // benchmark scene this gives a lower rigid stretch error than running
+        // every level (0.086 against 0.097 at 1024²) at two thirds of the cost.
+        let used = if warm { WARM_LEVELS.min(self.levels.len()) } else { self.levels.len() };
         // Deformed metrics and starting states of the coarse levels.
         for l in 1..used {
             let (fine, coarse) = self.levels.split_at_mut(l);
@@ -469,12 +480,14 @@ impl Solver {
         let avx2 = has_avx2();
         self.last_iterations = vec![0; self.levels.len()];
         self.last_level_ms = vec![0.0; self.levels.len() + 1];
+        self.last_prepare_ms = prepare.elapsed().as_secs_f64() * 1e3;
         for l in (0..used).rev() {
             let started = std::time::Instant::now();
             // Cold solves start from the identity and need the coarse levels
             // to carry the bulk of the warp: `iterations · 2^l` there. Warm
-            // solves only correct last frame's warp: `iterations` on every
-            // level but the three coarsest (which are tiny).
+            // solves only correct last frame's warp: `iterations` on each of
+            // the [`WARM_LEVELS`] finest levels (on grids so small that these
+            // include the three coarsest, those keep the cold schedule).
             let coarse = l + 3 >= self.levels.len();
             let n = if warm && !coarse {
                 s.iterations as usize

@@ -428,30 +428,76 @@ fn regularise_row_body(dx: &[f32], dy: &[f32], rig: &[u8], mask: &[u8], w: usize
     ox[w - 1] = dx[row + w - 1];
     oy[w - 1] = dy[row + w - 1];
     let n = w - 2;
-    // Windows of the three rows shifted by −1, 0, +1 columns, all of length n.
-    fn win(v: &[f32], r: usize, s: usize, n: usize) -> &[f32] {
-        &v[r + s..r + s + n]
-    }
     let (up, mid, dn) = (row - w, row, row + w);
-    let (xul, xu, xur, xl, xc, xr, xdl, xd, xdr) = (win(dx, up, 0, n), win(dx, up, 1, n), win(dx, up, 2, n), win(dx, mid, 0, n), win(dx, mid, 1, n), win(dx, mid, 2, n), win(dx, dn, 0, n), win(dx, dn, 1, n), win(dx, dn, 2, n));
-    let (yul, yu, yur, yl, yc, yr, ydl, yd, ydr) = (win(dy, up, 0, n), win(dy, up, 1, n), win(dy, up, 2, n), win(dy, mid, 0, n), win(dy, mid, 1, n), win(dy, mid, 2, n), win(dy, dn, 0, n), win(dy, dn, 1, n), win(dy, dn, 2, n));
     let rg = &rig[row + 1..row + 1 + n];
     let mk = &mask[row + 1..row + 1 + n];
     let (ox, oy) = (&mut ox[1..1 + n], &mut oy[1..1 + n]);
-    for x in 0..n {
-        let m = mk[x] as f32;
-        let r = rg[x] as f32 * (1.0 / 255.0);
-        let b = m * (1.0 / 255.0) * ((1.0 - r) + r * smoothing);
-        let gx = (xul[x] + xur[x] + xdl[x] + xdr[x] + 2.0 * (xu[x] + xd[x] + xl[x] + xr[x]) + 4.0 * xc[x]) * (1.0 / 16.0);
-        let gy = (yul[x] + yur[x] + ydl[x] + ydr[x] + 2.0 * (yu[x] + yd[x] + yl[x] + yr[x]) + 4.0 * yc[x]) * (1.0 / 16.0);
-        let nx = (1.0 - b) * xc[x] + b * gx;
-        let ny = (1.0 - b) * yc[x] + b * gy;
-        let bx0 = (-1.0 + xul[x]).min(-1.0 + xl[x]).min(-1.0 + xdl[x]).min(xu[x]).min(xd[x]);
-        let bx1 = (1.0 + xur[x]).max(1.0 + xr[x]).max(1.0 + xdr[x]).max(xu[x]).max(xd[x]);
-        let by0 = (-1.0 + yul[x]).min(-1.0 + yu[x]).min(-1.0 + yur[x]).min(yl[x]).min(yr[x]);
-        let by1 = (1.0 + ydl[x]).max(1.0 + yd[x]).max(1.0 + ydr[x]).max(yl[x]).max(yr[x]);
-        let fixed = m == 0.0;
-        ox[x] = if fixed { xc[x] } else { nx.max(bx0).min(bx1) };
-        oy[x] = if fixed { yc[x] } else { ny.max(by0).min(by1) };
+    // Fixed-size blocks so that the compiler vectorises across texels.
+    const B: usize = 16;
+    let mut x0 = 0;
+    while x0 < n {
+        let m = B.min(n - x0);
+        let mut bx = [0.0f32; B];
+        let mut by = [0.0f32; B];
+        if m == B {
+            let a = |v: &[f32], r: usize, s: usize| -> [f32; B] { v[r + s + x0..r + s + x0 + B].try_into().expect("block") };
+            let (xu, xm, xd) = ([a(dx, up, 0), a(dx, up, 1), a(dx, up, 2)], [a(dx, mid, 0), a(dx, mid, 1), a(dx, mid, 2)], [a(dx, dn, 0), a(dx, dn, 1), a(dx, dn, 2)]);
+            let (yu, ym, yd) = ([a(dy, up, 0), a(dy, up, 1), a(dy, up, 2)], [a(dy, mid, 0), a(dy, mid, 1), a(dy, mid, 2)], [a(dy, dn, 0), a(dy, dn, 1), a(dy, dn, 2)]);
+            let rb: [u8; B] = rg[x0..x0 + B].try_into().expect("block");
+            let mb: [u8; B] = mk[x0..x0 + B].try_into().expect("block");
+            for l in 0..B {
+                (bx[l], by[l]) = regularise_one(&xu, &xm, &xd, &yu, &ym, &yd, l, rb[l], mb[l], smoothing);
+            }
+        } else {
+            for l in 0..m {
+                let x = x0 + l;
+                let t = |v: &[f32], r: usize| -> [[f32; 1]; 3] { [[v[r + x]], [v[r + x + 1]], [v[r + x + 2]]] };
+                (bx[l], by[l]) = regularise_one(&t(dx, up), &t(dx, mid), &t(dx, dn), &t(dy, up), &t(dy, mid), &t(dy, dn), 0, rg[x], mk[x], smoothing);
+            }
+        }
+        ox[x0..x0 + m].copy_from_slice(&bx[..m]);
+        oy[x0..x0 + m].copy_from_slice(&by[..m]);
+        x0 += m;
     }
+}
+
+#[inline(always)]
+fn fmin(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+#[inline(always)]
+fn fmax(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// One node of the regularisation: rows `u`, `m`, `d` (above, own, below), each
+/// as columns left, centre, right; entry `l` of each.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn regularise_one<const B: usize>(xu: &[[f32; B]; 3], xm: &[[f32; B]; 3], xd: &[[f32; B]; 3], yu: &[[f32; B]; 3], ym: &[[f32; B]; 3], yd: &[[f32; B]; 3], l: usize, rig: u8, mask: u8, smoothing: f32) -> (f32, f32) {
+    let m = mask as f32;
+    let r = rig as f32 * (1.0 / 255.0);
+    let b = m * (1.0 / 255.0) * ((1.0 - r) + r * smoothing);
+    let (xul, xuc, xur, xl, xc, xr, xdl, xdc, xdr) = (xu[0][l], xu[1][l], xu[2][l], xm[0][l], xm[1][l], xm[2][l], xd[0][l], xd[1][l], xd[2][l]);
+    let (yul, yuc, yur, yl, yc, yr, ydl, ydc, ydr) = (yu[0][l], yu[1][l], yu[2][l], ym[0][l], ym[1][l], ym[2][l], yd[0][l], yd[1][l], yd[2][l]);
+    let gx = (xul + xur + xdl + xdr + 2.0 * (xuc + xdc + xl + xr) + 4.0 * xc) * (1.0 / 16.0);
+    let gy = (yul + yur + ydl + ydr + 2.0 * (yuc + ydc + yl + yr) + 4.0 * yc) * (1.0 / 16.0);
+    let nx = (1.0 - b) * xc + b * gx;
+    let ny = (1.0 - b) * yc + b * gy;
+    // Bounding box of the 8 neighbours, relative to this node's rest position.
+    let bx0 = fmin(fmin(fmin(fmin(-1.0 + xul, -1.0 + xl), -1.0 + xdl), xuc), xdc);
+    let bx1 = fmax(fmax(fmax(fmax(1.0 + xur, 1.0 + xr), 1.0 + xdr), xuc), xdc);
+    let by0 = fmin(fmin(fmin(fmin(-1.0 + yul, -1.0 + yuc), -1.0 + yur), yl), yr);
+    let by1 = fmax(fmax(fmax(fmax(1.0 + ydl, 1.0 + ydc), 1.0 + ydr), yl), yr);
+    let fixed = mask == 0;
+    (if fixed { xc } else { fmin(fmax(nx, bx0), bx1) }, if fixed { yc } else { fmin(fmax(ny, by0), by1) })
 }
