@@ -537,30 +537,45 @@ fn restrict(f: &[f32], fw: usize, c: &mut [f32], cw: usize) {
 /// interpolated and doubled, to the finer level (times the finer mask).
 fn prolong(c: &Level, f: &mut Level) {
     let (cw, ch, fw) = (c.w, c.h, f.w);
-    let delta = |i: usize| (c.dx[i] - c.start_x[i], c.dy[i] - c.start_y[i]);
+    // The coarse change, doubled (fine texels are half as big), computed once.
+    let delta: Vec<(f32, f32)> = c.dx.iter().zip(&c.start_x).zip(c.dy.iter().zip(&c.start_y)).map(|((x, sx), (y, sy))| (2.0 * (x - sx), 2.0 * (y - sy))).collect();
+    // Fine column x samples coarse columns x0(x), x0(x) + 1 with weight tx(x).
+    let cols: Vec<(usize, usize, f32)> = (0..fw)
+        .map(|x| {
+            let u = ((x as f32 + 0.5) * 0.5 - 0.5).max(0.0);
+            let x0 = (u as usize).min(cw - 1);
+            (x0, (x0 + 1).min(cw - 1), u - x0 as f32)
+        })
+        .collect();
     let mask = &f.mask;
-    f.dx.par_chunks_mut(fw).zip(f.dy.par_chunks_mut(fw)).enumerate().for_each(|(y, (rx, ry))| {
+    let row = |(y, (rx, ry)): (usize, (&mut [f32], &mut [f32]))| {
+        let fm = &mask[y * fw..(y + 1) * fw];
+        if fm.iter().all(|&m| m == 0) {
+            return;
+        }
         let v = ((y as f32 + 0.5) * 0.5 - 0.5).max(0.0);
         let y0 = (v as usize).min(ch - 1);
         let y1 = (y0 + 1).min(ch - 1);
         let ty = v - y0 as f32;
-        for x in 0..fw {
-            let m = mask[y * fw + x];
+        let (r0, r1) = (&delta[y0 * cw..(y0 + 1) * cw], &delta[y1 * cw..(y1 + 1) * cw]);
+        for (x, &(x0, x1, tx)) in cols.iter().enumerate() {
+            let m = fm[x];
             if m == 0 {
                 continue;
             }
-            let u = ((x as f32 + 0.5) * 0.5 - 0.5).max(0.0);
-            let x0 = (u as usize).min(cw - 1);
-            let x1 = (x0 + 1).min(cw - 1);
-            let tx = u - x0 as f32;
-            let (a, b, cc, d) = (delta(y0 * cw + x0), delta(y0 * cw + x1), delta(y1 * cw + x0), delta(y1 * cw + x1));
+            let (a, b, cc, d) = (r0[x0], r0[x1], r1[x0], r1[x1]);
             let ix = (a.0 * (1.0 - tx) + b.0 * tx) * (1.0 - ty) + (cc.0 * (1.0 - tx) + d.0 * tx) * ty;
             let iy = (a.1 * (1.0 - tx) + b.1 * tx) * (1.0 - ty) + (cc.1 * (1.0 - tx) + d.1 * tx) * ty;
             let mf = m as f32 * (1.0 / 255.0);
-            rx[x] += 2.0 * ix * mf;
-            ry[x] += 2.0 * iy * mf;
+            rx[x] += ix * mf;
+            ry[x] += iy * mf;
         }
-    });
+    };
+    if fw * f.h >= PARALLEL_TEXELS {
+        f.dx.par_chunks_mut(fw).zip(f.dy.par_chunks_mut(fw)).enumerate().for_each(row);
+    } else {
+        f.dx.chunks_mut(fw).zip(f.dy.chunks_mut(fw)).enumerate().for_each(row);
+    }
 }
 
 /// Doubled signed areas of the two triangles of cell `(i, j)` — split along
