@@ -59,8 +59,8 @@ pub const DEFAULT_MEMORY_LIMIT: u64 = 3 << 30;
 pub struct WarpSettings {
     /// PBD iterations on the finest level. A cold solve (from the identity)
     /// runs `iterations · 2^l` on level `l` (at most 96, or `iterations` if
-    /// larger); a warm solve runs `iterations` on the three finest levels
-    /// only (the coarser ones hold no change of a warm-started warp).
+    /// larger); a warm solve runs `iterations` on the levels down to 256²
+    /// only (the coarser ones hold little change of a warm-started warp).
     pub iterations: u32,
     /// Fraction in [0, 1] by which each projected segment is rotated back
     /// towards its rest direction (times its rigidity).
