@@ -31,6 +31,7 @@ pub mod maps;
 pub mod metrics;
 pub mod raster;
 pub mod solver;
+pub mod sweep;
 pub mod tiles;
 
 #[cfg(test)]
@@ -58,8 +59,8 @@ pub const DEFAULT_MEMORY_LIMIT: u64 = 3 << 30;
 pub struct WarpSettings {
     /// PBD iterations on the finest level. A cold solve (from the identity)
     /// runs `iterations · 2^l` on level `l` (at most 96, or `iterations` if
-    /// larger); a warm solve runs `iterations` on every level but the three
-    /// coarsest, which keep the cold schedule.
+    /// larger); a warm solve runs `iterations` on the levels down to 256²
+    /// only (the coarser ones hold little change of a warm-started warp).
     pub iterations: u32,
     /// Fraction in [0, 1] by which each projected segment is rotated back
     /// towards its rest direction (times its rigidity).
@@ -138,6 +139,9 @@ pub struct TileWarp {
     pub redirection: Vec<f32>,
     /// Per-triangle metrics of the latest deformed surface.
     gd_tri: Vec<[f32; 3]>,
+    /// Wall time (ms) of the last solve's stages: surface metrics, solver,
+    /// inversion (for the benchmark's breakdown).
+    pub last_stage_ms: [f64; 3],
 }
 
 impl TileWarp {
@@ -219,7 +223,7 @@ impl UvWarp {
             let mut tri_chart: Vec<u32> = layout.tris.iter().map(|&t| mesh.tri_chart[t as usize]).collect();
             tri_chart.push(u32::MAX);
             let solver = Solver::new(width, height, m.rigidity, mask, &layout.ids, go_tri.clone(), tri_chart);
-            let mut tile = TileWarp { layout, solver, redirection: vec![0.0; 2 * width * height], gd_tri: go_tri };
+            let mut tile = TileWarp { layout, solver, redirection: vec![0.0; 2 * width * height], gd_tri: go_tri, last_stage_ms: [0.0; 3] };
             tile.identity_redirection();
             tiles.push(tile);
         }
@@ -233,11 +237,16 @@ impl UvWarp {
         self.mesh.check_positions("deformed positions", deformed)?;
         let warm = self.settings.warm_start && self.solved;
         for tile in &mut self.tiles {
+            let t0 = std::time::Instant::now();
             tile.gd_tri = tile.layout.triangle_metrics(&self.mesh, deformed);
+            let t1 = std::time::Instant::now();
             tile.solver.solve(&tile.layout.ids, &tile.gd_tri, warm, &self.settings);
+            let t2 = std::time::Instant::now();
             let (w, h) = (self.width, self.height);
             let lv = &tile.solver.levels[0];
             invert::invert(&lv.dx, &lv.dy, w, h, udim_offset(tile.layout.udim), &mut tile.redirection);
+            let ms = |a: std::time::Instant, b: std::time::Instant| (b - a).as_secs_f64() * 1e3;
+            tile.last_stage_ms = [ms(t0, t1), ms(t1, t2), ms(t2, std::time::Instant::now())];
         }
         self.solved = true;
         Ok(())

@@ -453,3 +453,54 @@ fn spot_under_a_bend_rigidity_from_its_texture() {
     assert_eq!(met.max_masked_displacement, 0.0, "chart borders must stay fixed");
     assert!(met.round_trip_max < 0.5, "{met:?}");
 }
+
+#[test]
+fn gathered_inversion_matches_the_rasterised_reference() {
+    // Cold and warm warps of the bent cylinder, plus a strongly swirled synthetic warp.
+    let (m, mut warp) = cylinder_warp(false);
+    let mut cases = Vec::new();
+    warp.solve(&bent(&m, 1.0)).unwrap();
+    let (dx, dy) = warp.tiles[0].displacement();
+    cases.push((dx.to_vec(), dy.to_vec()));
+    let (mut sx, mut sy) = (vec![0.0f32; N * N], vec![0.0f32; N * N]);
+    for j in 1..N - 1 {
+        for i in 1..N - 1 {
+            let (u, v) = (i as f32 / N as f32 - 0.5, j as f32 / N as f32 - 0.5);
+            let fall = (1.0 - 4.0 * (u * u + v * v)).max(0.0).powi(2);
+            let a = 0.8 * fall;
+            sx[j * N + i] = N as f32 * (u * a.cos() - v * a.sin() - u);
+            sy[j * N + i] = N as f32 * (u * a.sin() + v * a.cos() - v);
+        }
+    }
+    assert_eq!(solver::count_folds(&sx, &sy, N, N, 0.0), 0);
+    cases.push((sx, sy));
+    for (dx, dy) in cases {
+        let mut a = vec![0.0; 2 * N * N];
+        let mut b = vec![0.0; 2 * N * N];
+        invert::invert(&dx, &dy, N, N, Vec2::new(1.0, 0.0), &mut a);
+        invert::invert_scatter(&dx, &dy, N, N, Vec2::new(1.0, 0.0), &mut b);
+        let worst = a.iter().zip(&b).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max) * N as f32;
+        assert!(worst < 1e-3, "gather and scatter differ by {worst} texel");
+    }
+}
+
+#[test]
+fn fast_kernels_match_the_reference_kernels() {
+    // Cold then warm solves of the bent cylinder; equal as numbers (the
+    // reference's min/max may pick the other signed zero).
+    for orientation in [0.05, 0.0] {
+        let (m, warp) = cylinder_warp(true);
+        let mut fast = warp.clone();
+        let mut slow = warp;
+        fast.settings.orientation = orientation;
+        slow.settings.orientation = orientation;
+        slow.tiles[0].solver.reference = true;
+        for amount in [0.8, 1.0] {
+            fast.solve(&bent(&m, amount)).unwrap();
+            slow.solve(&bent(&m, amount)).unwrap();
+            let (a, b) = (fast.tiles[0].displacement(), slow.tiles[0].displacement());
+            let differ = a.0.iter().zip(b.0).chain(a.1.iter().zip(b.1)).filter(|(p, q)| p != q).count();
+            assert_eq!(differ, 0, "orientation {orientation}, bend {amount}: {differ} values differ");
+        }
+    }
+}

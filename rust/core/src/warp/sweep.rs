@@ -1,0 +1,503 @@
+//! The hot loops of one solver iteration: the constraint projection sweeps
+//! and the regularisation, written for throughput.
+//!
+//! The arithmetic is exactly that of the reference projection in
+//! [`super::solver`] (same operations in the same order, so the results are
+//! bitwise equal to it, which a test checks), but organised so that the
+//! compiler can vectorise it:
+//! - constraints of one set in one row are independent (that is what makes
+//!   the set a set), so they are processed in runs of [`LANES`] lanes: node
+//!   values and metrics are gathered into small arrays, the projection is
+//!   evaluated branch-free over the lanes (skipped constraints get a zero
+//!   correction, not a branch), and the corrections are scattered back;
+//! - only constraints that can be active are visited: rigidity and mask are
+//!   fixed per bind, so [`ActiveSpans`] lists, per row and set, the spans of
+//!   constraints with a rigid end and a movable end, and lanes are packed
+//!   across spans (an elastic region costs nothing);
+//! - the rest texel whose metric a constraint uses is an integer offset from
+//!   its first node (the reference finds it from float midpoints; the two agree
+//!   for the unwarped midpoint, the only one this path serves);
+//! - on the finest level the metrics come from one 32-byte record per
+//!   triangle (deformed `G` and the rest squared length in each of the four
+//!   directions), built once per frame, instead of two 12-byte tables;
+//! - the regularisation selects instead of branching on the mask.
+//!
+//! Where the CPU has AVX2, the same code is compiled a second time with it
+//! enabled (eight lanes per instruction instead of four); no FMA, so both
+//! versions round identically.
+
+use super::solver::RELAXATION;
+
+/// Constraints per run.
+pub const LANES: usize = 16;
+
+/// The four constraint directions: rest segment `(ex, ey)` from node a to node b.
+pub const HORIZONTAL: usize = 0;
+pub const VERTICAL: usize = 1;
+pub const DIAGONAL: usize = 2;
+pub const ANTIDIAGONAL: usize = 3;
+
+#[inline(always)]
+const fn rest_segment(dir: usize) -> (f32, f32) {
+    match dir {
+        HORIZONTAL => (1.0, 0.0),
+        VERTICAL => (0.0, 1.0),
+        DIAGONAL => (1.0, 1.0),
+        _ => (-1.0, 1.0),
+    }
+}
+
+/// `eᵀ G e` for a rest segment, written exactly as the reference's
+/// `o[0]·ex·ex + 2·o[1]·ex·ey + o[2]·ey·ey` evaluates for these unit entries.
+#[inline(always)]
+pub fn rest_length2(o: [f32; 3], dir: usize) -> f32 {
+    let (ex, ey) = rest_segment(dir);
+    o[0] * ex * ex + 2.0 * o[1] * ex * ey + o[2] * ey * ey
+}
+
+/// Per-triangle record of the finest level: deformed `G` and the rest squared
+/// lengths of the four directions.
+pub type TriRecord = [f32; 8];
+
+pub fn tri_record(go: [f32; 3], gd: [f32; 3]) -> TriRecord {
+    [gd[0], gd[1], gd[2], rest_length2(go, 0), rest_length2(go, 1), rest_length2(go, 2), rest_length2(go, 3), 0.0]
+}
+
+/// Where a level finds, for the rest texel of a constraint, the deformed
+/// metric and the rest squared length along the constraint's direction.
+pub trait Metric: Sync {
+    fn fetch(&self, texel: usize, dir: usize) -> [f32; 4];
+}
+
+impl<T: Metric> Metric for &T {
+    #[inline(always)]
+    fn fetch(&self, texel: usize, dir: usize) -> [f32; 4] {
+        (**self).fetch(texel, dir)
+    }
+}
+
+/// Finest level: per-texel triangle index into per-triangle records.
+pub struct ByTriangle<'a> {
+    pub ids: &'a [u32],
+    pub records: &'a [TriRecord],
+}
+
+impl Metric for ByTriangle<'_> {
+    #[inline(always)]
+    fn fetch(&self, texel: usize, dir: usize) -> [f32; 4] {
+        let r = &self.records[self.ids[texel] as usize];
+        [r[0], r[1], r[2], r[3 + dir]]
+    }
+}
+
+/// Coarse levels: per-texel averaged metrics.
+pub struct ByTexel<'a> {
+    pub go: &'a [[f32; 3]],
+    pub gd: &'a [[f32; 3]],
+}
+
+impl Metric for ByTexel<'_> {
+    #[inline(always)]
+    fn fetch(&self, texel: usize, dir: usize) -> [f32; 4] {
+        let g = self.gd[texel];
+        [g[0], g[1], g[2], rest_length2(self.go[texel], dir)]
+    }
+}
+
+/// What one sweep reads besides the displacements.
+pub struct Sweep<'a, M: Metric> {
+    pub w: usize,
+    pub active: &'a ActiveSpans,
+    pub rig: &'a [u8],
+    pub mask: &'a [u8],
+    pub metric: M,
+    pub orientation: f32,
+    /// Whether to use the AVX2 build of the kernels.
+    pub avx2: bool,
+}
+
+/// One set's constraints in a slice of rows: constraint `k` joins local nodes
+/// `a0 + k·stride` and `b0 + k·stride` (global: plus `g0`); its rest texel is
+/// `rest0 + k·stride`. Only the constraints in `spans` can be active.
+#[derive(Clone, Copy)]
+struct Run<'s> {
+    dir: usize,
+    a0: usize,
+    b0: usize,
+    stride: usize,
+    g0: usize,
+    rest0: usize,
+    spans: &'s [Span],
+}
+
+/// A half-open range of constraint indices of one set in one row (pair).
+pub type Span = (u32, u32);
+
+/// The sets of a row `j`: the even and odd horizontal sets of row `j`, and the
+/// vertical, diagonal and antidiagonal sets between rows `j` and `j + 1`.
+pub const SETS: usize = 5;
+
+/// Per level and per bind: which constraints can ever be projected. A
+/// constraint is skipped when both ends are fully elastic or both are fixed by
+/// the mask, and rigidity and mask only change when the warp is rebuilt, so
+/// the sweeps visit only these spans (in the benchmark scene, a third of the
+/// constraints).
+#[derive(Debug, Clone, Default)]
+pub struct ActiveSpans {
+    spans: Vec<Span>,
+    /// `first[j·SETS + set]` .. `first[j·SETS + set + 1]` index `spans`.
+    first: Vec<u32>,
+}
+
+impl ActiveSpans {
+    pub fn new(w: usize, h: usize, rig: &[u8], mask: &[u8]) -> Self {
+        let live = |a: usize, b: usize| (rig[a] > 0 || rig[b] > 0) && (mask[a] > 0 || mask[b] > 0);
+        let mut spans = Vec::new();
+        let mut first = Vec::with_capacity(h * SETS + 1);
+        for j in 0..h {
+            let g0 = j * w;
+            for set in 0..SETS {
+                first.push(spans.len() as u32);
+                let (count, a, b, stride): (usize, usize, usize, usize) = match set {
+                    0 | 1 => ((w - set) / 2, g0 + set, g0 + set + 1, 2),
+                    _ if j + 1 == h => (0, 0, 0, 1),
+                    2 => (w, g0, g0 + w, 1),
+                    3 => (w - 1, g0, g0 + w + 1, 1),
+                    _ => (w - 1, g0 + 1, g0 + w, 1),
+                };
+                let start = spans.len();
+                let mut k = 0;
+                while k < count {
+                    if !live(a + k * stride, b + k * stride) {
+                        k += 1;
+                        continue;
+                    }
+                    let s = k;
+                    while k < count && live(a + k * stride, b + k * stride) {
+                        k += 1;
+                    }
+                    spans.push((s as u32, k as u32));
+                }
+                // Scattered rigidity (noise) would make many tiny spans: past
+                // one span per 16 constraints, sweep the whole row instead.
+                if spans.len() - start > count / 16 + 1 {
+                    spans.truncate(start);
+                    spans.push((0, count as u32));
+                }
+            }
+        }
+        first.push(spans.len() as u32);
+        spans.shrink_to_fit();
+        ActiveSpans { spans, first }
+    }
+
+    #[inline]
+    fn of(&self, j: usize, set: usize) -> &[Span] {
+        let i = j * SETS + set;
+        &self.spans[self.first[i] as usize..self.first[i + 1] as usize]
+    }
+
+    /// Whether row `j`'s sets (`between`: only the three between rows `j` and `j + 1`) have any work.
+    #[inline]
+    pub fn any(&self, j: usize, between: bool) -> bool {
+        let i = j * SETS + if between { 2 } else { 0 };
+        self.first[i] != self.first[j * SETS + SETS]
+    }
+}
+
+impl<M: Metric> Sweep<'_, M> {
+    /// Phase A on rows `j` and (if `rows == 2`) `j + 1`, held in `dx`, `dy`:
+    /// the even then odd horizontal sets of each row, then the sets between them.
+    pub fn phase_a(&self, j: usize, rows: usize, dx: &mut [f32], dy: &mut [f32]) {
+        let w = self.w;
+        let g0 = j * w;
+        for r in 0..rows {
+            for parity in 0..2 {
+                let a0 = r * w + parity;
+                let spans = self.active.of(j + r, parity);
+                self.run(Run { dir: HORIZONTAL, a0, b0: a0 + 1, stride: 2, g0, rest0: g0 + a0 + 1, spans }, dx, dy);
+            }
+        }
+        if rows == 2 {
+            self.between(j, dx, dy);
+        }
+    }
+
+    /// The vertical and both diagonal sets between rows `j` and `j + 1`.
+    pub fn between(&self, j: usize, dx: &mut [f32], dy: &mut [f32]) {
+        let w = self.w;
+        let g0 = j * w;
+        let a = self.active;
+        self.run(Run { dir: VERTICAL, a0: 0, b0: w, stride: 1, g0, rest0: g0 + w, spans: a.of(j, 2) }, dx, dy);
+        self.run(Run { dir: DIAGONAL, a0: 0, b0: w + 1, stride: 1, g0, rest0: g0 + w + 1, spans: a.of(j, 3) }, dx, dy);
+        self.run(Run { dir: ANTIDIAGONAL, a0: 1, b0: w, stride: 1, g0, rest0: g0 + w + 1, spans: a.of(j, 4) }, dx, dy);
+    }
+
+    #[inline]
+    fn run(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is only set when the CPU reports AVX2.
+            unsafe { self.run_avx2(run, dx, dy) };
+            return;
+        }
+        self.run_generic(run, dx, dy);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn run_avx2(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
+        self.run_body(run, dx, dy);
+    }
+
+    fn run_generic(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
+        self.run_body(run, dx, dy);
+    }
+
+    #[inline(always)]
+    fn run_body(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
+        // Constraints of one set are independent, so lanes are packed across spans.
+        let mut idx = [0usize; LANES];
+        let mut n = 0;
+        for &(s, e) in run.spans {
+            for k in s as usize..e as usize {
+                idx[n] = k * run.stride;
+                n += 1;
+                if n == LANES {
+                    self.batch(&run, &idx, n, dx, dy);
+                    n = 0;
+                }
+            }
+        }
+        if n > 0 {
+            self.batch(&run, &idx, n, dx, dy);
+        }
+    }
+
+    /// Projects the `n` constraints at offsets `idx` (constraint index · stride).
+    #[inline(always)]
+    fn batch(&self, run: &Run<'_>, idx: &[usize; LANES], n: usize, dx: &mut [f32], dy: &mut [f32]) {
+        let Run { dir, a0, b0, g0, rest0, .. } = *run;
+        let (ex, ey) = rest_segment(dir);
+        let el = (ex * ex + ey * ey).sqrt();
+        let (rig, mask) = (self.rig, self.mask);
+        let mut ra = [0.0f32; LANES];
+        let mut rb = [0.0f32; LANES];
+        let mut mka = [0.0f32; LANES];
+        let mut mkb = [0.0f32; LANES];
+        let mut pax = [0.0f32; LANES];
+        let mut pay = [0.0f32; LANES];
+        let mut pbx = [0.0f32; LANES];
+        let mut pby = [0.0f32; LANES];
+        let mut mg0 = [1.0f32; LANES];
+        let mut mg1 = [0.0f32; LANES];
+        let mut mg2 = [1.0f32; LANES];
+        let mut ml0 = [1.0f32; LANES];
+        for l in 0..n {
+            let c = idx[l];
+            let (la, lb) = (a0 + c, b0 + c);
+            ra[l] = rig[g0 + la] as f32;
+            rb[l] = rig[g0 + lb] as f32;
+            mka[l] = mask[g0 + la] as f32;
+            mkb[l] = mask[g0 + lb] as f32;
+            pax[l] = dx[la];
+            pay[l] = dy[la];
+            pbx[l] = dx[lb];
+            pby[l] = dy[lb];
+            [mg0[l], mg1[l], mg2[l], ml0[l]] = self.metric.fetch(rest0 + c, dir);
+        }
+        let mut cax = [0.0f32; LANES];
+        let mut cay = [0.0f32; LANES];
+        let mut cbx = [0.0f32; LANES];
+        let mut cby = [0.0f32; LANES];
+        let lanes = Lanes { ra: &ra, rb: &rb, mka: &mka, mkb: &mkb, pax: &pax, pay: &pay, pbx: &pbx, pby: &pby, g0: &mg0, g1: &mg1, g2: &mg2, l02: &ml0 };
+        if self.orientation > 0.0 {
+            project_lanes::<true>(&lanes, ex, ey, el, self.orientation, [&mut cax, &mut cay, &mut cbx, &mut cby]);
+        } else {
+            project_lanes::<false>(&lanes, ex, ey, el, 0.0, [&mut cax, &mut cay, &mut cbx, &mut cby]);
+        }
+        for l in 0..n {
+            let c = idx[l];
+            let (la, lb) = (a0 + c, b0 + c);
+            dx[la] = pax[l] - cax[l];
+            dy[la] = pay[l] - cay[l];
+            dx[lb] = pbx[l] + cbx[l];
+            dy[lb] = pby[l] + cby[l];
+        }
+    }
+}
+
+/// Inputs of [`project_lanes`], one entry per lane.
+struct Lanes<'a> {
+    ra: &'a [f32; LANES],
+    rb: &'a [f32; LANES],
+    mka: &'a [f32; LANES],
+    mkb: &'a [f32; LANES],
+    pax: &'a [f32; LANES],
+    pay: &'a [f32; LANES],
+    pbx: &'a [f32; LANES],
+    pby: &'a [f32; LANES],
+    g0: &'a [f32; LANES],
+    g1: &'a [f32; LANES],
+    g2: &'a [f32; LANES],
+    l02: &'a [f32; LANES],
+}
+
+/// The reference projection (`solver::Ctx::project`), branch-free over
+/// [`LANES`] independent constraints; writes the corrections of node a
+/// (subtracted) and node b (added).
+#[inline(always)]
+fn project_lanes<const ORIENT: bool>(i: &Lanes<'_>, ex: f32, ey: f32, el: f32, orientation: f32, out: [&mut [f32; LANES]; 4]) {
+    let [cax, cay, cbx, cby] = out;
+    for l in 0..LANES {
+        let k8 = i.ra[l].max(i.rb[l]);
+        let ma = i.mka[l] * (1.0 - 0.9 / 255.0 * i.ra[l]);
+        let mb = i.mkb[l] * (1.0 - 0.9 / 255.0 * i.rb[l]);
+        let ms = ma + mb;
+        let kk = k8 * (1.0 / 255.0);
+        let vx = ex + i.pbx[l] - i.pax[l];
+        let vy = ey + i.pby[l] - i.pay[l];
+        let ld2 = i.g0[l] * vx * vx + 2.0 * i.g1[l] * vx * vy + i.g2[l] * vy * vy;
+        let l02 = i.l02[l];
+        let active = (k8 > 0.0) & (ms > 0.0) & (l02 > 0.0) & (ld2 > l02 * 1e-6);
+        let l02s = if active { l02 } else { 1.0 };
+        let ld2s = if active { ld2 } else { 1.0 };
+        let ratio = (l02s / ld2s).sqrt().max(0.25).min(4.0);
+        let s = 1.0 + RELAXATION * kk * (ratio - 1.0);
+        let mut tx = vx * s;
+        let mut ty = vy * s;
+        if ORIENT {
+            let o = orientation * kk;
+            let len = (tx * tx + ty * ty).sqrt();
+            let len_ok = len > 1e-12;
+            let lens = if len_ok { len } else { 1.0 };
+            let ux = tx / lens * (1.0 - o) + ex / el * o;
+            let uy = ty / lens * (1.0 - o) + ey / el * o;
+            let ul = (ux * ux + uy * uy).sqrt();
+            let ul_ok = ul > 1e-12;
+            let uls = if ul_ok { ul } else { 1.0 };
+            let turn = len_ok & ul_ok;
+            tx = if turn { ux / uls * len } else { tx };
+            ty = if turn { uy / uls * len } else { ty };
+        }
+        let cx = if active { tx - vx } else { 0.0 };
+        let cy = if active { ty - vy } else { 0.0 };
+        let mss = if ms > 0.0 { ms } else { 1.0 };
+        let fa = ma / mss;
+        let fb = mb / mss;
+        cax[l] = cx * fa;
+        cay[l] = cy * fa;
+        cbx[l] = cx * fb;
+        cby[l] = cy * fb;
+    }
+}
+
+/// Regularisation of one row `y` (seed eqs. 4–5 plus the 8-neighbourhood box
+/// clamp) from `dx`, `dy` into `ox`, `oy`; the reference is
+/// `solver::regularise_reference`.
+#[allow(clippy::too_many_arguments)]
+pub fn regularise_row(dx: &[f32], dy: &[f32], rig: &[u8], mask: &[u8], w: usize, h: usize, y: usize, smoothing: f32, ox: &mut [f32], oy: &mut [f32], avx2: bool) {
+    #[cfg(target_arch = "x86_64")]
+    if avx2 {
+        // SAFETY: `avx2` is only set when the CPU reports AVX2.
+        unsafe { regularise_row_avx2(dx, dy, rig, mask, w, h, y, smoothing, ox, oy) };
+        return;
+    }
+    let _ = avx2;
+    regularise_row_body(dx, dy, rig, mask, w, h, y, smoothing, ox, oy);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn regularise_row_avx2(dx: &[f32], dy: &[f32], rig: &[u8], mask: &[u8], w: usize, h: usize, y: usize, smoothing: f32, ox: &mut [f32], oy: &mut [f32]) {
+    regularise_row_body(dx, dy, rig, mask, w, h, y, smoothing, ox, oy);
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn regularise_row_body(dx: &[f32], dy: &[f32], rig: &[u8], mask: &[u8], w: usize, h: usize, y: usize, smoothing: f32, ox: &mut [f32], oy: &mut [f32]) {
+    let row = y * w;
+    if y == 0 || y + 1 == h || mask[row..row + w].iter().all(|&m| m == 0) {
+        ox.copy_from_slice(&dx[row..row + w]);
+        oy.copy_from_slice(&dy[row..row + w]);
+        return;
+    }
+    ox[0] = dx[row];
+    oy[0] = dy[row];
+    ox[w - 1] = dx[row + w - 1];
+    oy[w - 1] = dy[row + w - 1];
+    let n = w - 2;
+    let (up, mid, dn) = (row - w, row, row + w);
+    let rg = &rig[row + 1..row + 1 + n];
+    let mk = &mask[row + 1..row + 1 + n];
+    let (ox, oy) = (&mut ox[1..1 + n], &mut oy[1..1 + n]);
+    // Fixed-size blocks so that the compiler vectorises across texels.
+    const B: usize = 16;
+    let mut x0 = 0;
+    while x0 < n {
+        let m = B.min(n - x0);
+        let mut bx = [0.0f32; B];
+        let mut by = [0.0f32; B];
+        if m == B {
+            let a = |v: &[f32], r: usize, s: usize| -> [f32; B] { v[r + s + x0..r + s + x0 + B].try_into().expect("block") };
+            let (xu, xm, xd) = ([a(dx, up, 0), a(dx, up, 1), a(dx, up, 2)], [a(dx, mid, 0), a(dx, mid, 1), a(dx, mid, 2)], [a(dx, dn, 0), a(dx, dn, 1), a(dx, dn, 2)]);
+            let (yu, ym, yd) = ([a(dy, up, 0), a(dy, up, 1), a(dy, up, 2)], [a(dy, mid, 0), a(dy, mid, 1), a(dy, mid, 2)], [a(dy, dn, 0), a(dy, dn, 1), a(dy, dn, 2)]);
+            let rb: [u8; B] = rg[x0..x0 + B].try_into().expect("block");
+            let mb: [u8; B] = mk[x0..x0 + B].try_into().expect("block");
+            for l in 0..B {
+                (bx[l], by[l]) = regularise_one(&xu, &xm, &xd, &yu, &ym, &yd, l, rb[l], mb[l], smoothing);
+            }
+        } else {
+            for l in 0..m {
+                let x = x0 + l;
+                let t = |v: &[f32], r: usize| -> [[f32; 1]; 3] { [[v[r + x]], [v[r + x + 1]], [v[r + x + 2]]] };
+                (bx[l], by[l]) = regularise_one(&t(dx, up), &t(dx, mid), &t(dx, dn), &t(dy, up), &t(dy, mid), &t(dy, dn), 0, rg[x], mk[x], smoothing);
+            }
+        }
+        ox[x0..x0 + m].copy_from_slice(&bx[..m]);
+        oy[x0..x0 + m].copy_from_slice(&by[..m]);
+        x0 += m;
+    }
+}
+
+#[inline(always)]
+fn fmin(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+#[inline(always)]
+fn fmax(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// One node of the regularisation: rows `u`, `m`, `d` (above, own, below), each
+/// as columns left, centre, right; entry `l` of each.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn regularise_one<const B: usize>(xu: &[[f32; B]; 3], xm: &[[f32; B]; 3], xd: &[[f32; B]; 3], yu: &[[f32; B]; 3], ym: &[[f32; B]; 3], yd: &[[f32; B]; 3], l: usize, rig: u8, mask: u8, smoothing: f32) -> (f32, f32) {
+    let m = mask as f32;
+    let r = rig as f32 * (1.0 / 255.0);
+    let b = m * (1.0 / 255.0) * ((1.0 - r) + r * smoothing);
+    let (xul, xuc, xur, xl, xc, xr, xdl, xdc, xdr) = (xu[0][l], xu[1][l], xu[2][l], xm[0][l], xm[1][l], xm[2][l], xd[0][l], xd[1][l], xd[2][l]);
+    let (yul, yuc, yur, yl, yc, yr, ydl, ydc, ydr) = (yu[0][l], yu[1][l], yu[2][l], ym[0][l], ym[1][l], ym[2][l], yd[0][l], yd[1][l], yd[2][l]);
+    let gx = (xul + xur + xdl + xdr + 2.0 * (xuc + xdc + xl + xr) + 4.0 * xc) * (1.0 / 16.0);
+    let gy = (yul + yur + ydl + ydr + 2.0 * (yuc + ydc + yl + yr) + 4.0 * yc) * (1.0 / 16.0);
+    let nx = (1.0 - b) * xc + b * gx;
+    let ny = (1.0 - b) * yc + b * gy;
+    // Bounding box of the 8 neighbours, relative to this node's rest position.
+    let bx0 = fmin(fmin(fmin(fmin(-1.0 + xul, -1.0 + xl), -1.0 + xdl), xuc), xdc);
+    let bx1 = fmax(fmax(fmax(fmax(1.0 + xur, 1.0 + xr), 1.0 + xdr), xuc), xdc);
+    let by0 = fmin(fmin(fmin(fmin(-1.0 + yul, -1.0 + yuc), -1.0 + yur), yl), yr);
+    let by1 = fmax(fmax(fmax(fmax(1.0 + ydl, 1.0 + ydc), 1.0 + ydr), yl), yr);
+    let fixed = mask == 0;
+    (if fixed { xc } else { fmin(fmax(nx, bx0), bx1) }, if fixed { yc } else { fmin(fmax(ny, by0), by1) })
+}
