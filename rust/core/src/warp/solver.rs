@@ -456,7 +456,15 @@ impl Solver {
         // levels only at 4096² let folds build up over the frames). At 1024²
         // (levels 1024, 512, 256) this gives a lower rigid stretch error than
         // running every level (0.101 against 0.115 after ten frames).
-        let used = if warm { self.levels.iter().take_while(|lv| lv.w.min(lv.h) >= WARM_COARSEST).count().max(1) } else { self.levels.len() };
+        // Grids whose finest level is below twice that size have no level to
+        // spare (a 128² warm solve would run on 128² alone and barely move):
+        // they run every level, which costs little at that size.
+        let finest = self.levels[0].w.min(self.levels[0].h);
+        let used = if warm && finest >= 2 * WARM_COARSEST {
+            self.levels.iter().take_while(|lv| lv.w.min(lv.h) >= WARM_COARSEST).count().max(1)
+        } else {
+            self.levels.len()
+        };
         // Deformed metrics and starting states of the coarse levels.
         for l in 1..used {
             let (fine, coarse) = self.levels.split_at_mut(l);
