@@ -7,6 +7,7 @@ cache and the mesh are left as they were.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import traceback
 
@@ -211,6 +212,21 @@ class TEGUMENT_OT_bake(bpy.types.Operator):
         if job.finished:
             return self._end(context, cancelled=False)
         return {"RUNNING_MODAL"}
+
+    def cancel(self, context):
+        """Blender ended the bake itself (a file load, the window closing): keep
+        the frames done as a valid cache, or failing that leave the old one."""
+        job = self._job
+        try:
+            context.window_manager.event_timer_remove(self._timer)
+            context.window_manager.progress_end()
+        except Exception:  # noqa: BLE001 - the window may already be gone
+            pass
+        try:
+            job.commit()
+        except Exception:  # noqa: BLE001 - e.g. the object was freed by a file load
+            with contextlib.suppress(Exception):
+                job.abort()
 
     def _end(self, context, *, cancelled: bool, failed: bool = False):
         wm = context.window_manager

@@ -4,6 +4,8 @@
 use glam::Vec3;
 use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
+use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
+
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PySequence};
 use tegument_core::collide::{audit as core_audit, AuditParams, Collider as CoreCollider, ColliderSettings};
@@ -45,9 +47,22 @@ fn settings(thickness: f32, friction: f32, kinetic_friction: Option<f32>) -> Col
 /// ``kinetic_friction`` is given). Call :meth:`update` once per frame with the
 /// new world positions: the collider then moves from the previous positions
 /// to these over the frame, which is what continuous collision detection sees.
-#[pyclass(module = "tegument", name = "Collider")]
+#[pyclass(module = "tegument", name = "Collider", frozen)]
 pub struct Collider {
-    pub inner: CoreCollider,
+    // A lock rather than `&mut self`: `update` runs without the GIL, and a
+    // step or audit using the collider from another Python thread waits for
+    // it instead of getting pyo3's "already borrowed" error.
+    inner: RwLock<CoreCollider>,
+}
+
+impl Collider {
+    pub fn read(&self) -> RwLockReadGuard<'_, CoreCollider> {
+        self.inner.read().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn write(&self) -> RwLockWriteGuard<'_, CoreCollider> {
+        self.inner.write().unwrap_or_else(|e| e.into_inner())
+    }
 }
 
 #[pymethods]
@@ -66,15 +81,15 @@ impl Collider {
         let triangles = triangles_arg("triangles", triangles)?;
         let settings = settings(thickness, friction, kinetic_friction);
         let inner = run_detached(py, || CoreCollider::new(&positions, &triangles, settings))?;
-        Ok(Collider { inner })
+        Ok(Collider { inner: RwLock::new(inner) })
     }
 
     /// Next frame: the current positions become the previous ones and
     /// ``positions`` (float32 ``(N, 3)``, same N) the current ones. The BVH is
     /// refitted, and rebuilt when refitting has degraded it. Returns
     /// ``{"cost_ratio": float, "rebuilt": bool}``.
-    fn update<'py>(&mut self, py: Python<'py>, positions: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyDict>> {
-        let count = self.inner.vertex_count();
+    fn update<'py>(&self, py: Python<'py>, positions: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyDict>> {
+        let count = self.read().vertex_count();
         let given = positions.cast::<PyUntypedArray>().ok().filter(|a| a.ndim() == 2).map(|a| a.shape()[0]);
         if let Some(given) = given {
             if given != count {
@@ -82,8 +97,7 @@ impl Collider {
             }
         }
         let positions: Vec<Vec3> = positions_arg("positions", positions, Some(count))?;
-        let inner = &mut self.inner;
-        let report = run_detached(py, move || inner.update(&positions))?;
+        let report = run_detached(py, move || self.write().update(&positions))?;
         let dict = PyDict::new(py);
         dict.set_item("cost_ratio", report.cost_ratio)?;
         dict.set_item("rebuilt", report.rebuilt)?;
@@ -91,84 +105,84 @@ impl Collider {
     }
 
     /// Forgets the motion (previous = current), e.g. after a jump in time.
-    fn hold(&mut self, py: Python<'_>) -> PyResult<()> {
-        let inner = &mut self.inner;
-        run_detached(py, move || inner.hold().map(|_| ()))
+    fn hold(&self, py: Python<'_>) -> PyResult<()> {
+        run_detached(py, move || self.write().hold().map(|_| ()))
     }
 
     /// Number of vertices.
     #[getter]
     fn vertex_count(&self) -> usize {
-        self.inner.vertex_count()
+        self.read().vertex_count()
     }
 
     /// Number of triangles.
     #[getter]
     fn triangle_count(&self) -> usize {
-        self.inner.triangles().len()
+        self.read().triangles().len()
     }
 
     /// Distance kept between the skin and the surface.
     #[getter]
     fn thickness(&self) -> f32 {
-        self.inner.settings().thickness
+        self.read().settings().thickness
     }
 
     /// Static friction coefficient.
     #[getter]
     fn friction(&self) -> f32 {
-        self.inner.settings().static_friction
+        self.read().settings().static_friction
     }
 
     /// Kinetic friction coefficient.
     #[getter]
     fn kinetic_friction(&self) -> f32 {
-        self.inner.settings().kinetic_friction
+        self.read().settings().kinetic_friction
     }
 
     /// Whether every edge has exactly two triangles (the audit's inside test
     /// applies only to closed colliders).
     #[getter]
     fn is_closed(&self) -> bool {
-        self.inner.is_closed()
+        self.read().is_closed()
     }
 
     /// This frame's positions, float32 ``(N, 3)``.
     #[getter]
     fn positions<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
-        positions_to_py(py, self.inner.current())
+        positions_to_py(py, self.read().current())
     }
 
     /// Last frame's positions, float32 ``(N, 3)``.
     #[getter]
     fn previous_positions<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
-        positions_to_py(py, self.inner.previous())
+        positions_to_py(py, self.read().previous())
     }
 
     /// Triangles, int32 ``(T, 3)``.
     #[getter]
     fn triangles<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<i32>> {
-        rows_to_py(py, self.inner.triangles())
+        rows_to_py(py, self.read().triangles())
     }
 
     /// Unique edges, int32 ``(E, 2)``; the audit's ``collider_edges_crossing_indices``
     /// refer to these rows.
     fn edges<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<i32>> {
-        rows_to_py(py, self.inner.edges())
+        rows_to_py(py, self.read().edges())
     }
 
     /// How many times the BVH was rebuilt because refitting had degraded it.
     #[getter]
     fn bvh_rebuilds(&self) -> usize {
-        self.inner.tree().rebuild_count()
+        self.read().tree().rebuild_count()
     }
 
     fn __repr__(&self) -> String {
-        let s = self.inner.settings();
+        let inner = self.read();
+        let s = inner.settings();
         format!(
             "tegument.Collider({} vertices, {} triangles, thickness={}, friction={}, kinetic_friction={})",
-            self.inner.vertex_count(),
-            self.inner.triangles().len(),
+            inner.vertex_count(),
+            inner.triangles().len(),
             s.thickness,
             s.static_friction,
             s.kinetic_friction
@@ -202,9 +216,11 @@ pub fn audit<'py>(
     let corner_verts = int_array_arg("corner_verts", corner_verts, None)?;
     let polygon_sizes = int_array_arg("polygon_sizes", polygon_sizes, None)?;
     let refs = collider_refs(colliders)?;
-    let cols: Vec<&CoreCollider> = refs.iter().map(|r| &r.inner).collect();
+    let holders: Vec<&Collider> = refs.iter().map(|r| &**r).collect();
     let params = AuditParams { depth_tolerance };
     let report = run_detached(py, || {
+        let guards: Vec<_> = holders.iter().map(|c| c.read()).collect();
+        let cols: Vec<&CoreCollider> = guards.iter().map(|g| &**g).collect();
         core_audit(MeshInput { positions: &positions, corner_verts: &corner_verts, polygon_sizes: &polygon_sizes }, &cols, &params)
     })?;
     let dict = PyDict::new(py);

@@ -140,9 +140,12 @@ impl PyramidDeformer {
             Some(c) => collider_refs(c)?,
             None => Vec::new(),
         };
-        let cols: Vec<&CoreCollider> = refs.iter().map(|r| &r.inner).collect();
-        let (output, report) =
-            self.with(py, move |core| core.step(&input, &cols, iterations as usize, weights.as_closeness()))?;
+        let holders: Vec<&crate::collide::Collider> = refs.iter().map(|r| &**r).collect();
+        let (output, report) = self.with(py, move |core| {
+            let guards: Vec<_> = holders.iter().map(|c| c.read()).collect();
+            let cols: Vec<&CoreCollider> = guards.iter().map(|g| &**g).collect();
+            core.step(&input, &cols, iterations as usize, weights.as_closeness())
+        })?;
         *self.last_step.lock().unwrap_or_else(|e| e.into_inner()) = Some(report);
         Ok(positions_to_py(py, &output))
     }

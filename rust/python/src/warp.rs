@@ -8,6 +8,7 @@
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
+use std::sync::RwLock;
 
 use glam::Vec2;
 use numpy::ndarray::{Array2, Array3};
@@ -38,9 +39,12 @@ use crate::convert::{float_grid_arg, int_array_arg, positions_arg, run_detached,
 /// previous one (temporal coherence); ``False`` solves every frame from the
 /// identity, deterministically. ``memory_limit``: bytes (default 3 GiB); grids
 /// that would need more are refused with the amount they need.
-#[pyclass(module = "tegument", name = "UvWarp")]
+#[pyclass(module = "tegument", name = "UvWarp", frozen)]
 pub struct UvWarp {
-    inner: warp::UvWarp,
+    // A lock rather than `&mut self`: a solve runs without the GIL, and
+    // another Python thread using the same warp meanwhile waits for it
+    // instead of getting pyo3's "already borrowed" error.
+    inner: RwLock<warp::UvWarp>,
     multi: bool,
 }
 
@@ -90,12 +94,20 @@ fn metrics_dict<'py>(py: Python<'py>, m: &warp::WarpMetrics) -> PyResult<Bound<'
 
 impl UvWarp {
     /// One result per tile: the array itself for a single-tile warp, else `{udim: array}`.
+    fn read(&self) -> std::sync::RwLockReadGuard<'_, warp::UvWarp> {
+        self.inner.read().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn write(&self) -> std::sync::RwLockWriteGuard<'_, warp::UvWarp> {
+        self.inner.write().unwrap_or_else(|e| e.into_inner())
+    }
+
     fn per_tile<'py>(&self, py: Python<'py>, make: impl Fn(&warp::TileWarp) -> Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
         if !self.multi {
-            return Ok(make(&self.inner.tiles[0]));
+            return Ok(make(&self.read().tiles[0]));
         }
         let d = PyDict::new(py);
-        for t in &self.inner.tiles {
+        for t in &self.read().tiles {
             d.set_item(t.udim(), make(t))?;
         }
         Ok(d.into_any())
@@ -163,7 +175,7 @@ impl UvWarp {
                 settings,
             )
         })?;
-        Ok(UvWarp { inner, multi })
+        Ok(UvWarp { inner: RwLock::new(inner), multi })
     }
 
     /// Solves the warp for this frame's ``deformed_positions`` (float32
@@ -171,22 +183,21 @@ impl UvWarp {
     /// 2)``: for a surface point whose UV is ``t``, sample the texture at
     /// ``redirection(t)`` (absolute UVs, UDIM offset included). For a warp
     /// over several UDIM tiles, a dict ``{udim: array}``. Releases the GIL.
-    fn solve<'py>(&mut self, py: Python<'py>, deformed_positions: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
-        let positions = positions_arg("deformed_positions", deformed_positions, Some(self.inner.mesh.vertex_count))?;
-        let inner = &mut self.inner;
-        run_detached(py, || inner.solve(&positions))?;
+    fn solve<'py>(&self, py: Python<'py>, deformed_positions: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+        let positions = positions_arg("deformed_positions", deformed_positions, Some(self.read().mesh.vertex_count))?;
+        run_detached(py, || self.write().solve(&positions))?;
         self.redirection(py)
     }
 
     /// The latest redirection (identity before the first solve), as ``solve`` returns it.
     fn redirection<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let (w, h) = (self.inner.width, self.inner.height);
+        let (w, h) = (self.read().width, self.read().height);
         self.per_tile(py, |t| Array3::from_shape_vec((h, w, 2), t.redirection.clone()).expect("2·w·h floats").into_pyarray(py).into_any())
     }
 
     /// Validity, float32 ``(height, width)``: 1 inside UV charts, 0 outside.
     fn validity<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let (w, h) = (self.inner.width, self.inner.height);
+        let (w, h) = (self.read().width, self.read().height);
         self.per_tile(py, |t| {
             Array2::from_shape_vec((h, w), t.validity().iter().map(|&v| v as f32).collect()).expect("w·h values").into_pyarray(py).into_any()
         })
@@ -195,7 +206,7 @@ impl UvWarp {
     /// The forward warp as displacements in texels, float32 ``(height, width,
     /// 2)``: the texture detail at texel centre ``t`` is drawn at ``t + d``.
     fn displacement<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let (w, h) = (self.inner.width, self.inner.height);
+        let (w, h) = (self.read().width, self.read().height);
         self.per_tile(py, |t| {
             let (dx, dy) = t.displacement();
             let flat: Vec<f32> = dx.iter().zip(dy).flat_map(|(&x, &y)| [x, y]).collect();
@@ -210,9 +221,8 @@ impl UvWarp {
     /// masked texels, round-trip error in texels. A dict; for several tiles,
     /// ``{udim: dict}``. Releases the GIL.
     fn metrics<'py>(&self, py: Python<'py>, deformed_positions: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
-        let positions = positions_arg("deformed_positions", deformed_positions, Some(self.inner.mesh.vertex_count))?;
-        let inner = &self.inner;
-        let all = run_detached(py, || inner.metrics(&positions))?;
+        let positions = positions_arg("deformed_positions", deformed_positions, Some(self.read().mesh.vertex_count))?;
+        let all = run_detached(py, || self.read().metrics(&positions))?;
         if !self.multi {
             return Ok(metrics_dict(py, &all[0])?.into_any());
         }
@@ -224,8 +234,8 @@ impl UvWarp {
     }
 
     /// Forgets the previous frame: the next ``solve`` starts from the identity.
-    fn reset(&mut self) {
-        self.inner.reset();
+    fn reset(&self) {
+        self.write().reset();
     }
 
     /// Writes the latest redirection of ``udim`` (default: the only tile) to
@@ -235,53 +245,52 @@ impl UvWarp {
     fn write_exr(&self, py: Python<'_>, path: PathBuf, udim: Option<u32>) -> PyResult<()> {
         let udim = match udim {
             Some(u) => u,
-            None if !self.multi => self.inner.tiles[0].udim(),
+            None if !self.multi => self.read().tiles[0].udim(),
             None => {
                 return Err(TegumentError::new_err(format!(
                     "this warp spans UDIM tiles {:?}: say which one to write (udim=...)",
-                    self.inner.tiles.iter().map(|t| t.udim()).collect::<Vec<_>>()
+                    self.read().tiles.iter().map(|t| t.udim()).collect::<Vec<_>>()
                 )))
             }
         };
-        let inner = &self.inner;
-        run_detached(py, || inner.write_exr(udim, &path))
+        run_detached(py, || self.read().write_exr(udim, &path))
     }
 
     /// UDIM tiles the UVs touch, ascending.
     #[getter]
     fn tiles(&self) -> Vec<u32> {
-        self.inner.tiles.iter().map(|t| t.udim()).collect()
+        self.read().tiles.iter().map(|t| t.udim()).collect()
     }
 
     /// Grid width per tile.
     #[getter]
     fn width(&self) -> usize {
-        self.inner.width
+        self.read().width
     }
 
     /// Grid height per tile.
     #[getter]
     fn height(&self) -> usize {
-        self.inner.height
+        self.read().height
     }
 
     /// Number of UV charts found (edges shared with identical UVs join charts).
     #[getter]
     fn chart_count(&self) -> usize {
-        self.inner.mesh.chart_count
+        self.read().mesh.chart_count
     }
 
     /// The settings, as written into EXR metadata.
     fn settings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let d = PyDict::new(py);
-        for (k, v) in self.inner.settings.describe() {
+        for (k, v) in self.read().settings.describe() {
             d.set_item(k, v)?;
         }
         Ok(d)
     }
 
     fn __repr__(&self) -> String {
-        format!("tegument.UvWarp({}×{}, tiles {:?}, {} charts)", self.inner.width, self.inner.height, self.tiles(), self.inner.mesh.chart_count)
+        format!("tegument.UvWarp({}×{}, tiles {:?}, {} charts)", self.read().width, self.read().height, self.tiles(), self.read().mesh.chart_count)
     }
 }
 

@@ -398,3 +398,37 @@ def test_panics_unwind_in_every_profile():
             assert profile.get("panic", "unwind") == "unwind", f"{manifest}: profile.{name} sets panic = {profile['panic']!r}"
     pyproject = tomllib.loads((root / "rust" / "python" / "pyproject.toml").read_text())
     assert "panic" not in str(pyproject.get("tool", {}).get("maturin", {})), "maturin must not override the panic strategy"
+
+
+def test_one_collider_and_one_warp_shared_by_threads_serialise_instead_of_failing():
+    """Updating a collider while other threads audit and step against it, and
+    solving one UvWarp from several threads: every call waits its turn."""
+    positions, corners, sizes = grid_arrays(12, 10)
+    cube, _, _ = cube_arrays()
+    triangles = np.array([[0, 1, 2], [1, 3, 2]], np.int32)
+    collider = tegument.Collider(cube, triangles)
+    warp_args = uv_quad()[:3]
+    uvs = uv_quad()[3]
+    warp = tegument.UvWarp(8, 8, *warp_args, uvs, np.ones((8, 8), np.float32), warm_start=False)
+    expected_warp = warp.solve(warp_args[0] * np.float32(1.05)).copy()
+    errors = []
+
+    def run(k):
+        deformer = tegument.PyramidDeformer(positions, corners, sizes)
+        try:
+            for i in range(20):
+                if k % 2:
+                    collider.update(cube + np.float32(0.001 * i))
+                    np.testing.assert_array_equal(warp.solve(warp_args[0] * np.float32(1.05)), expected_warp)
+                else:
+                    tegument.audit(positions, corners, sizes, [collider])
+                    deformer.step(positions, [collider], iterations=2)
+        except BaseException as error:  # noqa: BLE001 - reported below
+            errors.append(error)
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(6)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
