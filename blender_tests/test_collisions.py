@@ -176,3 +176,31 @@ def test_a_collider_whose_topology_changes_stops_the_bake_and_keeps_the_cache(tm
     import os
 
     assert not os.path.exists(path), "a failed bake must not leave a cache"
+
+
+def test_an_open_collider_collides_and_is_reported_as_open(tmp_path):
+    # A plane (open mesh) rising through the skin from below in one frame.
+    skin = make_skin(tmp_path, 3)
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=8, y_subdivisions=8, size=0.8, location=(0.0, 0.0, -0.3))
+    plane = bpy.context.object
+    plane.name = "Board"
+    for frame, z in ((1, -0.3), (2, 0.3), (3, 0.3)):
+        plane.location.z = z
+        plane.keyframe_insert("location", frame=frame)
+    plane.tegument_collider.thickness = 0.01
+    collection = bpy.data.collections.new("Colliders")
+    bpy.context.scene.collection.children.link(collection)
+    for owner in list(plane.users_collection):
+        owner.objects.unlink(plane)
+    collection.objects.link(plane)
+    cache = bake(skin, 3)
+    assert "collider Board is open: the audit cannot tell inside from outside" in skin.tegument.warnings
+    totals = independent_audit(skin, cache, [plane])
+    assert totals["edges_crossing"] == 0
+    # Known defect (issue 5): a few of the board's rim edges can end up through
+    # skin triangles in this one-frame rise; the core test that shows it is
+    # ignored with that reason. The add-on's own audit counts them the same way.
+    assert totals["collider_edges_crossing"] == skin.tegument.audit_collider_edges_crossing
+    # The board carried the skin up with it instead of passing through.
+    middle = cache[1][np.argmin(np.linalg.norm(cache[1][:, :2], axis=1))]
+    assert middle[2] > 0.3

@@ -321,3 +321,38 @@ mod uv_sphere_tests {
         }
     }
 }
+
+#[cfg(test)]
+mod open_collider_tests {
+    use glam::Vec3;
+
+    use super::*;
+    use crate::collide::{audit, AuditParams, ColliderSettings};
+    use crate::mesh::shapes::grid;
+    use crate::pyramid::DeformerOptions;
+
+    #[test]
+    #[ignore = "known defect: the rim edges of an open collider rising through the skin in one frame \
+                can end up through 4 skin triangles (no pinched vertices reported); see issue 5's notes"]
+    fn an_open_board_rising_through_the_skin_in_one_frame_carries_it() {
+        let skin = grid(40, 40, 2.0);
+        let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let board = grid(8, 8, 0.8);
+        let offsets: Vec<u32> = (0..=board.polygon_sizes.len() as u32).map(|k| 4 * k).collect();
+        let tris = crate::collide::audit::fan_triangles(&board.corner_verts, &offsets);
+        let at = |z: f32| board.positions.iter().map(|p| *p + Vec3::Z * z).collect::<Vec<_>>();
+        let settings = ColliderSettings { thickness: 0.01, static_friction: 0.3, kinetic_friction: 0.2 };
+        let mut collider = Collider::new(&at(-0.3), &tris, settings).unwrap();
+        for z in [-0.3, 0.3, 0.3] {
+            collider.update(&at(z)).unwrap();
+            let (x, report) = deformer.step(&skin.positions, &[&collider], 10, Closeness::Uniform(0.05)).unwrap();
+            let found = audit(crate::mesh::MeshInput { positions: &x, ..skin.input() }, &[&collider], &AuditParams::default()).unwrap();
+            assert_eq!(
+                (found.edges_crossing.len(), found.collider_edges_crossing.len(), report.pinched.len()),
+                (0, 0, 0),
+                "board at z = {z}: {:?}",
+                found.collider_edges_crossing
+            );
+        }
+    }
+}
