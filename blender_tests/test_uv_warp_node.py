@@ -560,3 +560,29 @@ def test_node_is_in_the_add_menu_and_draws_its_settings(saved):
     operators = [args[0] for name, args, _ in log if name == "operator"]
     assert operators == ["tegument.warp_bind", "tegument.warp_bake"]
     assert any(name == "label" and "not bound" in kwargs.get("text", "") for name, _, kwargs in log)
+
+
+def test_a_rigidity_image_of_another_size_or_storage_is_resampled_to_the_grid(saved, tmp_path):
+    """Images need not match the warp resolution: a half-size 8-bit image of the
+    same disc gives the same kind of result as the full-size float one."""
+    obj = saved
+    material, node = warp_material(obj)
+    bind(material, node)
+    reports = {}
+    full = float_image("Full", disc(RIGID_RADIUS))
+    half = bpy.data.images.new("Half", RES // 2, RES // 2, alpha=False, float_buffer=False)
+    rgba = np.ones((RES // 2, RES // 2, 4), np.float32)
+    rgba[..., :3] = disc(RIGID_RADIUS, RES // 2)[..., None]
+    half.pixels.foreach_set(rgba.ravel())
+    for image in (full, half):
+        node.rigidity_image = image
+        assert bpy.ops.tegument.warp_bake(material=material.name, node=node.name) == {"FINISHED"}
+        reports[image.name] = node.report
+    stretch = {
+        name: [float(x) for x in re.search(r"rigid stretch ([\d.]+) → ([\d.]+)", report).groups()]
+        for name, report in reports.items()
+    }
+    assert all("fold-overs 0" in report for report in reports.values()), reports
+    (full_before, full_after), (half_before, half_after) = stretch["Full"], stretch["Half"]
+    assert half_after * 5 < half_before, reports
+    assert abs(half_after - full_after) < 0.5 * full_after + 0.01, reports

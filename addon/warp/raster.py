@@ -48,7 +48,8 @@ def resample(pixels: np.ndarray, width: int, height: int) -> np.ndarray:
     p = pixels.astype(np.float64)
     top = p[y0][:, x0] * (1 - fx) + p[y0][:, x1] * fx
     bottom = p[y1][:, x0] * (1 - fx) + p[y1][:, x1] * fx
-    return (top * (1 - fy)[:, None] + bottom * fy[:, None]).astype(np.float32)
+    # Fancy indexing can hand back a Fortran-ordered array; the wheel takes C order.
+    return np.ascontiguousarray(top * (1 - fy)[:, None] + bottom * fy[:, None], dtype=np.float32)
 
 
 def triangulate(polygon_sizes: np.ndarray) -> np.ndarray:
