@@ -202,6 +202,19 @@ def collisions(bpy, np, rows, threads, workdir, grid: int, frame_count: int) -> 
         mesh.polygons.foreach_get("loop_total", sizes)
         return tegument.audit(positions, corners, sizes, [collider])
 
+    def play_and_audit(scene, skin, sphere):
+        """Per-frame times of evaluating the skin's own stack, and the audit totals."""
+        times, totals = [], {"vertices_inside": 0, "edges_crossing": 0, "collider_edges_crossing": 0}
+        for frame in frames:
+            started = time.perf_counter()
+            scene.frame_set(frame)
+            positions, _ = world(skin)
+            times.append(1000 * (time.perf_counter() - started))
+            found = audit_at(scene, skin, sphere, frame, positions)
+            for key in totals:
+                totals[key] += found[key]
+        return times, totals
+
     def record(label, times, totals, note):
         median = sorted(times)[len(times) // 2]
         rows.add(case, f"{label}: frame", median, "ms", threads, note)
@@ -241,15 +254,7 @@ def collisions(bpy, np, rows, threads, workdir, grid: int, frame_count: int) -> 
     cloth.collision_settings.distance_min = 0.005
     cloth.point_cache.frame_start, cloth.point_cache.frame_end = 1, frame_count
     sphere.modifiers.new("Collision", "COLLISION").settings.thickness_outer = 0.005
-    times, totals = [], {"vertices_inside": 0, "edges_crossing": 0, "collider_edges_crossing": 0}
-    for frame in frames:
-        started = time.perf_counter()
-        scene.frame_set(frame)
-        positions, _ = world(skin)
-        times.append(1000 * (time.perf_counter() - started))
-        found = audit_at(scene, skin, sphere, frame, positions)
-        for key in totals:
-            totals[key] += found[key]
+    times, totals = play_and_audit(scene, skin, sphere)
     record("Cloth (pinned, collision quality 5)", times[1:] or times, totals, "frame_set + simulation step + read positions")
 
     # Shrinkwrap (Outside) + Corrective Smooth (10 it.).
@@ -262,15 +267,7 @@ def collisions(bpy, np, rows, threads, workdir, grid: int, frame_count: int) -> 
     smooth = skin.modifiers.new("CorrectiveSmooth", "CORRECTIVE_SMOOTH")
     smooth.iterations = 10
     smooth.rest_source = "ORCO"
-    times, totals = [], {"vertices_inside": 0, "edges_crossing": 0, "collider_edges_crossing": 0}
-    for frame in frames:
-        started = time.perf_counter()
-        scene.frame_set(frame)
-        positions, _ = world(skin)
-        times.append(1000 * (time.perf_counter() - started))
-        found = audit_at(scene, skin, sphere, frame, positions)
-        for key in totals:
-            totals[key] += found[key]
+    times, totals = play_and_audit(scene, skin, sphere)
     record("Shrinkwrap (Outside) + Corrective Smooth", times, totals, "frame_set + both modifiers + read positions")
 
 
