@@ -22,18 +22,10 @@ def tegument_modifier(obj) -> bpy.types.Modifier | None:
 
 
 @contextlib.contextmanager
-def upstream_only(obj):
-    """Within the block, the object evaluates to the stack *above* Tegument's modifier.
-
-    The Tegument Mesh Cache modifier and every modifier below it are hidden
-    from the viewport evaluation, then restored exactly as they were.
-    """
-    hidden = []
-    below = False
-    for modifier in obj.modifiers:
-        below = below or modifier.name == MODIFIER_NAME
-        if below and modifier.show_viewport:
-            hidden.append(modifier)
+def hidden_in_viewport(modifiers):
+    """Within the block, these modifiers are left out of the viewport evaluation;
+    afterwards each is shown again exactly if it was shown before."""
+    hidden = [modifier for modifier in modifiers if modifier.show_viewport]
     try:
         for modifier in hidden:
             modifier.show_viewport = False
@@ -41,6 +33,18 @@ def upstream_only(obj):
     finally:
         for modifier in hidden:
             modifier.show_viewport = True
+
+
+@contextlib.contextmanager
+def upstream_only(obj):
+    """Within the block, the object evaluates to the stack *above* Tegument's modifier.
+
+    The Tegument Mesh Cache modifier and every modifier below it are hidden.
+    """
+    names = [modifier.name for modifier in obj.modifiers]
+    below = names.index(MODIFIER_NAME) if MODIFIER_NAME in names else len(names)
+    with hidden_in_viewport(list(obj.modifiers)[below:]):
+        yield
 
 
 def evaluated_positions(obj, depsgraph) -> tuple[np.ndarray, np.ndarray]:

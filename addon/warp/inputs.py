@@ -106,19 +106,13 @@ def without_trailing_subdivision(obj):
     smooths what they describe, so the bake reads the cage and the render
     subdivides as usual.
     """
-    hidden = []
+    trailing = []
     for modifier in reversed(obj.modifiers):
         if modifier.type not in {"SUBSURF", "MULTIRES"}:
             break
-        if modifier.show_viewport:
-            hidden.append(modifier)
-    try:
-        for modifier in hidden:
-            modifier.show_viewport = False
+        trailing.append(modifier)
+    with evaluate.hidden_in_viewport(trailing):
         yield
-    finally:
-        for modifier in hidden:
-            modifier.show_viewport = True
 
 
 def read(node, label: str) -> WarpInputs:
