@@ -33,6 +33,22 @@ pub struct PyramidDeformer {
 }
 
 impl PyramidDeformer {
+    /// The arguments every frame takes: the input positions, the iteration
+    /// count and the closeness, checked against this deformer.
+    fn frame_args(
+        &self,
+        positions: &Bound<'_, PyAny>,
+        iterations: i64,
+        closeness: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<(Vec<glam::Vec3>, usize, Weights)> {
+        let n = self.vertex_count;
+        let input = positions_arg("positions", positions, Some(n))?;
+        if iterations < 0 {
+            return Err(TegumentError::new_err(format!("iterations is {iterations}; it must be 0 or more")));
+        }
+        Ok((input, iterations as usize, closeness_arg(closeness, n)?))
+    }
+
     fn with<T: Send>(&self, py: Python<'_>, work: impl FnOnce(&mut Core) -> tegument_core::Result<T> + Send) -> PyResult<T> {
         run_detached(py, || {
             let mut core = self
@@ -97,13 +113,8 @@ impl PyramidDeformer {
         iterations: i64,
         closeness: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let n = self.vertex_count;
-        let input = positions_arg("positions", positions, Some(n))?;
-        if iterations < 0 {
-            return Err(TegumentError::new_err(format!("iterations is {iterations}; it must be 0 or more")));
-        }
-        let weights = closeness_arg(closeness, n)?;
-        let output = self.with(py, move |core| core.solve(&input, iterations as usize, weights.as_closeness()))?;
+        let (input, iterations, weights) = self.frame_args(positions, iterations, closeness)?;
+        let output = self.with(py, move |core| core.solve(&input, iterations, weights.as_closeness()))?;
         Ok(positions_to_py(py, &output))
     }
 
@@ -130,12 +141,7 @@ impl PyramidDeformer {
         iterations: i64,
         closeness: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let n = self.vertex_count;
-        let input = positions_arg("positions", positions, Some(n))?;
-        if iterations < 0 {
-            return Err(TegumentError::new_err(format!("iterations is {iterations}; it must be 0 or more")));
-        }
-        let weights = closeness_arg(closeness, n)?;
+        let (input, iterations, weights) = self.frame_args(positions, iterations, closeness)?;
         let refs = match colliders {
             Some(c) => collider_refs(c)?,
             None => Vec::new(),
@@ -144,7 +150,7 @@ impl PyramidDeformer {
         let (output, report) = self.with(py, move |core| {
             let guards: Vec<_> = holders.iter().map(|c| c.read()).collect();
             let cols: Vec<&CoreCollider> = guards.iter().map(|g| &**g).collect();
-            core.step(&input, &cols, iterations as usize, weights.as_closeness())
+            core.step(&input, &cols, iterations, weights.as_closeness())
         })?;
         *self.last_step.lock().unwrap_or_else(|e| e.into_inner()) = Some(report);
         Ok(positions_to_py(py, &output))
