@@ -5,7 +5,7 @@
 #   make demo       build everything and run a headless demo bake into out/demo/
 #   make test       every test suite: Rust core, the wheel, real Blender
 #   make extension  dist/tegument-<version>-linux_x64.zip
-#   make bench      benchmarks -> bench/results.json and docs/performance-table.md
+#   make bench      every benchmark -> bench/results.json, docs/performance-table.md, docs/images/benchmark.png
 #   make fuzz       cargo-fuzz targets (mesh topology, CCD), 60 s each; not part of CI
 
 SHELL := /bin/bash
@@ -56,11 +56,11 @@ test-blender: $(EXTENSION_ZIP)
 demo: $(EXTENSION_ZIP)
 	TEGUMENT_EXTENSION_ZIP=$(EXTENSION_ZIP) $(PY) demo/run_demo.py --out out/demo
 
+# One run of every benchmark, then one table (bench/run_all.py says what runs and
+# records the machine's load per step); about 15 minutes on 2 cores.
 bench: $(EXTENSION_ZIP)
 	rm -rf bench/results
-	cargo bench -p tegument-core
-	TEGUMENT_EXTENSION_ZIP=$(EXTENSION_ZIP) $(PY) bench/blender_bench.py --out bench/results
-	$(PY) bench/collect.py --results bench/results --json bench/results.json --markdown docs/performance-table.md
+	$(PY) bench/run_all.py --zip $(EXTENSION_ZIP) --results bench/results --json bench/results.json --markdown docs/performance-table.md --plot docs/images/benchmark.png
 
 # cargo-fuzz targets of the core (rust/fuzz, its own workspace: CI never builds
 # it). Needs the nightly toolchain and `cargo install cargo-fuzz`. Each target

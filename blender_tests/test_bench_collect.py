@@ -1,0 +1,110 @@
+"""`bench/collect.py`: the one table of `make bench`, built from the rows of one run.
+
+Pure Python (no Blender); it sits here because `make test` runs this folder.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "bench"))
+import collect  # noqa: E402
+
+TUBE = "armature-bent tube, 100k vertices"
+SKIN = "skin 100k vertices vs sphere 20k triangles"
+CORE_SKIN = "skin 100489 v / 199712 tri vs collider 20172 tri"
+
+
+def row(benchmark, case, metric, value, threads=2, unit="ms"):
+    return {"benchmark": benchmark, "case": case, "metric": metric, "value": value, "unit": unit, "threads": threads, "note": ""}
+
+
+def run_rows() -> list[dict]:
+    """Every row the table reads, as the benchmarks name them, with distinct values."""
+    rows = [
+        row("blender", TUBE, "armature only: frame", 5.0),
+        row("blender", TUBE, "Corrective Smooth (10 it.): frame", 50.0),
+        row("blender", TUBE, "Corrective Smooth (10 it.): own cost", 45.0),
+        row("blender", TUBE, "Tegument (10 it.): frame", 25.0),
+        row("blender", TUBE, "Tegument (10 it.): solve only", 15.0),
+        row("blender", TUBE, "Tegument frame / Corrective Smooth frame", 0.5, unit="x"),
+        row("blender", SKIN, "Tegument collisions: pinched (most in a frame)", 3, unit=""),
+    ]
+    for k, label in enumerate(("Tegument collisions (10 it.)", "Cloth (pinned, collision quality 5)", "Shrinkwrap (Outside) + Corrective Smooth")):
+        rows += [row("blender", SKIN, f"{label}: frame", 1000.0 * (k + 1)),
+                 row("blender", SKIN, f"{label}: vertices inside (all frames)", 10 * k, unit=""),
+                 row("blender", SKIN, f"{label}: edges crossing (all frames)", 20 * k, unit="")]
+    for size, vertices in (("10k", 10088), ("100k", 99848), ("1M", 998786)):
+        for threads in (1, 2):
+            case = f"sphere {size} ({vertices} v)"
+            rows += [row("pyramid", case, "targets: per iteration", 2.0 / threads, threads),
+                     row("pyramid", case, "targets: bandwidth reference", 1.0, threads),
+                     row("pyramid", case, "targets: iteration / reference", 2.0 / threads, threads, unit="x")]
+    rows += [row("collide", CORE_SKIN, "one in-loop pass", 100.0), row("collide", CORE_SKIN, "pass 1 (swept collider)", 400.0),
+             row("collide", CORE_SKIN, "bandwidth reference", 0.5), row("collide", CORE_SKIN, "in-loop pass / reference", 200.0, unit="x")]
+    for n in (1024, 2048, 4096):
+        case = f"{n}x{n} cylinder 33k verts, 25% rigid"
+        scale = (n // 1024) ** 2
+        rows += [row("warp", case, "frame (warm: surface+solve+invert)", 100.0 * scale),
+                 row("warp", case, "  CPU time per frame (all threads)", 180.0 * scale),
+                 row("warp", case, "    level 0 (finest) + prolong", 40.0 * scale),
+                 row("warp", case, "  inversion", 20.0 * scale),
+                 row("warp", case, "peak memory (VmHWM, whole process)", 70.0 * scale, unit="MiB"),
+                 row("warp", case, "bandwidth reference (1 pass)", 2.0 * scale),
+                 row("warp", case, "rigid stretch error, identity", 0.3, unit=""),
+                 row("warp", case, "rigid stretch error, warped", 0.1, unit="")]
+    return rows
+
+
+def test_summary_puts_each_comparison_side_by_side():
+    lines = collect.summary(collect.Rows(run_rows()))
+    by = {(line.comparison.split(",")[0].split(" (")[0], line.method): line for line in lines}
+    assert by[("deformer", "Tegument Pyramid Deform")].ms_per_frame == 25.0
+    assert by[("deformer", "Tegument Pyramid Deform")].times_bandwidth == 1.0  # the 100k iteration, 2 threads
+    assert by[("deformer", "Blender Corrective Smooth")].ms_per_frame == 50.0
+    cloth = by[("collisions", "Blender Cloth pinned to the animation, collision quality 5")]
+    assert (cloth.ms_per_frame, cloth.vertices_inside, cloth.edges_crossing) == (2000.0, 10, 20)
+    assert by[("collisions", "Tegument Pyramid Deform + collisions")].times_bandwidth == 200.0
+    warps = [line for line in lines if line.comparison.startswith("UV warp")]
+    assert [line.ms_per_frame for line in warps] == [100.0, 3.87, 400.0, 14.03, 1600.0, 119.31]
+    assert [line.peak_mib for line in warps[::2]] == [70.0, 280.0, 1120.0]
+    assert [line.times_bandwidth for line in warps[::2]] == [50.0, 50.0, 50.0]  # frame ÷ that size's reference
+    loops = [line for line in lines if line.comparison.startswith("hot loops")]
+    assert len(loops) == 6 + 2 + 6
+    assert loops[6].times_bandwidth == 200.0 and loops[7].times_bandwidth == 800.0  # in-loop and pass 1 ÷ 0.5 ms
+
+
+def test_a_missing_figure_is_named():
+    rows = [r for r in run_rows() if r["metric"] != "Cloth (pinned, collision quality 5): frame"]
+    with pytest.raises(collect.MissingFigure, match=r"Cloth \(pinned, collision quality 5\): frame"):
+        collect.summary(collect.Rows(rows))
+
+
+def test_command_writes_the_json_and_the_table_with_the_load_of_each_step(tmp_path):
+    rows = run_rows()
+    for name in ("pyramid", "collide", "warp", "blender"):
+        (tmp_path / f"{name}.json").write_text(json.dumps([r for r in rows if r["benchmark"] == name]))
+    (tmp_path / "machine.txt").write_text("Test CPU, 2 cores\nBlender 5.0.1\n")
+    run = {"started": "2026-11-23T15:00:00+00:00", "seconds": 600.0, "steps": [
+        {"step": "warp", "seconds": 60.0, "uptime_before": " 15:00:00 up 1 day,  load average: 1.50, 1.20, 1.00",
+         "uptime_after": " 15:01:00 up 1 day,  load average: 2.50, 1.60, 1.10", "other_processes_cores": 0.8, "exit_code": 0}]}
+    (tmp_path / "run.json").write_text(json.dumps(run))
+    out_json, out_md = tmp_path / "results.json", tmp_path / "table.md"
+    subprocess.run([sys.executable, str(ROOT / "bench" / "collect.py"), "--results", str(tmp_path), "--json", str(out_json),
+                    "--markdown", str(out_md), "--plot", "images/benchmark.png"], check=True)
+    data = json.loads(out_json.read_text())
+    assert data["machine"] == "Test CPU, 2 cores; Blender 5.0.1" and len(data["rows"]) == len(rows)
+    table = out_md.read_text()
+    assert "| warp | 60 s | 1.50, 1.20, 1.00 | 2.50, 1.60, 1.10 | 0.8 |" in table
+    assert "| Blender Cloth pinned to the animation, collision quality 5 | 2 000 | 10 | 20 |" in table
+    assert "![The comparisons of this run](images/benchmark.png)" in table
+    (tmp_path / "blender.json").unlink()
+    failed = subprocess.run([sys.executable, str(ROOT / "bench" / "collect.py"), "--results", str(tmp_path), "--json", str(out_json),
+                             "--markdown", str(out_md)], capture_output=True, text=True)
+    assert failed.returncode != 0 and "blender.json is missing" in failed.stderr
