@@ -108,7 +108,7 @@ def warp_bake(args) -> int:
             return 2
         targets = [(m, n) for m, n in warp_node.find_nodes() if m == material and (not args.node or n.name == args.node)]
         if not targets:
-            what = f"a Tegument UV Warp node named {args.node}" if args.node else "a Tegument UV Warp node"
+            what = f"Tegument UV Warp node named {args.node}" if args.node else "Tegument UV Warp node"
             print(f"error: material {material.name} has no {what}", file=sys.stderr)
             return 2
     else:

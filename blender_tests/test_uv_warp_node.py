@@ -377,6 +377,8 @@ def test_command_line_bake_and_refusal(saved, tmp_path, capfd):
     material, node = warp_material(obj)
     assert cli.main(["warp-bake", "--material", "Nope"]) == 2
     assert "no material named Nope" in capfd.readouterr().err
+    assert cli.main(["warp-bake", "--material", "Skin", "--node", "Nope"]) == 2
+    assert "error: material Skin has no Tegument UV Warp node named Nope" in capfd.readouterr().err
     node.rigidity_image = float_image("Rigidity", disc(RIGID_RADIUS))
     assert cli.main(["warp-bake", "--frames", "1-2"]) == 1  # not bound: refused, nothing written
     assert "Skin has no bind" in capfd.readouterr().err
