@@ -14,6 +14,7 @@ import argparse
 import json
 import pathlib
 import re
+import sys
 
 import matplotlib
 
@@ -63,6 +64,10 @@ def main() -> None:
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=110)
+    sys.path.insert(0, str(ROOT / "tools"))
+    from docs_pictures import shrink  # a palette PNG: docs/images stays small
+
+    shrink(args.out, args.out, 64)
     print(f"wrote {args.out}")
 
 

@@ -8,6 +8,8 @@ a body placed where the bend drives the forearm into it, and pixel helpers that 
 from __future__ import annotations
 
 import math
+import pathlib
+import sys
 
 import bpy
 import numpy as np
@@ -134,3 +136,21 @@ def test_crop_and_downscale():
     small = pictures.downscale(picture, 2)
     assert small.shape == (3, 4, 4)
     np.testing.assert_allclose(small[0, 0], picture[:2, :2].mean(axis=(0, 1)))
+
+
+def test_docs_pictures_stores_the_demo_pictures_as_small_palette_pngs(tmp_path):
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "tools"))
+    import docs_pictures
+    from PIL import Image
+
+    demo, out = tmp_path / "demo", tmp_path / "images"
+    demo.mkdir()
+    assert docs_pictures.main(["--demo", str(demo), "--out", str(out)]) == 1  # nothing rendered yet
+    gradient = np.linspace(0, 255, 64 * 48 * 3).reshape(48, 64, 3).astype(np.uint8)
+    for name in docs_pictures.PICTURES:
+        Image.fromarray(gradient).save(demo / name)
+    assert docs_pictures.main(["--demo", str(demo), "--out", str(out)]) == 0
+    for target, colours in docs_pictures.PICTURES.values():
+        with Image.open(out / target) as picture:
+            assert picture.mode == "P" and picture.size == (64, 48)
+            assert len(picture.getcolors()) <= colours

@@ -133,6 +133,9 @@ def main() -> int:
         result.filepath_raw = str(args.out)
         result.file_format = "PNG"
         result.save()
+        from docs_pictures import shrink  # a palette PNG: docs/images stays small
+
+        shrink(args.out, args.out, 128)
         print(f"wrote {args.out}: rest | squashed without the node | squashed through the node ({warp.report})")
     finally:
         shutil.rmtree(user, ignore_errors=True)
