@@ -9,6 +9,7 @@ pub mod error;
 pub mod mesh;
 pub mod pyramid;
 pub mod solve;
+pub mod strain;
 pub mod warp;
 
 pub use error::{Error, Result};

@@ -155,6 +155,12 @@ pub trait Constraint: Send + Sync {
         }
     }
 
+    /// The constraint as settable [`super::Targets`], if it is one: how a
+    /// caller holding only a [`super::ConstraintId`] updates an inertia term.
+    fn as_targets_mut(&mut self) -> Option<&mut super::Targets> {
+        None
+    }
+
     /// The local step for all rows: writes one target per row into `out`
     /// (`out.len()` is the number of rows). Parallel by default.
     fn project(&self, context: &Context<'_>, out: &mut [Vec3]) {

@@ -23,11 +23,13 @@ mod closeness;
 mod constraint;
 mod solver;
 mod system;
+mod targets;
 
 pub use closeness::Closeness;
 pub use constraint::{Constraint, Context, Rows};
 pub use solver::{ConstraintId, IterationHook, Solver};
 pub use system::SystemKind;
+pub use targets::Targets;
 
 #[cfg(test)]
 mod tests;

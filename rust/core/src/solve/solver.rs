@@ -127,6 +127,17 @@ impl Solver {
         Ok(self.entries[id.0].constraint.as_mut())
     }
 
+    /// Sets the targets of a [`super::Targets`] constraint (constant within
+    /// a solve: call it before [`Solver::solve`]).
+    pub fn set_targets(&mut self, id: ConstraintId, targets: &[Vec3]) -> Result<()> {
+        self.entry(id)?;
+        let name = self.entries[id.0].constraint.name().to_string();
+        match self.entries[id.0].constraint.as_targets_mut() {
+            Some(t) => t.set_targets(targets),
+            None => Err(Error::invalid(format!("constraint {name} has no settable targets"))),
+        }
+    }
+
     fn entry(&self, id: ConstraintId) -> Result<&Entry> {
         self.entries.get(id.0).ok_or_else(|| {
             Error::invalid(format!(

@@ -1,0 +1,204 @@
+//! Strain limits: no skin edge longer than `(1 + ε)` times its rest length.
+//!
+//! Seed 002 §2 (constitutive strain limiting, after Li et al. 2021): the
+//! limit is an inequality per edge, `l_e ≤ (1 + ε_e)·l_e⁰`. Here it is a
+//! projection — an over-long edge is shortened to its limit, the correction
+//! split between its ends by their inverse masses — so that it can run in the
+//! same projection loop as the contacts ([`crate::pyramid::StrainMode`]).
+//!
+//! The sweep is Gauss–Seidel in edge order: sequential, hence deterministic,
+//! and it converges much faster than a Jacobi average on the long chains of
+//! stretched edges a dragging collider makes. Only over-long edges do work.
+
+use glam::Vec3;
+
+use crate::mesh::validate_positions;
+use crate::{Error, Result};
+
+/// How far each part of the skin may stretch.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum MaxStretch<'a> {
+    /// The same ε on every edge.
+    Uniform(f32),
+    /// One ε per vertex (`f32::INFINITY` = no limit); an edge takes the mean
+    /// of its two ends, so an edge leaving the limited region is unlimited.
+    PerVertex(&'a [f32]),
+}
+
+/// Rest lengths and length limits of the skin's edges.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct EdgeLimits {
+    edges: Vec<[u32; 2]>,
+    rest: Vec<f32>,
+    /// `(1 + ε_e)·rest_e`, infinite where unlimited.
+    limit: Vec<f32>,
+}
+
+impl EdgeLimits {
+    /// Limits for `edges` of a mesh at rest at `rest_positions`.
+    pub fn new(edges: &[[u32; 2]], rest_positions: &[Vec3], stretch: MaxStretch<'_>) -> Result<Self> {
+        let n = rest_positions.len();
+        validate_positions("rest positions", rest_positions)?;
+        if let Some(e) = edges.iter().position(|e| e.iter().any(|&v| v as usize >= n)) {
+            return Err(Error::invalid(format!("edge {e} refers to a vertex beyond the {n} vertices")));
+        }
+        let check = |what: String, eps: f32| -> Result<()> {
+            if eps.is_nan() || eps < 0.0 {
+                return Err(Error::invalid(format!("{what} is {eps}; it must be 0 or more (infinite for no limit)")));
+            }
+            Ok(())
+        };
+        let per_vertex: Option<&[f32]> = match stretch {
+            MaxStretch::Uniform(eps) => {
+                check("max stretch".into(), eps)?;
+                None
+            }
+            MaxStretch::PerVertex(eps) => {
+                if eps.len() != n {
+                    return Err(Error::invalid(format!("max stretch has {} values but the mesh has {n} vertices", eps.len())));
+                }
+                for (v, &e) in eps.iter().enumerate() {
+                    check(format!("max stretch of vertex {v}"), e)?;
+                }
+                Some(eps)
+            }
+        };
+        let rest: Vec<f32> = edges
+            .iter()
+            .map(|&[a, b]| (rest_positions[a as usize] - rest_positions[b as usize]).length())
+            .collect();
+        let limit = edges
+            .iter()
+            .zip(&rest)
+            .map(|(&[a, b], &l0)| {
+                let eps = match (stretch, per_vertex) {
+                    (_, Some(eps)) => 0.5 * (eps[a as usize] + eps[b as usize]),
+                    (MaxStretch::Uniform(eps), None) => eps,
+                    (MaxStretch::PerVertex(_), None) => unreachable!("per-vertex values checked above"),
+                };
+                // A degenerate rest edge has no meaningful ratio: leave it free.
+                if l0 > 0.0 { (1.0 + eps) * l0 } else { f32::INFINITY }
+            })
+            .collect();
+        Ok(EdgeLimits { edges: edges.to_vec(), rest, limit })
+    }
+
+    pub fn edges(&self) -> &[[u32; 2]] {
+        &self.edges
+    }
+
+    pub fn rest_lengths(&self) -> &[f32] {
+        &self.rest
+    }
+
+    /// Largest `l_e / limit_e` over the limited edges (≤ 1 when every limit
+    /// holds; 0 when no edge is limited).
+    pub fn worst_ratio(&self, x: &[Vec3]) -> f32 {
+        self.edges
+            .iter()
+            .zip(&self.limit)
+            .filter(|(_, l)| l.is_finite())
+            .map(|(&[a, b], &l)| (x[a as usize] - x[b as usize]).length() / l)
+            .fold(0.0, f32::max)
+    }
+
+    /// Largest `l_e / rest_e` over the limited edges.
+    pub fn worst_stretch(&self, x: &[Vec3]) -> f32 {
+        self.edges
+            .iter()
+            .zip(self.rest.iter().zip(&self.limit))
+            .filter(|(_, (_, l))| l.is_finite())
+            .map(|(&[a, b], (&l0, _))| (x[a as usize] - x[b as usize]).length() / l0)
+            .fold(0.0, f32::max)
+    }
+
+    /// Up to `sweeps` Gauss–Seidel sweeps shortening every edge longer than
+    /// its limit to the limit; a vertex with inverse mass 0 does not move.
+    /// Stops early once no edge exceeds its limit by more than `tolerance`
+    /// (relative). Returns the number of sweeps run.
+    pub fn project(&self, x: &mut [Vec3], inverse_mass: &[f32], sweeps: usize, tolerance: f32) -> usize {
+        for sweep in 0..sweeps {
+            let mut worst = 0.0f32;
+            for (&[a, b], &limit) in self.edges.iter().zip(&self.limit) {
+                let (a, b) = (a as usize, b as usize);
+                let delta = x[a] - x[b];
+                let length = delta.length();
+                #[allow(clippy::neg_cmp_op_on_partial_ord)] // a NaN length must not count as within
+                if !(length > limit) {
+                    continue;
+                }
+                worst = worst.max(length / limit - 1.0);
+                let (wa, wb) = (inverse_mass[a], inverse_mass[b]);
+                let w = wa + wb;
+                if w <= 0.0 {
+                    continue;
+                }
+                let correction = delta * ((length - limit) / (length * w));
+                x[a] -= correction * wa;
+                x[b] += correction * wb;
+            }
+            if worst <= tolerance {
+                return sweep + 1;
+            }
+        }
+        sweeps
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn chain(n: usize) -> (Vec<Vec3>, Vec<[u32; 2]>) {
+        let x = (0..n).map(|i| Vec3::new(i as f32, 0.0, 0.0)).collect();
+        let e = (0..n as u32 - 1).map(|i| [i, i + 1]).collect();
+        (x, e)
+    }
+
+    #[test]
+    fn an_over_stretched_chain_is_brought_back_within_its_limit() {
+        let (rest, edges) = chain(20);
+        let limits = EdgeLimits::new(&edges, &rest, MaxStretch::Uniform(0.1)).unwrap();
+        // Both ends pulled out to twice the length; the first end is fixed.
+        let mut x: Vec<Vec3> = rest.iter().map(|p| *p * 2.0).collect();
+        let mut w = vec![1.0; 20];
+        w[0] = 0.0;
+        let sweeps = limits.project(&mut x, &w, 5000, 1e-3);
+        assert!(sweeps < 5000, "did not converge");
+        assert!(limits.worst_ratio(&x) <= 1.0 + 1e-3, "ratio {}", limits.worst_ratio(&x));
+        assert!(limits.worst_stretch(&x) <= 1.1 * (1.0 + 1e-3));
+        assert_eq!(x[0], Vec3::ZERO, "a vertex of inverse mass 0 moved");
+    }
+
+    #[test]
+    fn edges_within_the_limit_are_untouched() {
+        let (rest, edges) = chain(5);
+        let limits = EdgeLimits::new(&edges, &rest, MaxStretch::Uniform(0.1)).unwrap();
+        let mut x: Vec<Vec3> = rest.iter().map(|p| *p * 1.05).collect();
+        let before = x.clone();
+        limits.project(&mut x, &[1.0; 5], 10, 0.0);
+        assert_eq!(x, before);
+    }
+
+    #[test]
+    fn per_vertex_limits_leave_unlimited_edges_free() {
+        let (rest, edges) = chain(3);
+        let eps = [0.0, 0.0, f32::INFINITY];
+        let limits = EdgeLimits::new(&edges, &rest, MaxStretch::PerVertex(&eps)).unwrap();
+        let mut x = vec![Vec3::ZERO, Vec3::X * 2.0, Vec3::X * 10.0];
+        limits.project(&mut x, &[1.0; 3], 100, 0.0);
+        assert!(((x[1] - x[0]).length() - 1.0).abs() < 1e-4);
+        assert!((x[2] - x[1]).length() > 5.0, "an unlimited edge was shortened");
+    }
+
+    #[test]
+    fn bad_limits_are_named() {
+        let (rest, edges) = chain(3);
+        let err = EdgeLimits::new(&edges, &rest, MaxStretch::Uniform(-1.0)).unwrap_err().to_string();
+        assert!(err.contains("max stretch"), "{err}");
+        let err = EdgeLimits::new(&edges, &rest, MaxStretch::PerVertex(&[0.1, f32::NAN, 0.1])).unwrap_err().to_string();
+        assert!(err.contains("vertex 1"), "{err}");
+        let err = EdgeLimits::new(&edges, &rest, MaxStretch::PerVertex(&[0.1])).unwrap_err().to_string();
+        assert!(err.contains("3 vertices"), "{err}");
+    }
+}
