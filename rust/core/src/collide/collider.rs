@@ -70,6 +70,24 @@ pub struct Collider {
     vertex_triangle_offsets: Vec<u32>,
     vertex_triangle_list: Vec<u32>,
     last_update: Option<UpdateReport>,
+    /// Compliant vertices (seed 002 §1), if any were painted.
+    compliance: Option<Compliance>,
+}
+
+/// The compliant part of a collider: its vertices are unknowns of the step,
+/// pulled to their animated positions (the *goals*) by springs of stiffness
+/// density `stiffness` (which already contains the 1/h² factor, so it does
+/// not depend on substeps), without momentum. On contact they recede. The
+/// collider's `current` positions are then the solved ones, which is what
+/// the next frame starts from.
+#[derive(Debug, Clone)]
+pub struct Compliance {
+    /// Per vertex; 0 = kinematic (follows its goal exactly).
+    pub stiffness: Vec<f32>,
+    /// This frame's animated positions.
+    pub goals: Vec<Vec3>,
+    /// Last frame's animated positions (substeps interpolate from them).
+    pub previous_goals: Vec<Vec3>,
 }
 
 impl Collider {
@@ -115,6 +133,7 @@ impl Collider {
             vertex_triangle_offsets,
             vertex_triangle_list,
             last_update: None,
+            compliance: None,
         };
         collider.tree = BoxTree::build(&collider.swept_boxes())?;
         collider.vertex_tree = BoxTree::build(&collider.swept_vertex_boxes())?;
@@ -128,7 +147,50 @@ impl Collider {
         validate_positions("collider positions", positions)?;
         std::mem::swap(&mut self.previous, &mut self.current);
         self.current.copy_from_slice(positions);
+        if let Some(c) = &mut self.compliance {
+            std::mem::swap(&mut c.previous_goals, &mut c.goals);
+            c.goals.copy_from_slice(positions);
+        }
         self.refresh()
+    }
+
+    /// Paints compliance: one stiffness density per vertex (finite, ≥ 0; 0 =
+    /// kinematic). All zeros, or `None`, makes the collider fully kinematic.
+    /// The goals start at the current positions.
+    pub fn set_compliance(&mut self, stiffness: Option<&[f32]>) -> Result<()> {
+        let Some(stiffness) = stiffness else {
+            self.compliance = None;
+            return Ok(());
+        };
+        if stiffness.len() != self.current.len() {
+            return Err(Error::invalid(format!(
+                "collider stiffness has {} values but the collider has {} vertices",
+                stiffness.len(),
+                self.current.len()
+            )));
+        }
+        if let Some(v) = stiffness.iter().position(|k| !(k.is_finite() && *k >= 0.0)) {
+            return Err(Error::invalid(format!(
+                "collider stiffness of vertex {v} is {}; it must be finite and ≥ 0",
+                stiffness[v]
+            )));
+        }
+        self.compliance = stiffness.iter().any(|&k| k > 0.0).then(|| Compliance {
+            stiffness: stiffness.to_vec(),
+            goals: self.current.clone(),
+            previous_goals: self.previous.clone(),
+        });
+        Ok(())
+    }
+
+    /// The compliant part, if any vertex is compliant.
+    pub fn compliance(&self) -> Option<&Compliance> {
+        self.compliance.as_ref()
+    }
+
+    /// Whether any vertex is compliant.
+    pub fn is_compliant(&self) -> bool {
+        self.compliance.is_some()
     }
 
     /// Sets both ends of the frame explicitly (e.g. after a jump in time).

@@ -127,6 +127,10 @@ pub struct Skin {
     triangles: Vec<[u32; 3]>,
     vertex_edges: (Vec<u32>, Vec<u32>),
     vertex_triangles: (Vec<u32>, Vec<u32>),
+    /// Inverse mass per vertex (all 1 when `None`): 0 marks a vertex whose
+    /// motion is imposed, which contacts never move (the kinematic part of a
+    /// compliant collider when the collider is the moving mesh).
+    inverse_mass: Option<Vec<f32>>,
 }
 
 impl Skin {
@@ -147,7 +151,27 @@ impl Skin {
         }
         let vertex_edges = incidence(vertex_count, edges.iter().map(|e| &e[..]));
         let vertex_triangles = incidence(vertex_count, triangles.iter().map(|t| &t[..]));
-        Ok(Skin { vertex_count, edges, triangles, vertex_edges, vertex_triangles })
+        Ok(Skin { vertex_count, edges, triangles, vertex_edges, vertex_triangles, inverse_mass: None })
+    }
+
+    /// The same skin with one inverse mass per vertex (finite, ≥ 0).
+    pub fn with_inverse_mass(mut self, inverse_mass: Vec<f32>) -> Result<Self> {
+        if inverse_mass.len() != self.vertex_count {
+            return Err(Error::invalid(format!(
+                "{} inverse masses given for {} vertices",
+                inverse_mass.len(),
+                self.vertex_count
+            )));
+        }
+        if let Some(v) = inverse_mass.iter().position(|w| !(w.is_finite() && *w >= 0.0)) {
+            return Err(Error::invalid(format!("inverse mass of vertex {v} is {}; it must be finite and ≥ 0", inverse_mass[v])));
+        }
+        self.inverse_mass = Some(inverse_mass);
+        Ok(self)
+    }
+
+    fn inverse_mass(&self, v: u32) -> f64 {
+        self.inverse_mass.as_ref().map_or(1.0, |w| w[v as usize] as f64)
     }
 
     /// Edges and fan-triangulated polygons of a polygon mesh.
@@ -215,6 +239,10 @@ fn incidence<'e>(n: usize, elements: impl Iterator<Item = &'e [u32]> + Clone) ->
 /// The colliders one skin collides with, borrowed for a step.
 pub struct ColliderSet<'a> {
     colliders: Vec<&'a Collider>,
+    /// Per collider, a motion that overrides [`ResolveParams::motion`]: a
+    /// compliant collider sweeps within an in-loop pass while the
+    /// kinematic ones stay at rest.
+    motions: Vec<Option<ColliderMotion>>,
     /// Outward orientation sign per collider (+1 / −1), 0 for open ones.
     outward: Vec<f64>,
     /// Largest absolute collider coordinate: sets rounding-aware tolerances.
@@ -242,7 +270,13 @@ impl<'a> ColliderSet<'a> {
             .flat_map(|c| c.current().iter().chain(c.previous()))
             .map(|p| p.abs().max_element() as f64)
             .fold(1e-3, f64::max);
-        ColliderSet { colliders, outward, scale }
+        let motions = vec![None; colliders.len()];
+        ColliderSet { colliders, motions, outward, scale }
+    }
+
+    /// Collider `c` moves as `motion` whatever the pass's parameters say.
+    pub fn set_motion(&mut self, c: usize, motion: Option<ColliderMotion>) {
+        self.motions[c] = motion;
     }
 
     pub fn colliders(&self) -> &[&'a Collider] {
@@ -270,6 +304,7 @@ impl<'a> ColliderSet<'a> {
 
     /// Triangle corners of collider `c` at the start and end of the step.
     fn triangle_ends(&self, c: usize, t: usize, motion: ColliderMotion) -> ([DVec3; 3], [DVec3; 3]) {
+        let motion = self.motions[c].unwrap_or(motion);
         let col = self.colliders[c];
         let tri = col.triangles()[t];
         let end = tri.map(|v| d(col.current()[v as usize]));
@@ -281,6 +316,7 @@ impl<'a> ColliderSet<'a> {
     }
 
     fn edge_ends(&self, c: usize, e: usize, motion: ColliderMotion) -> ([DVec3; 2], [DVec3; 2]) {
+        let motion = self.motions[c].unwrap_or(motion);
         let col = self.colliders[c];
         let edge = col.edges()[e];
         let end = edge.map(|v| d(col.current()[v as usize]));
@@ -383,6 +419,7 @@ impl<'a> ColliderSet<'a> {
         start: &[Vec3],
         end: &[Vec3],
         edge: [u32; 2],
+        masses: [f64; 2],
         params: &ResolveParams,
     ) -> Option<(DVec3, DVec3)> {
         let [ia, ib] = edge.map(|v| v as usize);
@@ -428,7 +465,7 @@ impl<'a> ColliderSet<'a> {
             });
         }
         hits.sort_by(|a, b| a.2.toi.total_cmp(&b.2.toi));
-        hits.into_iter().find_map(|(c, e, hit)| self.edge_contact_correction(sa, sb, ea, eb, c, e, hit, params))
+        hits.into_iter().find_map(|(c, e, hit)| self.edge_contact_correction(sa, sb, ea, eb, c, e, hit, masses, params))
     }
 
     /// Corrections of a skin edge's two ends for one edge–edge contact, or
@@ -443,6 +480,7 @@ impl<'a> ColliderSet<'a> {
         c: usize,
         e: usize,
         hit: ccd::CcdHit,
+        [ma, mb]: [f64; 2],
         params: &ResolveParams,
     ) -> Option<(DVec3, DVec3)> {
         let col = self.colliders[c];
@@ -474,9 +512,14 @@ impl<'a> ColliderSet<'a> {
             return None;
         }
         let depth = sep + self.slack(sep) - dist;
+        // The minimum-norm change under the inverse masses (PBD).
         let (wa, wb) = (1.0 - u, u);
-        let lambda = depth / (wa * wa + wb * wb);
-        let (da, db) = (wa * lambda * n, wb * lambda * n);
+        let denominator = ma * wa * wa + mb * wb * wb;
+        if !(denominator > 1e-12) {
+            return None;
+        }
+        let lambda = depth / denominator;
+        let (da, db) = (ma * wa * lambda * n, mb * wb * lambda * n);
         (da.is_finite() && db.is_finite()).then_some((da, db))
     }
 
@@ -507,6 +550,7 @@ impl<'a> ColliderSet<'a> {
         start: &[Vec3],
         end: &[Vec3],
         tri: [u32; 3],
+        masses: [f64; 3],
         params: &ResolveParams,
     ) -> Option<[DVec3; 3]> {
         let [i0, i1, i2] = tri.map(|v| v as usize);
@@ -534,7 +578,7 @@ impl<'a> ColliderSet<'a> {
         }
         hits.sort_by(|a, b| a.2.toi.total_cmp(&b.2.toi));
         let ends = ([s0, s1, s2], [e0, e1, e2]);
-        hits.into_iter().find_map(|(c, v, hit)| self.face_contact_correction(ends, c, v, hit, params))
+        hits.into_iter().find_map(|(c, v, hit)| self.face_contact_correction(ends, c, v, hit, masses, params))
     }
 
     /// Corrections of a skin triangle's corners for one collider-vertex
@@ -545,6 +589,7 @@ impl<'a> ColliderSet<'a> {
         c: usize,
         v: usize,
         hit: ccd::CcdHit,
+        masses: [f64; 3],
         params: &ResolveParams,
     ) -> Option<[DVec3; 3]> {
         let sep = self.colliders[c].settings().thickness as f64;
@@ -573,12 +618,20 @@ impl<'a> ColliderSet<'a> {
             return None;
         }
         let depth = sep + self.slack(sep) - dist;
-        let lambda = depth / weights.iter().map(|w| w * w).sum::<f64>();
-        let out = weights.map(|w| w * lambda * n);
+        let denominator: f64 = weights.iter().zip(&masses).map(|(w, m)| m * w * w).sum();
+        if !(denominator > 1e-12) {
+            return None;
+        }
+        let lambda = depth / denominator;
+        let mut out = [DVec3::ZERO; 3];
+        for k in 0..3 {
+            out[k] = masses[k] * weights[k] * lambda * n;
+        }
         out.iter().all(|x| x.is_finite()).then_some(out)
     }
 
     fn vertex_ends(&self, c: usize, v: usize, motion: ColliderMotion) -> (DVec3, DVec3) {
+        let motion = self.motions[c].unwrap_or(motion);
         let col = self.colliders[c];
         let end = d(col.current()[v]);
         match motion {
@@ -606,7 +659,10 @@ impl<'a> ColliderSet<'a> {
         let from_edges: Vec<(u32, [DVec3; 2])> = if params.edge_edge {
             edges
                 .par_iter()
-                .filter_map(|&k| self.edge_correction(start, end, skin.edges[k as usize], params).map(|(a, b)| (k, [a, b])))
+                .filter_map(|&k| {
+                    let edge = skin.edges[k as usize];
+                    self.edge_correction(start, end, edge, edge.map(|v| skin.inverse_mass(v)), params).map(|(a, b)| (k, [a, b]))
+                })
                 .collect()
         } else {
             Vec::new()
@@ -614,7 +670,10 @@ impl<'a> ColliderSet<'a> {
         let from_faces: Vec<(u32, [DVec3; 3])> = if params.collider_vertices {
             triangles
                 .par_iter()
-                .filter_map(|&k| self.face_correction(start, end, skin.triangles[k as usize], params).map(|c| (k, c)))
+                .filter_map(|&k| {
+                    let tri = skin.triangles[k as usize];
+                    self.face_correction(start, end, tri, tri.map(|v| skin.inverse_mass(v)), params).map(|c| (k, c))
+                })
                 .collect()
         } else {
             Vec::new()
@@ -670,7 +729,8 @@ impl<'a> ColliderSet<'a> {
         }
         let requested: Vec<Vec3> = end.to_vec();
         let mut moved = vec![false; n];
-        let mut active: Vec<u32> = (0..n as u32).collect();
+        // Vertices with inverse mass 0 move as imposed: never corrected.
+        let mut active: Vec<u32> = (0..n as u32).filter(|&i| skin.inverse_mass(i) > 0.0).collect();
         let mut active_edges: Vec<u32> = (0..skin.edges.len() as u32).collect();
         let mut active_triangles: Vec<u32> = (0..skin.triangles.len() as u32).collect();
         let mut converged = false;
@@ -699,7 +759,7 @@ impl<'a> ColliderSet<'a> {
                 end[i as usize] = p;
                 changed[i as usize] = true;
             }
-            let next: Vec<u32> = (0..n as u32).filter(|&i| changed[i as usize]).collect();
+            let next: Vec<u32> = (0..n as u32).filter(|&i| changed[i as usize] && skin.inverse_mass(i) > 0.0).collect();
             for &i in &next {
                 moved[i as usize] = true;
             }
