@@ -60,7 +60,7 @@ impl Collider {
         self.inner.read().unwrap_or_else(|e| e.into_inner())
     }
 
-    fn write(&self) -> RwLockWriteGuard<'_, CoreCollider> {
+    pub fn write(&self) -> RwLockWriteGuard<'_, CoreCollider> {
         self.inner.write().unwrap_or_else(|e| e.into_inner())
     }
 }

@@ -7,7 +7,7 @@ use pyo3::prelude::*;
 use tegument_core::mesh::MeshInput;
 use pyo3::types::PyDict;
 use tegument_core::collide::Collider as CoreCollider;
-use tegument_core::pyramid::{Closeness, DeformerOptions, PyramidDeformer as Core, StepReport};
+use tegument_core::pyramid::{Closeness, DeformerOptions, PyramidDeformer as Core, StepOptions, StepReport};
 
 use crate::collide::collider_refs;
 
@@ -147,10 +147,17 @@ impl PyramidDeformer {
             None => Vec::new(),
         };
         let holders: Vec<&crate::collide::Collider> = refs.iter().map(|r| &**r).collect();
+        // Each collider is locked for writing once: the same one twice would wait on itself.
+        for (i, c) in holders.iter().enumerate() {
+            if holders[..i].iter().any(|o| std::ptr::eq(*o, *c)) {
+                return Err(TegumentError::new_err(format!("colliders: item {i} is the same Collider as an earlier one; pass each collider once")));
+            }
+        }
         let (output, report) = self.with(py, move |core| {
-            let guards: Vec<_> = holders.iter().map(|c| c.read()).collect();
-            let cols: Vec<&CoreCollider> = guards.iter().map(|g| &**g).collect();
-            core.step(&input, &cols, iterations, weights.as_closeness())
+            // Write locks: compliant colliders are solved by the step.
+            let mut guards: Vec<_> = holders.iter().map(|c| c.write()).collect();
+            let mut cols: Vec<&mut CoreCollider> = guards.iter_mut().map(|g| &mut **g).collect();
+            core.step(&input, &mut cols, &StepOptions::new(iterations, weights.as_closeness()))
         })?;
         *self.last_step.lock().unwrap_or_else(|e| e.into_inner()) = Some(report);
         Ok(positions_to_py(py, &output))

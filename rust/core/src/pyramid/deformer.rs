@@ -96,7 +96,7 @@ pub struct PyramidDeformer {
     encoding: Arc<Encoding>,
     formulation: Formulation,
     pinned_mask: Vec<bool>,
-    solver: Solver,
+    pub(super) solver: Solver,
     pyramid: ConstraintId,
     closeness: ConstraintId,
     /// The closeness the solver's weights were last set from, so that a
@@ -110,6 +110,22 @@ pub struct PyramidDeformer {
     /// Last output of [`PyramidDeformer::step`]: collision-free, where the
     /// next frame's first pass starts from.
     pub(super) history: Option<Vec<Vec3>>,
+    /// Per-vertex closeness as last applied to the solver (clamped; pinned
+    /// vertices at [`PINNED_CLOSENESS`]): inertia weights and strain-limit
+    /// inverse masses follow it.
+    pub(super) closeness_weights: Vec<f32>,
+    /// Rest positions (strain limits measure against them).
+    pub(super) rest: Vec<Vec3>,
+    /// Area around each vertex at rest (a third of its triangles'): masses.
+    pub(super) vertex_area: Vec<f32>,
+    /// Dynamics state: velocities at the end of the last step.
+    pub(super) velocity: Option<Vec<Vec3>>,
+    /// The last step's input: substeps interpolate from it.
+    pub(super) last_input: Option<Vec<Vec3>>,
+    /// The inertia term, added on the first dynamic step.
+    pub(super) inertia: Option<ConstraintId>,
+    /// The skin as a collider, for compliant colliders' vertices to meet.
+    pub(super) skin_collider: Option<crate::collide::Collider>,
 }
 
 /// What [`PyramidDeformer::set_closeness`] last applied.
@@ -126,6 +142,8 @@ impl PyramidDeformer {
         let encoding = Arc::new(encode(&topology, mesh.positions, options.scale_safe)?);
         let mut deformer = Self::from_encoding(encoding, options.formulation)?;
         deformer.skin = Skin::from_mesh(mesh)?;
+        deformer.rest = mesh.positions.to_vec();
+        deformer.vertex_area = vertex_areas(mesh.positions, deformer.skin.triangles());
         Ok(deformer)
     }
 
@@ -154,6 +172,13 @@ impl PyramidDeformer {
             applied: None,
             skin: Skin::vertices_only(n),
             history: None,
+            closeness_weights: Vec::new(),
+            rest: Vec::new(),
+            vertex_area: vec![1.0; n],
+            velocity: None,
+            last_input: None,
+            inertia: None,
+            skin_collider: None,
         };
         deformer.set_closeness(Closeness::Default)?;
         Ok(deformer)
@@ -248,6 +273,7 @@ impl PyramidDeformer {
             .collect();
         self.solver.set_weights(self.pyramid, &pyramid)?;
         self.solver.set_weights(self.closeness, &per_vertex)?;
+        self.closeness_weights = per_vertex;
         self.applied = Some(match closeness {
             Closeness::Default => Applied::Uniform(DEFAULT_CLOSENESS.to_bits()),
             Closeness::Uniform(c) => Applied::Uniform(c.to_bits()),
@@ -292,6 +318,25 @@ impl PyramidDeformer {
     pub fn residual(&self, positions: &[Vec3]) -> Result<f32> {
         mean_residual(&self.encoding, positions)
     }
+}
+
+/// A third of the area of the triangles around each vertex (1 for a vertex
+/// without triangles, so that it still has a mass).
+fn vertex_areas(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<f32> {
+    let mut area = vec![0.0f32; positions.len()];
+    for t in triangles {
+        let [a, b, c] = t.map(|v| positions[v as usize]);
+        let third = (b - a).cross(c - a).length() / 6.0;
+        for &v in t {
+            area[v as usize] += third;
+        }
+    }
+    for a in &mut area {
+        if !(*a > 0.0) {
+            *a = 1.0;
+        }
+    }
+    area
 }
 
 /// [`PyramidDeformer::residual`] for an encoding.

@@ -17,6 +17,7 @@
 
 pub mod constraint;
 pub mod deformer;
+pub mod dynamics;
 pub mod encode;
 pub mod kernel;
 pub mod project;
@@ -28,7 +29,11 @@ pub use deformer::{
     MAX_ITERATIONS, MIN_CLOSENESS,
 };
 pub use encode::{encode, Encoding, PinReason, MAX_VALENCE};
-pub use step::StepReport;
+pub use dynamics::{Dynamics, MAX_SUBSTEPS, STIFFNESS_DENSITY};
+pub use step::{StepOptions, StepReport, StrainMode, StrainOptions};
 
 #[cfg(test)]
 mod tests;
+
+#[cfg(test)]
+mod step_tests;

@@ -1,33 +1,117 @@
-//! Frame-to-frame stepping with collisions: seed 000, Algorithm 2.
+//! Frame-to-frame stepping with collisions: seed 000, Algorithm 2, with the
+//! additions of seed 002 (compliant colliders, strain limits) and seed 000 §4
+//! (dynamics).
 //!
 //! [`PyramidDeformer::step`] keeps its last output, which is free of
-//! collisions, and for each new frame
+//! collisions, and splits each new frame into substeps (input and colliders
+//! interpolated linearly). Each substep
 //!
-//! 1. moves every vertex from that output towards this frame's input along
-//!    a straight path while the colliders move from their previous to their
-//!    current positions, stopping and projecting at contacts, with friction
-//!    (first pass, [`ResolveParams::first_pass`]);
-//! 2. runs the projective solve from there, and after every iteration
-//!    detects and resolves contacts along each vertex's move during that
-//!    iteration against the colliders at rest (second pass,
-//!    [`ResolveParams::in_loop`]).
+//! 1. moves the compliant colliders' vertices from where they are towards
+//!    their animated positions, stopping at the skin (they recede on contact);
+//! 2. moves every skin vertex from the last output towards this substep's
+//!    input (or, with dynamics, its inertial prediction) while the colliders
+//!    sweep over the substep, stopping and projecting at contacts, with
+//!    friction (first pass, [`ResolveParams::first_pass`]);
+//! 3. runs the projective solve from there, and after every iteration
+//!    * detects and resolves contacts along each vertex's move during that
+//!      iteration (second pass, [`ResolveParams::in_loop`]), while compliant
+//!      colliders push towards their goals in proportion to their stiffness
+//!      (and yield entirely where the skin is held by something else);
+//!    * with strain limits in [`StrainMode::Unified`], alternates edge
+//!      shortening and contact resolution until both hold;
+//!    * lets the compliant vertices move back towards their goals, stopping
+//!      at the skin again.
 //!
-//! Vertices squeezed between colliders so that no projection frees them are
-//! *pinched*: they are counted, kept within a bounded distance of where the
-//! solver wanted them, and never NaN (see [`crate::collide::response`]).
+//! Every move in this sequence is checked by continuous collision detection
+//! from a collision-free start, which is what keeps the result free of
+//! penetrations. Vertices squeezed between colliders so that no projection
+//! frees them are *pinched*: they are counted, kept within a bounded distance
+//! of where the solver wanted them, and never NaN (see
+//! [`crate::collide::response`]).
 
 use glam::Vec3;
 
 use super::deformer::{Closeness, PyramidDeformer};
+use super::dynamics::{kinetic_energy, Dynamics, MAX_SUBSTEPS, STIFFNESS_DENSITY};
 use crate::collide::audit::is_inside;
-use crate::collide::{Collider, ColliderSet, ContactStats, ResolveParams};
+use crate::collide::{Collider, ColliderMotion, ColliderSet, ColliderSettings, ContactStats, ResolveParams, Skin};
 use crate::mesh::validate_positions;
+use crate::solve::{Targets, IterationHook};
+use crate::strain::{EdgeLimits, MaxStretch};
 use crate::{Error, Result};
 
-/// What one [`PyramidDeformer::step`] did about contacts.
+/// When strain limits are enforced relative to the contacts (seed 002 §2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum StrainMode {
+    /// In the same projection loop as the contacts, after every iteration,
+    /// until both hold: no penetration and no edge over its limit.
+    #[default]
+    Unified,
+    /// Once after the solve and its collision passes, unaware of the
+    /// colliders: edges hold, but shortening them can pull skin back into a
+    /// collider. Kept to show the difference.
+    Post,
+}
+
+impl StrainMode {
+    pub fn name(self) -> &'static str {
+        match self {
+            StrainMode::Unified => "unified",
+            StrainMode::Post => "post",
+        }
+    }
+}
+
+/// Strain limits of a step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StrainOptions<'a> {
+    pub max_stretch: MaxStretch<'a>,
+    pub mode: StrainMode,
+}
+
+/// Everything one [`PyramidDeformer::step`] is asked to do.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepOptions<'a> {
+    /// Solver iterations per substep.
+    pub iterations: usize,
+    pub closeness: Closeness<'a>,
+    /// Substeps per frame (1..=[`MAX_SUBSTEPS`]): input and colliders are
+    /// interpolated linearly from the last frame's.
+    pub substeps: usize,
+    pub dynamics: Option<Dynamics>,
+    pub strain: Option<StrainOptions<'a>>,
+}
+
+impl Default for StepOptions<'_> {
+    fn default() -> Self {
+        StepOptions { iterations: 10, closeness: Closeness::Default, substeps: 1, dynamics: None, strain: None }
+    }
+}
+
+impl<'a> StepOptions<'a> {
+    /// `iterations` iterations with `closeness`, everything else off.
+    pub fn new(iterations: usize, closeness: Closeness<'a>) -> Self {
+        StepOptions { iterations, closeness, ..Default::default() }
+    }
+}
+
+/// Times a compliant vertex stopped by the skin heads for its goal again
+/// within one pass (see `recede_from`).
+const RECEDE_SLIDES: usize = 8;
+/// Gauss–Seidel sweeps of the strain projection per round of the unified loop.
+const STRAIN_SWEEPS: usize = 8;
+/// Rounds of (strain sweeps, contact resolution) per iteration in the unified loop.
+const STRAIN_ROUNDS: usize = 16;
+/// Relative excess over an edge's limit that counts as holding.
+const STRAIN_TOLERANCE: f32 = 1e-3;
+/// Sweeps of the post-collision strain pass.
+const POST_STRAIN_SWEEPS: usize = STRAIN_SWEEPS * STRAIN_ROUNDS;
+
+/// What one [`PyramidDeformer::step`] did about contacts, dynamics and strain.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct StepReport {
-    /// The first pass (last output → this frame's input, colliders sweeping).
+    /// The first pass (last output → this frame's input, colliders sweeping),
+    /// summed over substeps.
     pub first_pass: ContactStats,
     /// Contacts resolved by the in-loop passes, over all iterations.
     pub in_loop_contacts: usize,
@@ -35,58 +119,426 @@ pub struct StepReport {
     pub pinched: Vec<u32>,
     /// Largest correction one in-loop pass applied to one vertex.
     pub max_in_loop_correction: f32,
+    /// Kinetic energy at the end of the step (0 without dynamics).
+    pub kinetic_energy: f64,
+    /// Largest `length / rest length` over the strain-limited edges at the
+    /// end of the step (0 without strain limits).
+    pub worst_stretch: f32,
+    /// Contacts that moved compliant collider vertices.
+    pub compliant_contacts: usize,
+    /// Largest distance of a compliant collider vertex from its animated
+    /// position at the end of the step: how far the colliders receded.
+    pub max_recession: f32,
 }
 
 impl PyramidDeformer {
     /// Solves the next frame of a sequence against `colliders` (already
-    /// updated to this frame) and remembers the result as the start of the
-    /// next one. The first call, and the first after [`Self::reset`], starts
-    /// from `input` itself, which should then be free of collisions.
+    /// [`Collider::update`]-d to this frame) and remembers the result as the
+    /// start of the next one. The first call, and the first after
+    /// [`Self::reset`], starts from `input` itself, which should then be free
+    /// of collisions. Compliant colliders are solved too: their `current`
+    /// positions are the result (where they receded), their animated ones
+    /// the goals.
     pub fn step(
         &mut self,
         input: &[Vec3],
-        colliders: &[&Collider],
-        iterations: usize,
-        closeness: Closeness<'_>,
+        colliders: &mut [&mut Collider],
+        options: &StepOptions<'_>,
     ) -> Result<(Vec<Vec3>, StepReport)> {
         let n = self.vertex_count();
         if input.len() != n {
             return Err(Error::invalid(format!("input: {} vertices given, the deformer has {n}", input.len())));
         }
         validate_positions("input", input)?;
-        let set = ColliderSet::new(colliders.iter().copied());
-        let mut report = StepReport::default();
-        let mut x = input.to_vec();
-        if !colliders.is_empty() {
-            let start = self.history.as_deref().unwrap_or(input);
-            report.first_pass = set.resolve_path(start, &mut x, &self.skin, &ResolveParams::first_pass())?;
-            report.pinched = report.first_pass.pinched.clone();
+        if !(1..=MAX_SUBSTEPS).contains(&options.substeps) {
+            return Err(Error::invalid(format!("substeps is {}; it must be between 1 and {MAX_SUBSTEPS}", options.substeps)));
         }
-        // A vertex one pass leaves pinched inside a collider starts the next
-        // pass inside, where no contact is seen again: keep the suspects and
-        // look at where they end.
-        let mut suspects: Vec<u32> = report.first_pass.pinched.clone();
-        let mut last_pinched: Vec<u32> = report.first_pass.pinched.clone();
-        // The hook borrows the skin while the solve borrows the deformer.
-        let skin = std::mem::take(&mut self.skin);
-        let mut in_loop = |_iteration: usize, before: &[Vec3], after: &mut [Vec3]| -> Result<()> {
-            let stats = set.resolve_path(before, after, &skin, &ResolveParams::in_loop())?;
-            report.in_loop_contacts += stats.vertex_contacts + stats.edge_contacts + stats.collider_vertex_contacts;
-            report.max_in_loop_correction = report.max_in_loop_correction.max(stats.max_correction);
-            suspects.extend_from_slice(&stats.pinched);
-            last_pinched = stats.pinched;
-            Ok(())
+        if let Some(dynamics) = &options.dynamics {
+            dynamics.validate()?;
+        }
+        if options.iterations > super::deformer::MAX_ITERATIONS {
+            return Err(Error::invalid(format!(
+                "iterations is {}; at most {} are allowed",
+                options.iterations,
+                super::deformer::MAX_ITERATIONS
+            )));
+        }
+        self.set_closeness(options.closeness)?;
+        let limits = match options.strain {
+            Some(strain) => {
+                if self.rest.is_empty() {
+                    return Err(Error::invalid("strain limits need a deformer bound to a mesh (its edges and rest lengths)".to_string()));
+                }
+                Some((EdgeLimits::new(self.skin.edges(), &self.rest, strain.max_stretch)?, strain.mode))
+            }
+            None => None,
         };
-        let hook: Option<&mut dyn crate::solve::IterationHook> =
-            if colliders.is_empty() { None } else { Some(&mut in_loop) };
-        let solved = self.solve_into(input, &mut x, iterations, closeness, hook);
-        self.skin = skin;
-        solved?;
-        report.pinched = still_pinched(&x, colliders, suspects, last_pinched);
+
+        let substeps = options.substeps;
+        let start = self.history.clone().unwrap_or_else(|| input.to_vec());
+        let last_input = self.last_input.clone().unwrap_or_else(|| input.to_vec());
+        // Where each collider is at the ends of the frame; compliant ones start
+        // from where they were solved last frame (their `previous`).
+        let frame_ends: Vec<(Vec<Vec3>, Vec<Vec3>)> =
+            colliders.iter().map(|c| (c.previous().to_vec(), c.current().to_vec())).collect();
+        for (c, (previous, _)) in colliders.iter_mut().zip(&frame_ends) {
+            if c.is_compliant() {
+                c.set_positions(previous, previous)?;
+            }
+        }
+        let mut report = StepReport::default();
+        let mut x = start;
+        let result = (|| -> Result<()> {
+            for s in 1..=substeps {
+                let (f0, f1) = ((s - 1) as f32 / substeps as f32, s as f32 / substeps as f32);
+                let input_s = if substeps == 1 { input.to_vec() } else { lerp(&last_input, input, f1) };
+                let mut goals: Vec<Option<Vec<Vec3>>> = Vec::with_capacity(colliders.len());
+                for (c, (previous, current)) in colliders.iter_mut().zip(&frame_ends) {
+                    match c.compliance() {
+                        Some(compliance) => {
+                            goals.push(Some(if substeps == 1 {
+                                compliance.goals.clone()
+                            } else {
+                                lerp(&compliance.previous_goals, &compliance.goals, f1)
+                            }));
+                        }
+                        None => {
+                            if substeps > 1 {
+                                c.set_positions(&lerp(previous, current, f0), &lerp(previous, current, f1))?;
+                            }
+                            goals.push(None);
+                        }
+                    }
+                }
+                let h = options.dynamics.map_or(0.0, |d| d.frame_time / substeps as f32);
+                x = self.substep(&x, &input_s, colliders, &goals, options, limits.as_ref(), h, &mut report)?;
+            }
+            Ok(())
+        })();
+        // Kinematic colliders back to the whole frame; compliant ones keep
+        // the frame's motion from where they were to where they are solved.
+        for (c, (previous, current)) in colliders.iter_mut().zip(&frame_ends) {
+            if c.is_compliant() {
+                let solved = c.current().to_vec();
+                c.set_positions(previous, &solved)?;
+            } else if substeps > 1 {
+                c.set_positions(previous, current)?;
+            }
+        }
+        result?;
+
+        report.max_recession = colliders
+            .iter()
+            .filter_map(|c| c.compliance().map(|k| (c.current(), &k.goals)))
+            .flat_map(|(solved, goals)| solved.iter().zip(goals.iter()).map(|(a, b)| (*a - *b).length()))
+            .fold(0.0, f32::max);
+        if let Some((limits, _)) = &limits {
+            report.worst_stretch = limits.worst_stretch(&x);
+        }
+        if let (Some(dynamics), Some(v)) = (&options.dynamics, &self.velocity) {
+            report.kinetic_energy = kinetic_energy(v, &self.vertex_area, dynamics.mass);
+        }
+        if options.dynamics.is_none() {
+            self.velocity = None;
+        }
+        report.pinched.sort_unstable();
+        report.pinched.dedup();
         self.history = Some(x.clone());
+        self.last_input = Some(input.to_vec());
         Ok((x, report))
     }
 
+    /// One substep from the collision-free `x_n` towards `input` (see the
+    /// module documentation). `goals[c]` holds the compliant colliders'
+    /// animated positions at the end of the substep; `h` is its length in
+    /// seconds (dynamics only).
+    #[allow(clippy::too_many_arguments)]
+    fn substep(
+        &mut self,
+        x_n: &[Vec3],
+        input: &[Vec3],
+        colliders: &mut [&mut Collider],
+        goals: &[Option<Vec<Vec3>>],
+        options: &StepOptions<'_>,
+        limits: Option<&(EdgeLimits, StrainMode)>,
+        h: f32,
+        report: &mut StepReport,
+    ) -> Result<Vec<Vec3>> {
+        let n = x_n.len();
+        // Where the skin heads: the input, or with dynamics where inertia carries it.
+        let target: Vec<Vec3> = match &options.dynamics {
+            Some(dynamics) => {
+                let prediction = self.predict(x_n, dynamics, h);
+                self.set_inertia(Some((dynamics, h, &prediction)))?;
+                prediction
+            }
+            None => {
+                self.set_inertia(None)?;
+                input.to_vec()
+            }
+        };
+        let mut x = target;
+        // A vertex one pass leaves pinched inside a collider starts the next
+        // pass inside, where no contact is seen again: keep the suspects and
+        // look at where they end.
+        let mut suspects: Vec<u32> = Vec::new();
+        let compliant: Vec<usize> = (0..colliders.len()).filter(|&c| colliders[c].is_compliant()).collect();
+        let compliant_skins: Vec<Option<Skin>> = colliders
+            .iter()
+            .map(|c| c.compliance().map(|k| compliant_skin(c, &k.stiffness)).transpose())
+            .collect::<Result<_>>()?;
+
+        if !colliders.is_empty() {
+            // 1. Compliant vertices towards their goals, stopping at the skin.
+            for &c in &compliant {
+                let goal = goals[c].as_deref().expect("compliant colliders have goals");
+                let moved = self.recede(colliders[c], compliant_skins[c].as_ref().expect("compliant"), x_n, goal)?;
+                report.compliant_contacts += moved.vertex_contacts + moved.edge_contacts + moved.collider_vertex_contacts;
+            }
+            // 2. The skin towards its target while the colliders sweep.
+            let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
+            let first = ColliderSet::new(refs).resolve_path(x_n, &mut x, &self.skin, &ResolveParams::first_pass())?;
+            accumulate(&mut report.first_pass, &first);
+            suspects.extend_from_slice(&first.pinched);
+            for &c in &compliant {
+                colliders[c].hold()?;
+            }
+        }
+
+        // 3. The solve, with the in-loop passes after every iteration.
+        let inverse_mass: Vec<f32> = self.closeness_weights.iter().map(|&c| 1.0 - c.min(1.0)).collect();
+        let mut last_pinched: Vec<u32> = suspects.clone();
+        let skin = &self.skin;
+        let skin_collider = &mut self.skin_collider;
+        let unified = limits.filter(|(_, mode)| *mode == StrainMode::Unified).map(|(l, _)| l);
+        let any_colliders = !colliders.is_empty();
+        let mut in_loop = |_iteration: usize, before: &[Vec3], after: &mut [Vec3]| -> Result<()> {
+            if any_colliders {
+                let stats = push_and_resolve(colliders, &compliant, goals, before, after, skin)?;
+                report.in_loop_contacts += stats.vertex_contacts + stats.edge_contacts + stats.collider_vertex_contacts;
+                report.max_in_loop_correction = report.max_in_loop_correction.max(stats.max_correction);
+                suspects.extend_from_slice(&stats.pinched);
+                last_pinched = stats.pinched;
+            }
+            if let Some(limits) = unified {
+                let pinched = limit_strain_with_contacts(limits, colliders, after, skin, &inverse_mass)?;
+                suspects.extend_from_slice(&pinched);
+                last_pinched.extend(pinched);
+            }
+            for &c in &compliant {
+                let goal = goals[c].as_deref().expect("compliant colliders have goals");
+                let moved = recede_from(skin_collider, skin, colliders[c], compliant_skins[c].as_ref().expect("compliant"), after, goal)?;
+                report.compliant_contacts += moved.vertex_contacts + moved.edge_contacts + moved.collider_vertex_contacts;
+            }
+            Ok(())
+        };
+        let hook: Option<&mut dyn IterationHook> =
+            if any_colliders || unified.is_some() { Some(&mut in_loop) } else { None };
+        self.solver.solve(input, &mut x, options.iterations, hook)?;
+        if let Some((limits, StrainMode::Post)) = limits {
+            limits.project(&mut x, &inverse_mass, POST_STRAIN_SWEEPS, STRAIN_TOLERANCE);
+        }
+        let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
+        report.pinched.extend(still_pinched(&x, &refs, suspects, last_pinched));
+
+        if let Some(dynamics) = &options.dynamics {
+            let decay = (-dynamics.damping * h).exp();
+            let velocity: Vec<Vec3> = x.iter().zip(x_n).map(|(a, b)| (*a - *b) * (decay / h)).collect();
+            self.velocity = Some(velocity);
+        }
+        debug_assert_eq!(x.len(), n);
+        Ok(x)
+    }
+
+    /// Inertial prediction `x_n + h·v_n + h²·g` (velocities zero when unknown).
+    fn predict(&self, x_n: &[Vec3], dynamics: &Dynamics, h: f32) -> Vec<Vec3> {
+        let gravity = dynamics.gravity * (h * h);
+        match &self.velocity {
+            Some(v) => x_n.iter().zip(v).map(|(x, v)| *x + *v * h + gravity).collect(),
+            None => x_n.iter().map(|x| *x + gravity).collect(),
+        }
+    }
+
+    /// Turns the inertia term on (targets = the prediction, weights from the
+    /// closeness and `h`) or off (weights 0).
+    fn set_inertia(&mut self, on: Option<(&Dynamics, f32, &[Vec3])>) -> Result<()> {
+        match on {
+            Some((dynamics, h, prediction)) => {
+                let id = match self.inertia {
+                    Some(id) => id,
+                    None => {
+                        let all: Vec<u32> = (0..self.vertex_count() as u32).collect();
+                        let id = self.solver.add(Box::new(Targets::new("inertia", &all)), vec![0.0; all.len()])?;
+                        self.inertia = Some(id);
+                        id
+                    }
+                };
+                let scale = dynamics.inertia_scale(h);
+                let weights: Vec<f32> = self.closeness_weights.iter().map(|&c| (1.0 - c.min(1.0)) * scale).collect();
+                self.solver.set_weights(id, &weights)?;
+                self.solver.set_targets(id, prediction)
+            }
+            None => match self.inertia {
+                Some(id) if self.solver.weights(id)?.iter().any(|&w| w != 0.0) => {
+                    let zeros = vec![0.0; self.vertex_count()];
+                    self.solver.set_weights(id, &zeros)
+                }
+                _ => Ok(()),
+            },
+        }
+    }
+
+    /// Step 1 of a substep: the compliant collider's vertices from where they
+    /// are towards `goal`, against the skin at rest at `x`.
+    fn recede(&mut self, collider: &mut Collider, own: &Skin, x: &[Vec3], goal: &[Vec3]) -> Result<ContactStats> {
+        recede_from(&mut self.skin_collider, &self.skin, collider, own, x, goal)
+    }
+}
+
+/// Compliant vertices move from the collider's current positions towards
+/// `goal` while the skin stays at `x`; contacts with the skin stop them (the
+/// collider recedes). Kinematic vertices go to their goals. The collider is
+/// left at rest at the result.
+fn recede_from(
+    skin_collider: &mut Option<Collider>,
+    skin: &Skin,
+    collider: &mut Collider,
+    own: &Skin,
+    x: &[Vec3],
+    goal: &[Vec3],
+) -> Result<ContactStats> {
+    let settings = ColliderSettings { thickness: collider.settings().thickness, static_friction: 0.0, kinetic_friction: 0.0 };
+    let obstacle = match skin_collider {
+        Some(c) => {
+            c.set_settings(settings)?;
+            c.set_positions(x, x)?;
+            c
+        }
+        None => skin_collider.insert(Collider::new(x, skin.triangles(), settings)?),
+    };
+    let params = ResolveParams { motion: ColliderMotion::AtCurrent, friction: false, ..ResolveParams::in_loop() };
+    let set = ColliderSet::new([&*obstacle]);
+    let mut start = collider.current().to_vec();
+    let mut total = ContactStats::default();
+    // A vertex stopped by the skin is projected onto the plane of the
+    // triangle it met first, which depends on where it came from. What the
+    // spring wants is the point of the skin's offset surface nearest the
+    // goal: heading for the goal again from there slides it over the skin
+    // towards that point, whatever the path was.
+    for _ in 0..RECEDE_SLIDES {
+        let mut end = goal.to_vec();
+        let stats = set.resolve_path(&start, &mut end, own, &params)?;
+        let settled = stats.moved.is_empty()
+            || start.iter().zip(&end).all(|(a, b)| (*a - *b).length_squared() <= 1e-12 * (1.0 + a.length_squared()));
+        accumulate(&mut total, &stats);
+        start = end;
+        if settled {
+            break;
+        }
+    }
+    collider.set_positions(&start, &start)?;
+    Ok(total)
+}
+
+/// The in-loop contact pass: compliant colliders sweep from where they are
+/// part of the way to their goals (the stiffness's share, `k / (k + K)`),
+/// pushing the skin; if that leaves skin pinched (the skin is held by
+/// something else), the pass is redone with them at rest: they yield.
+fn push_and_resolve(
+    colliders: &mut [&mut Collider],
+    compliant: &[usize],
+    goals: &[Option<Vec<Vec3>>],
+    before: &[Vec3],
+    after: &mut [Vec3],
+    skin: &Skin,
+) -> Result<ContactStats> {
+    let requested = (!compliant.is_empty()).then(|| after.to_vec());
+    for &c in compliant {
+        let goal = goals[c].as_deref().expect("compliant colliders have goals");
+        let stiffness = &colliders[c].compliance().expect("compliant").stiffness;
+        let from = colliders[c].current().to_vec();
+        let pushed: Vec<Vec3> = from
+            .iter()
+            .zip(goal)
+            .zip(stiffness)
+            .map(|((&p, &g), &k)| if k > 0.0 { p + (g - p) * (k / (k + STIFFNESS_DENSITY)) } else { g })
+            .collect();
+        colliders[c].set_positions(&from, &pushed)?;
+    }
+    let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
+    let mut set = ColliderSet::new(refs);
+    for &c in compliant {
+        set.set_motion(c, Some(ColliderMotion::Swept));
+    }
+    let stats = set.resolve_path(before, after, skin, &ResolveParams::in_loop())?;
+    drop(set);
+    let Some(requested) = requested else { return Ok(stats) };
+    if stats.pinched.is_empty() {
+        for &c in compliant {
+            colliders[c].hold()?;
+        }
+        return Ok(stats);
+    }
+    for &c in compliant {
+        let from = colliders[c].previous().to_vec();
+        colliders[c].set_positions(&from, &from)?;
+    }
+    after.copy_from_slice(&requested);
+    let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
+    ColliderSet::new(refs).resolve_path(before, after, skin, &ResolveParams::in_loop())
+}
+
+/// Unified strain limiting (seed 002 §2): edge shortening and contact
+/// resolution alternate until both hold or the rounds run out. Returns the
+/// vertices the last contact resolution left pinched.
+fn limit_strain_with_contacts(
+    limits: &EdgeLimits,
+    colliders: &[&mut Collider],
+    x: &mut [Vec3],
+    skin: &Skin,
+    inverse_mass: &[f32],
+) -> Result<Vec<u32>> {
+    let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
+    let set = ColliderSet::new(refs);
+    let mut pinched = Vec::new();
+    for _ in 0..STRAIN_ROUNDS {
+        if limits.worst_ratio(x) <= 1.0 + STRAIN_TOLERANCE {
+            break;
+        }
+        let mut shortened = x.to_vec();
+        limits.project(&mut shortened, inverse_mass, STRAIN_SWEEPS, STRAIN_TOLERANCE);
+        if !set.colliders().is_empty() {
+            pinched = set.resolve_path(x, &mut shortened, skin, &ResolveParams::in_loop())?.pinched;
+        }
+        x.copy_from_slice(&shortened);
+    }
+    Ok(pinched)
+}
+
+/// A compliant collider as a moving mesh: its edges and triangles, inverse
+/// mass 1 where compliant and 0 where kinematic.
+fn compliant_skin(collider: &Collider, stiffness: &[f32]) -> Result<Skin> {
+    let inverse_mass = stiffness.iter().map(|&k| if k > 0.0 { 1.0 } else { 0.0 }).collect();
+    Skin::new(collider.vertex_count(), collider.edges().to_vec(), collider.triangles().to_vec())?.with_inverse_mass(inverse_mass)
+}
+
+fn lerp(a: &[Vec3], b: &[Vec3], t: f32) -> Vec<Vec3> {
+    a.iter().zip(b).map(|(a, b)| a.lerp(*b, t)).collect()
+}
+
+/// Adds a substep's first-pass figures to the frame's.
+fn accumulate(total: &mut ContactStats, part: &ContactStats) {
+    total.vertex_contacts += part.vertex_contacts;
+    total.edge_contacts += part.edge_contacts;
+    total.collider_vertex_contacts += part.collider_vertex_contacts;
+    total.rounds += part.rounds;
+    total.max_correction = total.max_correction.max(part.max_correction);
+    total.moved.extend_from_slice(&part.moved);
+    total.moved.sort_unstable();
+    total.moved.dedup();
+    total.pinched.extend_from_slice(&part.pinched);
+    total.pinched.sort_unstable();
+    total.pinched.dedup();
 }
 
 /// The last pass's pinched vertices, and the earlier ones that ended inside a
@@ -102,14 +554,19 @@ fn still_pinched(x: &[Vec3], colliders: &[&Collider], suspects: Vec<u32>, mut pi
 }
 
 impl PyramidDeformer {
-    /// Forgets the last output: the next [`Self::step`] starts from its input.
+    /// Forgets the last output and the dynamics state: the next
+    /// [`Self::step`] starts from its input, at rest.
     pub fn reset(&mut self) {
         self.history = None;
+        self.velocity = None;
+        self.last_input = None;
     }
 
     /// Makes `positions` the last output, as if a step had produced them:
     /// a bake resuming after frames already cached starts from the last of
-    /// them. They must be free of collisions for the next step's guarantee.
+    /// them (at rest, and without substep interpolation from the input
+    /// before it). They must be free of collisions for the next step's
+    /// guarantee.
     pub fn set_history(&mut self, positions: &[Vec3]) -> Result<()> {
         let n = self.vertex_count();
         if positions.len() != n {
@@ -117,12 +574,19 @@ impl PyramidDeformer {
         }
         validate_positions("history", positions)?;
         self.history = Some(positions.to_vec());
+        self.velocity = None;
+        self.last_input = None;
         Ok(())
     }
 
     /// The last output of [`Self::step`], if any.
     pub fn history(&self) -> Option<&[Vec3]> {
         self.history.as_deref()
+    }
+
+    /// Velocities at the end of the last dynamic step, if any.
+    pub fn velocity(&self) -> Option<&[Vec3]> {
+        self.velocity.as_deref()
     }
 }
 
@@ -171,8 +635,9 @@ mod tests {
             for (c, path) in colliders.iter_mut().zip(paths) {
                 c.update(&moved(&scene.sphere.positions, path[k])).unwrap();
             }
+            let mut refs: Vec<&mut Collider> = colliders.iter_mut().collect();
+            let (x, report) = scene.deformer.step(&scene.skin.positions, &mut refs, &StepOptions::new(10, Closeness::Uniform(closeness))).unwrap();
             let refs: Vec<&Collider> = colliders.iter().collect();
-            let (x, report) = scene.deformer.step(&scene.skin.positions, &refs, 10, Closeness::Uniform(closeness)).unwrap();
             assert!(x.iter().all(|p| p.is_finite()), "frame {k}: non-finite output");
             most_pinched = most_pinched.max(report.pinched.len());
             if most_pinched == 0 {
@@ -253,13 +718,13 @@ mod tests {
         let mut scene = scene();
         let input: Vec<Vec3> = scene.skin.positions.iter().map(|p| *p + Vec3::new(0.0, 0.0, p.x * p.x)).collect();
         let solved = scene.deformer.solve(&input, 10, Closeness::Default).unwrap();
-        let (stepped, report) = scene.deformer.step(&input, &[], 10, Closeness::Default).unwrap();
+        let (stepped, report) = scene.deformer.step(&input, &mut [], &StepOptions::default()).unwrap();
         assert_eq!(solved, stepped);
         assert_eq!(report, StepReport::default());
         assert_eq!(scene.deformer.history(), Some(&stepped[..]));
         scene.deformer.reset();
         assert!(scene.deformer.history().is_none());
-        assert!(scene.deformer.step(&input[1..], &[], 10, Closeness::Default).is_err());
+        assert!(scene.deformer.step(&input[1..], &mut [], &StepOptions::default()).is_err());
     }
 }
 
@@ -310,7 +775,7 @@ mod uv_sphere_tests {
         let mut collider = Collider::new(&at(-0.5), &tris, settings).unwrap();
         for z in [-0.5, 0.5, 0.5] {
             collider.update(&at(z)).unwrap();
-            let (x, report) = deformer.step(&skin.positions, &[&collider], 10, Closeness::Uniform(0.02)).unwrap();
+            let (x, report) = deformer.step(&skin.positions, &mut [&mut collider], &StepOptions::new(10, Closeness::Uniform(0.02))).unwrap();
             assert!(report.pinched.is_empty());
             let found = audit(crate::mesh::MeshInput { positions: &x, ..skin.input() }, &[&collider], &AuditParams::default()).unwrap();
             assert_eq!(
@@ -345,7 +810,7 @@ mod open_collider_tests {
         let mut collider = Collider::new(&at(-0.3), &tris, settings).unwrap();
         for z in [-0.3, 0.3, 0.3] {
             collider.update(&at(z)).unwrap();
-            let (x, report) = deformer.step(&skin.positions, &[&collider], 10, Closeness::Uniform(0.05)).unwrap();
+            let (x, report) = deformer.step(&skin.positions, &mut [&mut collider], &StepOptions::new(10, Closeness::Uniform(0.05))).unwrap();
             let found = audit(crate::mesh::MeshInput { positions: &x, ..skin.input() }, &[&collider], &AuditParams::default()).unwrap();
             assert_eq!(
                 (found.edges_crossing.len(), found.collider_edges_crossing.len(), report.pinched.len()),
