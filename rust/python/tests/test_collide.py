@@ -214,3 +214,15 @@ def test_step_refuses_bad_colliders_and_positions():
     bad[3, 1] = np.nan
     with pytest.raises(tegument.TegumentError, match="not finite"):
         deformer.step(bad)
+
+
+def test_step_refuses_the_same_collider_twice_instead_of_waiting_on_itself():
+    # step() locks each collider for writing (compliant colliders are solved
+    # by it): one object listed twice must be an error, not a deadlock.
+    positions, _, _, deformer = _skin(4)
+    sphere, tris = uv_sphere(0.2, center=(0.0, 0.0, -0.5))
+    collider = tegument.Collider(sphere, tris)
+    with pytest.raises(tegument.TegumentError, match="item 1 is the same Collider"):
+        deformer.step(positions, [collider, collider])
+    out = deformer.step(positions, [collider])
+    assert np.isfinite(out).all()
