@@ -176,11 +176,24 @@ impl PyramidDeformer {
 
         let substeps = options.substeps;
         let start = self.history.clone().unwrap_or_else(|| input.to_vec());
-        let last_input = self.last_input.clone().unwrap_or_else(|| input.to_vec());
+        // Copies only where substeps interpolate or compliant colliders move:
+        // the plain frame (one substep, kinematic colliders) allocates nothing here.
+        let last_input = match (&self.last_input, substeps > 1) {
+            (Some(last), true) => last.clone(),
+            _ => Vec::new(),
+        };
         // Where each collider is at the ends of the frame; compliant ones start
         // from where they were solved last frame (their `previous`).
-        let frame_ends: Vec<(Vec<Vec3>, Vec<Vec3>)> =
-            colliders.iter().map(|c| (c.previous().to_vec(), c.current().to_vec())).collect();
+        let frame_ends: Vec<(Vec<Vec3>, Vec<Vec3>)> = colliders
+            .iter()
+            .map(|c| {
+                if substeps > 1 || c.is_compliant() {
+                    (c.previous().to_vec(), c.current().to_vec())
+                } else {
+                    (Vec::new(), Vec::new())
+                }
+            })
+            .collect();
         for (c, (previous, _)) in colliders.iter_mut().zip(&frame_ends) {
             if c.is_compliant() {
                 c.set_positions(previous, previous)?;
@@ -191,7 +204,7 @@ impl PyramidDeformer {
         let result = (|| -> Result<()> {
             for s in 1..=substeps {
                 let (f0, f1) = ((s - 1) as f32 / substeps as f32, s as f32 / substeps as f32);
-                let input_s = if substeps == 1 { input.to_vec() } else { lerp(&last_input, input, f1) };
+                let input_s = if substeps == 1 || last_input.is_empty() { input.to_vec() } else { lerp(&last_input, input, f1) };
                 let mut goals: Vec<Option<Vec<Vec3>>> = Vec::with_capacity(colliders.len());
                 for (c, (previous, current)) in colliders.iter_mut().zip(&frame_ends) {
                     match c.compliance() {
@@ -292,7 +305,8 @@ impl PyramidDeformer {
             // 1. Compliant vertices towards their goals, stopping at the skin.
             for &c in &compliant {
                 let goal = goals[c].as_deref().expect("compliant colliders have goals");
-                let moved = self.recede(colliders[c], compliant_skins[c].as_ref().expect("compliant"), x_n, goal)?;
+                let own = compliant_skins[c].as_ref().expect("compliant");
+                let moved = recede_from(&mut self.skin_collider, &self.skin, colliders[c], own, x_n, goal)?;
                 report.compliant_contacts += moved.vertex_contacts + moved.edge_contacts + moved.collider_vertex_contacts;
             }
             // 2. The skin towards its target while the colliders sweep.
@@ -306,7 +320,11 @@ impl PyramidDeformer {
         }
 
         // 3. The solve, with the in-loop passes after every iteration.
-        let inverse_mass: Vec<f32> = self.closeness_weights.iter().map(|&c| 1.0 - c.min(1.0)).collect();
+        // Strain projections move a vertex in proportion to how free it is.
+        let inverse_mass: Vec<f32> = match limits {
+            Some(_) => self.closeness_weights.iter().map(|&c| 1.0 - c.min(1.0)).collect(),
+            None => Vec::new(),
+        };
         let mut last_pinched: Vec<u32> = suspects.clone();
         let skin = &self.skin;
         let skin_collider = &mut self.skin_collider;
@@ -386,12 +404,6 @@ impl PyramidDeformer {
                 _ => Ok(()),
             },
         }
-    }
-
-    /// Step 1 of a substep: the compliant collider's vertices from where they
-    /// are towards `goal`, against the skin at rest at `x`.
-    fn recede(&mut self, collider: &mut Collider, own: &Skin, x: &[Vec3], goal: &[Vec3]) -> Result<ContactStats> {
-        recede_from(&mut self.skin_collider, &self.skin, collider, own, x, goal)
     }
 }
 
