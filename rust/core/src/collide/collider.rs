@@ -5,6 +5,7 @@
 use glam::Vec3;
 
 use super::bvh::{BoxTree, Bounds, UpdateReport};
+use super::geometry::closest_on_triangle;
 use crate::mesh::validate_positions;
 use crate::{Error, Result};
 
@@ -72,6 +73,15 @@ pub struct Collider {
     last_update: Option<UpdateReport>,
     /// Compliant vertices (seed 002 §1), if any were painted.
     compliance: Option<Compliance>,
+}
+
+/// A point on a collider's surface: where, on which triangle, and its
+/// barycentric weights there.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfacePoint {
+    pub point: Vec3,
+    pub triangle: u32,
+    pub barycentric: Vec3,
 }
 
 /// The compliant part of a collider: its vertices are unknowns of the step,
@@ -306,6 +316,40 @@ impl Collider {
         let (a, b) = (self.vertex_triangle_offsets[v] as usize, self.vertex_triangle_offsets[v + 1] as usize);
         &self.vertex_triangle_list[a..b]
     }
+    /// The point of the surface (at the current positions) closest to `p`,
+    /// or `None` for a collider without triangles.
+    pub fn closest_point(&self, p: Vec3) -> Option<SurfacePoint> {
+        if self.triangles.is_empty() {
+            return None;
+        }
+        let top = self.tree.bounds();
+        // Grow a box around `p` until the closest triangle found in it is
+        // nearer than the box's half-width: nothing outside can be closer.
+        let outside = (top.min - p).max(p - top.max).max(Vec3::ZERO).length();
+        let mut radius = outside + (top.max - top.min).length() / 64.0 + 1e-6;
+        let pd = p.as_dvec3();
+        loop {
+            let mut best: Option<(f64, SurfacePoint)> = None;
+            let query = Bounds { min: p, max: p }.inflated(radius);
+            self.tree.query(&query, |t| {
+                let [a, b, c] = self.triangles[t].map(|v| self.current[v as usize].as_dvec3());
+                let (v, w) = closest_on_triangle(pd, a, b, c);
+                let q = a + v * (b - a) + w * (c - a);
+                let d2 = (pd - q).length_squared();
+                if best.as_ref().is_none_or(|(d, _)| d2 < *d) {
+                    let barycentric = Vec3::new((1.0 - v - w) as f32, v as f32, w as f32);
+                    best = Some((d2, SurfacePoint { point: q.as_vec3(), triangle: t as u32, barycentric }));
+                }
+                true
+            });
+            match best {
+                Some((d2, found)) if d2.sqrt() <= radius as f64 => return Some(found),
+                _ if radius > 4.0 * (outside + (top.max - top.min).length()) => return best.map(|(_, f)| f),
+                _ => radius *= 2.0,
+            }
+        }
+    }
+
     /// What the last update of the BVH did.
     pub fn last_update(&self) -> Option<UpdateReport> {
         self.last_update

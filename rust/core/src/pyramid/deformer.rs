@@ -124,6 +124,9 @@ pub struct PyramidDeformer {
     pub(super) last_input: Option<Vec<Vec3>>,
     /// The inertia term, added on the first dynamic step.
     pub(super) inertia: Option<ConstraintId>,
+    /// Target rows of skin giving way to compliant colliders, added on the
+    /// first step that needs them.
+    pub(super) contact_targets: Option<ConstraintId>,
     /// The skin as a collider, for compliant colliders' vertices to meet.
     pub(super) skin_collider: Option<crate::collide::Collider>,
 }
@@ -178,6 +181,7 @@ impl PyramidDeformer {
             velocity: None,
             last_input: None,
             inertia: None,
+            contact_targets: None,
             skin_collider: None,
         };
         deformer.set_closeness(Closeness::Default)?;

@@ -10,11 +10,14 @@
 //!   current positions of its neighbours.
 //! * [`constraint`]: the two formulations as [`crate::solve::Constraint`]s.
 //! * [`deformer`]: bind + solve + residual, what the bindings call.
-//! * [`step`]: frame-to-frame solving with the two collision passes.
+//! * [`step`]: frame-to-frame solving with the two collision passes,
+//!   substeps, dynamics ([`dynamics`]), strain limits and compliant
+//!   colliders ([`compliance`]).
 //!
 //! The design and the measurements behind the default formulation are in
 //! `docs/design/pyramid-solver.md`.
 
+pub mod compliance;
 pub mod constraint;
 pub mod deformer;
 pub mod dynamics;

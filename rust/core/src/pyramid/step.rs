@@ -7,16 +7,18 @@
 //! interpolated linearly). Each substep
 //!
 //! 1. moves the compliant colliders' vertices from where they are towards
-//!    their animated positions, stopping at the skin (they recede on contact);
+//!    their animated positions, stopping at the skin (they recede on contact),
+//!    and gives the skin target rows where it heads into their animated
+//!    shapes, so that it gives way in proportion to their stiffness
+//!    ([`super::compliance`]);
 //! 2. moves every skin vertex from the last output towards this substep's
 //!    input (or, with dynamics, its inertial prediction) while the colliders
 //!    sweep over the substep, stopping and projecting at contacts, with
 //!    friction (first pass, [`ResolveParams::first_pass`]);
 //! 3. runs the projective solve from there, and after every iteration
 //!    * detects and resolves contacts along each vertex's move during that
-//!      iteration (second pass, [`ResolveParams::in_loop`]), while compliant
-//!      colliders push towards their goals in proportion to their stiffness
-//!      (and yield entirely where the skin is held by something else);
+//!      iteration (second pass, [`ResolveParams::in_loop`]), compliant
+//!      colliders standing still;
 //!    * with strain limits in [`StrainMode::Unified`], alternates edge
 //!      shortening and contact resolution until both hold;
 //!    * lets the compliant vertices move back towards their goals, stopping
@@ -31,10 +33,11 @@
 
 use glam::Vec3;
 
+use super::compliance::{compliant_skin, contact_targets, recede_from};
 use super::deformer::{Closeness, PyramidDeformer};
-use super::dynamics::{kinetic_energy, Dynamics, MAX_SUBSTEPS, STIFFNESS_DENSITY};
+use super::dynamics::{kinetic_energy, Dynamics, MAX_SUBSTEPS};
 use crate::collide::audit::is_inside;
-use crate::collide::{Collider, ColliderMotion, ColliderSet, ColliderSettings, ContactStats, ResolveParams, Skin};
+use crate::collide::{Collider, ColliderSet, ContactStats, ResolveParams, Skin};
 use crate::mesh::validate_positions;
 use crate::solve::{Targets, IterationHook};
 use crate::strain::{EdgeLimits, MaxStretch};
@@ -95,9 +98,6 @@ impl<'a> StepOptions<'a> {
     }
 }
 
-/// Times a compliant vertex stopped by the skin heads for its goal again
-/// within one pass (see `recede_from`).
-const RECEDE_SLIDES: usize = 8;
 /// Gauss–Seidel sweeps of the strain projection per round of the unified loop.
 const STRAIN_SWEEPS: usize = 8;
 /// Rounds of (strain sweeps, contact resolution) per iteration in the unified loop.
@@ -124,8 +124,10 @@ pub struct StepReport {
     /// Largest `length / rest length` over the strain-limited edges at the
     /// end of the step (0 without strain limits).
     pub worst_stretch: f32,
-    /// Contacts that moved compliant collider vertices.
+    /// Contacts that stopped compliant collider vertices at the skin.
     pub compliant_contacts: usize,
+    /// Skin vertices giving way to compliant colliders (most in one substep).
+    pub compliant_skin_vertices: usize,
     /// Largest distance of a compliant collider vertex from its animated
     /// position at the end of the step: how far the colliders receded.
     pub max_recession: f32,
@@ -290,6 +292,10 @@ impl PyramidDeformer {
                 input.to_vec()
             }
         };
+        // Where compliant colliders' goals overlap that, the skin gives way.
+        let contacts = contact_targets(&target, &self.closeness_weights, colliders, goals)?;
+        report.compliant_skin_vertices = report.compliant_skin_vertices.max(contacts.as_ref().map_or(0, |(_, w)| w.iter().filter(|&&w| w > 0.0).count()));
+        self.set_contact_targets(contacts)?;
         let mut x = target;
         // A vertex one pass leaves pinched inside a collider starts the next
         // pass inside, where no contact is seen again: keep the suspects and
@@ -332,7 +338,9 @@ impl PyramidDeformer {
         let any_colliders = !colliders.is_empty();
         let mut in_loop = |_iteration: usize, before: &[Vec3], after: &mut [Vec3]| -> Result<()> {
             if any_colliders {
-                let stats = push_and_resolve(colliders, &compliant, goals, before, after, skin)?;
+                // Compliant colliders stand still here; they recede below.
+                let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
+                let stats = ColliderSet::new(refs).resolve_path(before, after, skin, &ResolveParams::in_loop())?;
                 report.in_loop_contacts += stats.vertex_contacts + stats.edge_contacts + stats.collider_vertex_contacts;
                 report.max_in_loop_correction = report.max_in_loop_correction.max(stats.max_correction);
                 suspects.extend_from_slice(&stats.pinched);
@@ -407,97 +415,33 @@ impl PyramidDeformer {
     }
 }
 
-/// Compliant vertices move from the collider's current positions towards
-/// `goal` while the skin stays at `x`; contacts with the skin stop them (the
-/// collider recedes). Kinematic vertices go to their goals. The collider is
-/// left at rest at the result.
-fn recede_from(
-    skin_collider: &mut Option<Collider>,
-    skin: &Skin,
-    collider: &mut Collider,
-    own: &Skin,
-    x: &[Vec3],
-    goal: &[Vec3],
-) -> Result<ContactStats> {
-    let settings = ColliderSettings { thickness: collider.settings().thickness, static_friction: 0.0, kinetic_friction: 0.0 };
-    let obstacle = match skin_collider {
-        Some(c) => {
-            c.set_settings(settings)?;
-            c.set_positions(x, x)?;
-            c
-        }
-        None => skin_collider.insert(Collider::new(x, skin.triangles(), settings)?),
-    };
-    let params = ResolveParams { motion: ColliderMotion::AtCurrent, friction: false, ..ResolveParams::in_loop() };
-    let set = ColliderSet::new([&*obstacle]);
-    let mut start = collider.current().to_vec();
-    let mut total = ContactStats::default();
-    // A vertex stopped by the skin is projected onto the plane of the
-    // triangle it met first, which depends on where it came from. What the
-    // spring wants is the point of the skin's offset surface nearest the
-    // goal: heading for the goal again from there slides it over the skin
-    // towards that point, whatever the path was.
-    for _ in 0..RECEDE_SLIDES {
-        let mut end = goal.to_vec();
-        let stats = set.resolve_path(&start, &mut end, own, &params)?;
-        let settled = stats.moved.is_empty()
-            || start.iter().zip(&end).all(|(a, b)| (*a - *b).length_squared() <= 1e-12 * (1.0 + a.length_squared()));
-        accumulate(&mut total, &stats);
-        start = end;
-        if settled {
-            break;
+impl PyramidDeformer {
+    /// Sets the rows that make the skin give way to compliant colliders
+    /// ([`contact_targets`]), or turns them off.
+    fn set_contact_targets(&mut self, rows: Option<(Vec<Vec3>, Vec<f32>)>) -> Result<()> {
+        match rows {
+            Some((targets, weights)) => {
+                let id = match self.contact_targets {
+                    Some(id) => id,
+                    None => {
+                        let all: Vec<u32> = (0..self.vertex_count() as u32).collect();
+                        let id = self.solver.add(Box::new(Targets::new("compliant contacts", &all)), vec![0.0; all.len()])?;
+                        self.contact_targets = Some(id);
+                        id
+                    }
+                };
+                self.solver.set_weights(id, &weights)?;
+                self.solver.set_targets(id, &targets)
+            }
+            None => match self.contact_targets {
+                Some(id) if self.solver.weights(id)?.iter().any(|&w| w != 0.0) => {
+                    let zeros = vec![0.0; self.vertex_count()];
+                    self.solver.set_weights(id, &zeros)
+                }
+                _ => Ok(()),
+            },
         }
     }
-    collider.set_positions(&start, &start)?;
-    Ok(total)
-}
-
-/// The in-loop contact pass: compliant colliders sweep from where they are
-/// part of the way to their goals (the stiffness's share, `k / (k + K)`),
-/// pushing the skin; if that leaves skin pinched (the skin is held by
-/// something else), the pass is redone with them at rest: they yield.
-fn push_and_resolve(
-    colliders: &mut [&mut Collider],
-    compliant: &[usize],
-    goals: &[Option<Vec<Vec3>>],
-    before: &[Vec3],
-    after: &mut [Vec3],
-    skin: &Skin,
-) -> Result<ContactStats> {
-    let requested = (!compliant.is_empty()).then(|| after.to_vec());
-    for &c in compliant {
-        let goal = goals[c].as_deref().expect("compliant colliders have goals");
-        let stiffness = &colliders[c].compliance().expect("compliant").stiffness;
-        let from = colliders[c].current().to_vec();
-        let pushed: Vec<Vec3> = from
-            .iter()
-            .zip(goal)
-            .zip(stiffness)
-            .map(|((&p, &g), &k)| if k > 0.0 { p + (g - p) * (k / (k + STIFFNESS_DENSITY)) } else { g })
-            .collect();
-        colliders[c].set_positions(&from, &pushed)?;
-    }
-    let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
-    let mut set = ColliderSet::new(refs);
-    for &c in compliant {
-        set.set_motion(c, Some(ColliderMotion::Swept));
-    }
-    let stats = set.resolve_path(before, after, skin, &ResolveParams::in_loop())?;
-    drop(set);
-    let Some(requested) = requested else { return Ok(stats) };
-    if stats.pinched.is_empty() {
-        for &c in compliant {
-            colliders[c].hold()?;
-        }
-        return Ok(stats);
-    }
-    for &c in compliant {
-        let from = colliders[c].previous().to_vec();
-        colliders[c].set_positions(&from, &from)?;
-    }
-    after.copy_from_slice(&requested);
-    let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
-    ColliderSet::new(refs).resolve_path(before, after, skin, &ResolveParams::in_loop())
 }
 
 /// Unified strain limiting (seed 002 §2): edge shortening and contact
@@ -527,19 +471,12 @@ fn limit_strain_with_contacts(
     Ok(pinched)
 }
 
-/// A compliant collider as a moving mesh: its edges and triangles, inverse
-/// mass 1 where compliant and 0 where kinematic.
-fn compliant_skin(collider: &Collider, stiffness: &[f32]) -> Result<Skin> {
-    let inverse_mass = stiffness.iter().map(|&k| if k > 0.0 { 1.0 } else { 0.0 }).collect();
-    Skin::new(collider.vertex_count(), collider.edges().to_vec(), collider.triangles().to_vec())?.with_inverse_mass(inverse_mass)
-}
-
 fn lerp(a: &[Vec3], b: &[Vec3], t: f32) -> Vec<Vec3> {
     a.iter().zip(b).map(|(a, b)| a.lerp(*b, t)).collect()
 }
 
 /// Adds a substep's first-pass figures to the frame's.
-fn accumulate(total: &mut ContactStats, part: &ContactStats) {
+pub(super) fn accumulate(total: &mut ContactStats, part: &ContactStats) {
     total.vertex_contacts += part.vertex_contacts;
     total.edge_contacts += part.edge_contacts;
     total.collider_vertex_contacts += part.collider_vertex_contacts;

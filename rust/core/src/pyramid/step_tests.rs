@@ -189,9 +189,6 @@ mod compliance {
     }
 
     #[test]
-    #[ignore = "known defect (issue 6): the in-loop push of a compliant collider is cumulative per \
-                iteration, so its fixed point depends on the iteration count; 1 vs 4 substeps differ \
-                by 4.6% of the motion on the arm. To be replaced by contact target rows of weight k/K"]
     fn one_and_four_substeps_agree() {
         let one = impossible_collision(Some(100.0), 1);
         let four = impossible_collision(Some(100.0), 4);
@@ -200,6 +197,36 @@ mod compliance {
         let skin = one.skin.iter().zip(&four.skin).map(|(a, b)| (*a - *b).length()).fold(0.0, f32::max);
         let arm = one.arm.iter().zip(&four.arm).map(|(a, b)| (*a - *b).length()).fold(0.0, f32::max);
         assert!(skin < 0.01 * motion && arm < 0.01 * motion, "1 vs 4 substeps: skin {skin}, arm {arm}");
+    }
+
+    /// A compliant ball pressed 0.1 into a free skin (no torso behind it):
+    /// how far the skin's centre gives way and how far the ball recedes.
+    fn press_free_skin(stiffness: f32) -> (f32, f32) {
+        let skin = grid(30, 30, 1.6);
+        let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let (ball, tris) = sphere(0.3);
+        let at = |z: f32| moved(&ball.positions, Vec3::new(0.0, 0.0, z));
+        let mut arm = Collider::new(&at(0.5), &tris, ColliderSettings::new(0.01, 0.0)).unwrap();
+        arm.set_compliance(Some(&vec![stiffness; ball.positions.len()])).unwrap();
+        let mut x = Vec::new();
+        for k in 0..=5 {
+            arm.update(&at(0.5 - 0.06 * k as f32)).unwrap();
+            let options = StepOptions::new(30, Closeness::Uniform(0.2));
+            x = deformer.step(&skin.positions, &mut [&mut arm], &options).unwrap().0;
+            assert_eq!(penetrations(&skin, &x, &[&arm]), (0, 0, 0), "frame {k}");
+        }
+        let dent = -x.iter().filter(|p| p.truncate().length() < 0.05).map(|p| p.z).fold(f32::MAX, f32::min);
+        let recession = arm.current().iter().zip(at(0.2)).map(|(a, b)| (*a - b).length()).fold(0.0, f32::max);
+        (dent, recession)
+    }
+
+    #[test]
+    fn the_stiffer_collider_dents_the_skin_more_and_recedes_less() {
+        let (soft_dent, soft_recession) = press_free_skin(20.0);
+        let (stiff_dent, stiff_recession) = press_free_skin(2000.0);
+        assert!(soft_dent > 0.0 && soft_recession > 0.0, "both give way: dent {soft_dent}, recession {soft_recession}");
+        assert!(stiff_dent > 1.5 * soft_dent, "stiffer should dent more: {stiff_dent} vs {soft_dent}");
+        assert!(stiff_recession < soft_recession, "stiffer should recede less: {stiff_recession} vs {soft_recession}");
     }
 
     #[test]
