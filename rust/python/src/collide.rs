@@ -109,6 +109,48 @@ impl Collider {
         run_detached(py, move || self.write().hold().map(|_| ()))
     }
 
+    /// Makes vertices compliant (seed 002 §1): ``stiffness`` is ``None`` (all
+    /// kinematic), a float for every vertex, or a float32 ``(N,)`` array, each
+    /// ≥ 0 (0 = kinematic). A compliant vertex is pulled to its animated
+    /// position (what :meth:`update` gives) by a spring of that stiffness
+    /// density, relative to the skin's stiffness of 1000 (so 1000 weighs as
+    /// much as the skin's own shape); :meth:`PyramidDeformer.step` then solves
+    /// it with the skin, and it recedes where the two meet.
+    #[pyo3(signature = (stiffness))]
+    fn set_compliance(&self, py: Python<'_>, stiffness: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
+        let n = self.read().vertex_count();
+        let values: Option<Vec<f32>> = match stiffness {
+            None => None,
+            Some(obj) if obj.cast::<PyUntypedArray>().is_ok() => Some(crate::convert::float_array_arg("stiffness", obj, Some(n))?),
+            Some(obj) => match obj.extract::<f64>() {
+                Ok(k) if !obj.is_instance_of::<pyo3::types::PyBool>() => Some(vec![k as f32; n]),
+                _ => {
+                    let kind = obj.get_type().name().map(|s| s.to_string()).unwrap_or_default();
+                    return Err(TegumentError::new_err(format!("stiffness: expected None, a float or a float32 ({n},) array; got a {kind}")));
+                }
+            },
+        };
+        run_detached(py, move || self.write().set_compliance(values.as_deref()))
+    }
+
+    /// Whether any vertex is compliant.
+    #[getter]
+    fn is_compliant(&self) -> bool {
+        self.read().is_compliant()
+    }
+
+    /// The animated positions this frame (what :meth:`update` gave), float32
+    /// ``(N, 3)``: for a compliant collider :attr:`positions` are where the
+    /// last step solved it, these its goals.
+    #[getter]
+    fn goal_positions<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
+        let inner = self.read();
+        match inner.compliance() {
+            Some(c) => positions_to_py(py, &c.goals),
+            None => positions_to_py(py, inner.current()),
+        }
+    }
+
     /// Number of vertices.
     #[getter]
     fn vertex_count(&self) -> usize {

@@ -7,7 +7,10 @@ use pyo3::prelude::*;
 use tegument_core::mesh::MeshInput;
 use pyo3::types::PyDict;
 use tegument_core::collide::Collider as CoreCollider;
-use tegument_core::pyramid::{Closeness, DeformerOptions, PyramidDeformer as Core, StepOptions, StepReport};
+use tegument_core::pyramid::{
+    Closeness, DeformerOptions, Dynamics as CoreDynamics, PyramidDeformer as Core, StepOptions, StepReport, StrainMode, StrainOptions,
+};
+use tegument_core::strain::MaxStretch;
 
 use crate::collide::collider_refs;
 
@@ -132,7 +135,20 @@ impl PyramidDeformer {
     /// ``positions`` itself. Vertices squeezed between colliders are pinched:
     /// kept near the solve's result, never NaN, and listed in
     /// :attr:`last_step`. ``iterations`` and ``closeness`` as in :meth:`solve`.
-    #[pyo3(signature = (positions, colliders = None, iterations = 10, closeness = None))]
+    ///
+    /// ``substeps`` (1–64) splits the frame, the input and the colliders
+    /// interpolated linearly. ``dynamics`` (a :class:`Dynamics`) adds inertia:
+    /// the closeness becomes the goal strength (1 follows the input exactly,
+    /// low values jiggle). ``max_stretch`` limits every edge to
+    /// ``(1 + ε)`` times its rest length: ``None`` (no limit), a float ε ≥ 0,
+    /// or a float32 ``(N,)`` array of per-vertex ε (``inf`` = no limit; an edge
+    /// takes the mean of its ends). ``strain_mode`` is ``"unified"`` (limits
+    /// and contacts in the same loop, until both hold) or ``"post"`` (limits
+    /// after the collision passes; can leave penetrations). Colliders with
+    /// compliance (:meth:`Collider.set_compliance`) are solved too: their
+    /// :attr:`Collider.positions` become where they receded.
+    #[pyo3(signature = (positions, colliders = None, iterations = 10, closeness = None, substeps = 1, dynamics = None, max_stretch = None, strain_mode = "unified"))]
+    #[allow(clippy::too_many_arguments)]
     fn step<'py>(
         &self,
         py: Python<'py>,
@@ -140,8 +156,22 @@ impl PyramidDeformer {
         colliders: Option<&Bound<'py, PyAny>>,
         iterations: i64,
         closeness: Option<&Bound<'py, PyAny>>,
+        substeps: i64,
+        dynamics: Option<PyRef<'py, Dynamics>>,
+        max_stretch: Option<&Bound<'py, PyAny>>,
+        strain_mode: &str,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let (input, iterations, weights) = self.frame_args(positions, iterations, closeness)?;
+        if substeps < 1 {
+            return Err(TegumentError::new_err(format!("substeps is {substeps}; it must be between 1 and {}", tegument_core::pyramid::MAX_SUBSTEPS)));
+        }
+        let mode = match strain_mode {
+            "unified" => StrainMode::Unified,
+            "post" => StrainMode::Post,
+            other => return Err(TegumentError::new_err(format!("strain_mode is {other:?}; expected \"unified\" or \"post\""))),
+        };
+        let stretch = max_stretch_arg(max_stretch, self.vertex_count)?;
+        let dynamics = dynamics.map(|d| d.inner);
         let refs = match colliders {
             Some(c) => collider_refs(c)?,
             None => Vec::new(),
@@ -157,10 +187,24 @@ impl PyramidDeformer {
             // Write locks: compliant colliders are solved by the step.
             let mut guards: Vec<_> = holders.iter().map(|c| c.write()).collect();
             let mut cols: Vec<&mut CoreCollider> = guards.iter_mut().map(|g| &mut **g).collect();
-            core.step(&input, &mut cols, &StepOptions::new(iterations, weights.as_closeness()))
+            let options = StepOptions {
+                substeps: substeps as usize,
+                dynamics,
+                strain: stretch.as_ref().map(|s| StrainOptions { max_stretch: s.as_max_stretch(), mode }),
+                ..StepOptions::new(iterations, weights.as_closeness())
+            };
+            core.step(&input, &mut cols, &options)
         })?;
         *self.last_step.lock().unwrap_or_else(|e| e.into_inner()) = Some(report);
         Ok(positions_to_py(py, &output))
+    }
+
+    /// Velocities at the end of the last dynamic :meth:`step`, float32
+    /// ``(N, 3)`` in units per second, or ``None``.
+    #[getter]
+    fn velocity<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArray2<f32>>>> {
+        let velocity = self.with(py, |core| Ok(core.velocity().map(|v| v.to_vec())))?;
+        Ok(velocity.map(|v| positions_to_py(py, &v)))
     }
 
     /// Forgets the last output of :meth:`step`: the next step starts from its
@@ -180,11 +224,17 @@ impl PyramidDeformer {
         })
     }
 
-    /// What the last :meth:`step` did about contacts, or ``None``: a dict with
+    /// What the last :meth:`step` did, or ``None``: a dict with
     /// ``first_pass_contacts`` (vertex, edge and collider-vertex contacts of
     /// the first pass), ``first_pass_moved`` (vertices it moved),
-    /// ``in_loop_contacts`` (over all iterations), ``max_in_loop_correction``
-    /// and ``pinched`` (int32 array of the vertices left pinched).
+    /// ``in_loop_contacts`` (over all iterations), ``max_in_loop_correction``,
+    /// ``pinched`` (int32 array of the vertices left pinched),
+    /// ``kinetic_energy`` (0 without dynamics), ``worst_stretch`` (largest
+    /// length / rest length of a limited edge; 0 without limits),
+    /// ``compliant_contacts`` (contacts that stopped compliant collider
+    /// vertices), ``compliant_skin_vertices`` (skin vertices giving way to
+    /// compliant colliders) and ``max_recession`` (largest distance of a
+    /// compliant collider vertex from its animated position).
     #[getter]
     fn last_step<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
         let guard = self.last_step.lock().unwrap_or_else(|e| e.into_inner());
@@ -196,6 +246,11 @@ impl PyramidDeformer {
         dict.set_item("in_loop_contacts", report.in_loop_contacts)?;
         dict.set_item("max_in_loop_correction", report.max_in_loop_correction)?;
         dict.set_item("pinched", indices_to_py(py, &report.pinched))?;
+        dict.set_item("kinetic_energy", report.kinetic_energy)?;
+        dict.set_item("worst_stretch", report.worst_stretch)?;
+        dict.set_item("compliant_contacts", report.compliant_contacts)?;
+        dict.set_item("compliant_skin_vertices", report.compliant_skin_vertices)?;
+        dict.set_item("max_recession", report.max_recession)?;
         Ok(Some(dict))
     }
 
@@ -248,6 +303,96 @@ fn closeness_arg(closeness: Option<&Bound<'_, PyAny>>, n: usize) -> PyResult<Wei
     })
 }
 
+/// The ``max_stretch`` argument, owned.
+enum Stretch {
+    Uniform(f32),
+    PerVertex(Vec<f32>),
+}
+
+impl Stretch {
+    fn as_max_stretch(&self) -> MaxStretch<'_> {
+        match self {
+            Stretch::Uniform(e) => MaxStretch::Uniform(*e),
+            Stretch::PerVertex(e) => MaxStretch::PerVertex(e),
+        }
+    }
+}
+
+/// ``max_stretch``: ``None``, a float, or a float32 ``(N,)`` array.
+fn max_stretch_arg(obj: Option<&Bound<'_, PyAny>>, n: usize) -> PyResult<Option<Stretch>> {
+    Ok(match obj {
+        None => None,
+        Some(obj) if obj.cast::<PyUntypedArray>().is_ok() => Some(Stretch::PerVertex(float_array_arg("max_stretch", obj, Some(n))?)),
+        Some(obj) if obj.is_instance_of::<pyo3::types::PyBool>() => {
+            return Err(TegumentError::new_err("max_stretch: expected None, a float or a float32 (N,) array; got a bool"))
+        }
+        Some(obj) => match obj.extract::<f64>() {
+            Ok(e) => Some(Stretch::Uniform(e as f32)),
+            Err(_) => {
+                let kind = obj.get_type().name().map(|s| s.to_string()).unwrap_or_default();
+                return Err(TegumentError::new_err(format!("max_stretch: expected None, a float or a float32 ({n},) array; got a {kind}")));
+            }
+        },
+    })
+}
+
+/// Dynamics settings for :meth:`PyramidDeformer.step` (projective dynamics).
+///
+/// ``frame_time`` is the length of one frame in seconds (1 / the frame
+/// rate); ``mass`` the surface density (vertex masses are density × the
+/// vertex's area); ``damping`` the rate (1/s) at which velocity decays;
+/// ``gravity`` an acceleration ``(x, y, z)`` in world units per second²
+/// (off by default). With closeness 0.1 and mass 1, flesh swings at about
+/// 1.7 Hz; higher mass or lower closeness swing slower and further.
+#[pyclass(module = "tegument", name = "Dynamics", frozen)]
+pub struct Dynamics {
+    inner: CoreDynamics,
+}
+
+#[pymethods]
+impl Dynamics {
+    #[new]
+    #[pyo3(signature = (frame_time = 1.0 / 24.0, mass = 1.0, damping = 1.0, gravity = (0.0, 0.0, 0.0)))]
+    fn new(frame_time: f32, mass: f32, damping: f32, gravity: (f32, f32, f32)) -> PyResult<Self> {
+        let inner = CoreDynamics { frame_time, mass, damping, gravity: glam::Vec3::new(gravity.0, gravity.1, gravity.2) };
+        crate::convert::py_result(inner.validate())?;
+        Ok(Dynamics { inner })
+    }
+
+    /// Length of one frame in seconds.
+    #[getter]
+    fn frame_time(&self) -> f32 {
+        self.inner.frame_time
+    }
+
+    /// Surface density.
+    #[getter]
+    fn mass(&self) -> f32 {
+        self.inner.mass
+    }
+
+    /// Velocity decay rate (1/s).
+    #[getter]
+    fn damping(&self) -> f32 {
+        self.inner.damping
+    }
+
+    /// Acceleration ``(x, y, z)``.
+    #[getter]
+    fn gravity(&self) -> (f32, f32, f32) {
+        self.inner.gravity.into()
+    }
+
+    fn __repr__(&self) -> String {
+        let d = &self.inner;
+        format!(
+            "tegument.Dynamics(frame_time={}, mass={}, damping={}, gravity=({}, {}, {}))",
+            d.frame_time, d.mass, d.damping, d.gravity.x, d.gravity.y, d.gravity.z
+        )
+    }
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_class::<PyramidDeformer>()
+    m.add_class::<PyramidDeformer>()?;
+    m.add_class::<Dynamics>()
 }

@@ -1,7 +1,7 @@
 """Typed stubs of the native module (kept in step with the Rust docstrings)."""
 
 import os
-from typing import Any, Sequence
+from typing import Literal, Any, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -69,18 +69,50 @@ class PyramidDeformer:
         colliders: Sequence[Collider] | None = None,
         iterations: int = 10,
         closeness: float | npt.NDArray[np.float32] | None = None,
+        substeps: int = 1,
+        dynamics: Dynamics | None = None,
+        max_stretch: float | npt.NDArray[np.float32] | None = None,
+        strain_mode: Literal["unified", "post"] = "unified",
     ) -> npt.NDArray[np.float32]:
         """Solves the next frame of an animation against ``colliders`` (updated to this frame),
-        starting from the last output (history-based, two collision passes); float32 ``(N, 3)``."""
+        starting from the last output (history-based, two collision passes); float32 ``(N, 3)``.
+        ``substeps`` splits the frame; ``dynamics`` adds inertia; ``max_stretch`` (ε, or per vertex)
+        limits edges to (1 + ε)·rest length, with the contacts (``"unified"``) or after them
+        (``"post"``); compliant colliders are solved too."""
+    @property
+    def velocity(self) -> npt.NDArray[np.float32] | None:
+        """Velocities at the end of the last dynamic ``step`` ``(N, 3)``, or None."""
     def reset(self, history: npt.NDArray[np.float32] | None = None) -> None:
         """Forgets the last output: the next ``step`` starts from its input, or from ``history``
         (collision-free positions, e.g. the last cached frame of a bake being resumed)."""
     @property
     def last_step(self) -> dict[str, Any] | None:
-        """What the last ``step`` did about contacts: ``first_pass_contacts``, ``first_pass_moved``,
-        ``in_loop_contacts``, ``max_in_loop_correction``, ``pinched`` (int32 array)."""
+        """What the last ``step`` did: ``first_pass_contacts``, ``first_pass_moved``,
+        ``in_loop_contacts``, ``max_in_loop_correction``, ``pinched`` (int32 array),
+        ``kinetic_energy``, ``worst_stretch``, ``compliant_contacts``, ``compliant_skin_vertices``,
+        ``max_recession``."""
     def residual(self, positions: npt.NDArray[np.float32]) -> float:
         """Mean pyramid residual relative to the mean rest edge length (0 at rest)."""
+
+class Dynamics:
+    """Dynamics settings for ``PyramidDeformer.step``: frame time (s), surface density,
+    damping rate (1/s) and gravity (units/s², off by default)."""
+
+    def __init__(
+        self,
+        frame_time: float = 1.0 / 24.0,
+        mass: float = 1.0,
+        damping: float = 1.0,
+        gravity: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> None: ...
+    @property
+    def frame_time(self) -> float: ...
+    @property
+    def mass(self) -> float: ...
+    @property
+    def damping(self) -> float: ...
+    @property
+    def gravity(self) -> tuple[float, float, float]: ...
 
 class Collider:
     """A kinematic triangle-mesh collider that keeps last frame's positions.
@@ -107,6 +139,15 @@ class Collider:
         ``{"cost_ratio": float, "rebuilt": bool}``."""
     def hold(self) -> None:
         """Forgets the motion (previous = current), e.g. after a jump in time."""
+    def set_compliance(self, stiffness: float | npt.NDArray[np.float32] | None) -> None:
+        """Makes vertices compliant: a stiffness density per vertex (float32 ``(N,)``), one for all,
+        or None (kinematic). 0 = kinematic; 1000 weighs as much as the skin's own shape."""
+    @property
+    def is_compliant(self) -> bool:
+        """Whether any vertex is compliant."""
+    @property
+    def goal_positions(self) -> npt.NDArray[np.float32]:
+        """The animated positions this frame ``(N, 3)`` (for a compliant collider, its goals)."""
     @property
     def vertex_count(self) -> int:
         """Number of vertices."""
