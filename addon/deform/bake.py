@@ -86,6 +86,7 @@ class BakeJob:
         self.done = 0
         self._stack = contextlib.ExitStack()
         self._stack.enter_context(evaluate.upstream_only(obj))
+        self.collider_writers: dict[int, pc2.Writer] = {}
         try:
             self.writer = pc2.Writer(self.path, len(self.rest), start=self.start_frame)
             if keep_existing and pc2.frame_count(self.path):
@@ -95,11 +96,22 @@ class BakeJob:
             if self._existing is not None:
                 self._copy_existing(frames.start - self.start_frame)
             self.rig = colliders.ColliderRig(obj)
+            self.options = evaluate.step_options(obj, self.scene)
+            # Collisions, dynamics, substeps and strain limits need the history-based step.
+            self.uses_step = bool(self.rig) or bool(self.options)
             self.audit_totals = {"vertices_inside": 0, "edges_crossing": 0, "collider_edges_crossing": 0}
             self.most_pinched = 0
-            if self.rig:
+            self.worst_stretch = 0.0
+            self.max_recession = 0.0
+            self._stack.enter_context(self.rig.animated_only())
+            self._open_collider_caches(context, keep_existing)
+            if self.uses_step:
                 self._start_history(frames.start)
         except BaseException:
+            for writer in self.collider_writers.values():
+                writer.abort()
+            if hasattr(self, "writer"):
+                self.writer.abort()
             self._stack.close()
             raise
         self._uid = obj.session_uid  # kept: the object may be deleted before the job ends
@@ -115,6 +127,30 @@ class BakeJob:
         for frame in existing[:count]:
             self.writer.append(frame)
 
+    def _open_collider_caches(self, context, keep_existing: bool) -> None:
+        """One cache per compliant collider, written beside the skin's, frame for frame."""
+        self._collider_existing: dict[int, np.ndarray] = {}
+        if not self.rig.compliant:
+            return
+        depsgraph = context.evaluated_depsgraph_get()
+        for k in self.rig.compliant:
+            collider = self.rig.objects[k]
+            count = len(collider.evaluated_get(depsgraph).data.vertices)
+            path = colliders.compliance_cache_path(collider)
+            self.collider_writers[k] = pc2.Writer(path, count, start=self.start_frame)
+            if self._existing is None:
+                continue
+            keep = self.frames.start - self.start_frame
+            existing = pc2.read(path)[0] if pc2.frame_count(path) else None
+            if existing is None or existing.shape[1] != count or len(existing) < keep:
+                raise DeformError(
+                    f"{self.obj.name}: the compliance cache of collider {collider.name} does not hold the frames "
+                    f"before {self.frames.start}: bake the whole range (tegument.bake)"
+                )
+            self._collider_existing[k] = existing
+            for frame in existing[:keep]:
+                self.collider_writers[k].append(frame)
+
     def _start_history(self, first: int) -> None:
         """Collisions are history-based: a bake that continues cached frames
         starts from the last of them, with the colliders where they were then."""
@@ -122,11 +158,22 @@ class BakeJob:
         before = first - self.start_frame - 1
         if self._existing is None or not 0 <= before < len(self._existing) or first - 1 < self.start_frame:
             return
+        if not self.rig:
+            # Dynamics alone: resume from the cached shape, at rest.
+            self.deformer.reset(np.ascontiguousarray(self._world_of(first - 1, self._existing[before]), dtype=np.float32))
+            return
         self.scene.frame_set(first - 1)
         depsgraph = bpy.context.evaluated_depsgraph_get()
         self.rig.update(depsgraph, first - 1)
         matrix = self.obj.evaluated_get(depsgraph).matrix_world
         self.deformer.reset(np.ascontiguousarray(evaluate.to_world(self._existing[before], matrix), dtype=np.float32))
+        for k, existing in self._collider_existing.items():
+            self.rig.place_local(k, existing[before])
+
+    def _world_of(self, frame: int, local: np.ndarray) -> np.ndarray:
+        self.scene.frame_set(frame)
+        matrix = self.obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).matrix_world
+        return evaluate.to_world(local, matrix)
 
     @property
     def finished(self) -> bool:
@@ -140,9 +187,17 @@ class BakeJob:
         """Solves and writes the next frame; returns it."""
         frame = self.frames[self.done]
         started = time.perf_counter()
-        solved, self._world = solve_frame(self.scene, self.obj, frame, self.deformer, self.closeness, self.rig)
+        solved, self._world = solve_frame(
+            self.scene, self.obj, frame, self.deformer, self.closeness, self.rig, self.options, history=self.uses_step
+        )
         self.writer.append(solved)
+        for k, writer in self.collider_writers.items():
+            writer.append(self.rig.solved_local(k))
         self.times.append(time.perf_counter() - started)
+        step = self.deformer.last_step
+        if step is not None and self.uses_step:
+            self.worst_stretch = max(self.worst_stretch, step["worst_stretch"])
+            self.max_recession = max(self.max_recession, step["max_recession"])
         if self.rig:
             self._audit(frame)
         self.done += 1
@@ -173,12 +228,23 @@ class BakeJob:
                 # A partial re-bake keeps the cached frames after it.
                 for frame in self._existing[self.writer.frames:]:
                     self.writer.append(frame)
+            for k, writer in self.collider_writers.items():
+                existing = self._collider_existing.get(k)
+                if self.finished and existing is not None:
+                    for frame in existing[writer.frames:]:
+                        writer.append(frame)
             if self.writer.frames:
                 self.writer.commit()
+                for writer in self.collider_writers.values():
+                    writer.commit()
             else:
                 self.writer.abort()
+                for writer in self.collider_writers.values():
+                    writer.abort()
         finally:
             self._restore()
+        if self.writer.frames:
+            self._attach_collider_caches()
         if self.times:
             self.settings.last_frame_ms = 1000.0 * float(np.mean(self.times))
         self._report_contacts()
@@ -187,8 +253,30 @@ class BakeJob:
         modifier.frame_start = self.start_frame
         self.obj.update_tag()
 
+    def _attach_collider_caches(self) -> None:
+        """Each compliant collider plays its solved positions back with its own Mesh Cache modifier;
+        a collider no longer compliant loses it (its cache is of an earlier bake)."""
+        for k, collider in enumerate(self.rig.objects):
+            stale = colliders.compliance_modifier(collider)
+            if k not in self.collider_writers and stale is not None:
+                collider.modifiers.remove(stale)
+                collider.update_tag()
+        for k in self.collider_writers:
+            collider = self.rig.objects[k]
+            modifier = colliders.compliance_modifier(collider)
+            if modifier is None:
+                modifier = collider.modifiers.new(colliders.COMPLIANCE_MODIFIER_NAME, "MESH_CACHE")
+                modifier.cache_format = "PC2"
+            modifier.filepath = collider.tegument_collider.cache_path or bpy.path.relpath(
+                colliders.compliance_cache_path(collider)
+            )
+            modifier.frame_start = self.start_frame
+            collider.update_tag()
+
     def _report_contacts(self) -> None:
         settings = self.settings
+        settings.worst_stretch = self.worst_stretch
+        settings.max_recession = self.max_recession
         settings.audit_vertices_inside = self.audit_totals["vertices_inside"]
         settings.audit_edges_crossing = self.audit_totals["edges_crossing"]
         settings.audit_collider_edges_crossing = self.audit_totals["collider_edges_crossing"]
@@ -201,6 +289,8 @@ class BakeJob:
     def abort(self) -> None:
         """Discards everything this job wrote; the previous cache stays as it was."""
         self.writer.abort()
+        for writer in self.collider_writers.values():
+            writer.abort()
         self._restore()
 
     def _restore(self) -> None:
@@ -209,12 +299,18 @@ class BakeJob:
         self.scene.frame_set(self.frame_before)
 
 
-def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None) -> tuple[np.ndarray, np.ndarray]:
+def solve_frame(
+    scene, obj, frame: int, deformer, closeness, rig=None, options=None, *, history: bool | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """``(object space, world space)`` result of one frame; the caller hides Tegument's modifier.
 
-    With colliders (``rig``) the frame is a history-based step from the
-    deformer's last output; without, a plain solve from the input.
+    With colliders (``rig``), dynamics, substeps or strain limits (``options``,
+    from :func:`evaluate.step_options`) the frame is a history-based step from
+    the deformer's last output; otherwise a plain solve from the input.
     """
+    options = options or {}
+    if history is None:
+        history = bool(rig) or bool(options)
     import tegument
 
     scene.frame_set(frame)
@@ -232,9 +328,11 @@ def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None) -> tuple[
     matrix = obj.evaluated_get(depsgraph).matrix_world
     iterations = obj.tegument.iterations
     try:
-        if rig:
-            rig.update(depsgraph, frame)
-            solved = deformer.step(world, rig.colliders, iterations=iterations, closeness=closeness)
+        if history:
+            if rig:
+                rig.update(depsgraph, frame)
+            colliders_now = rig.colliders if rig else None
+            solved = deformer.step(world, colliders_now, iterations=iterations, closeness=closeness, **options)
         else:
             solved = deformer.solve(world, iterations=iterations, closeness=closeness)
     except tegument.TegumentError as error:

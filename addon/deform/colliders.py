@@ -2,7 +2,8 @@
 """Colliders: the mesh objects of ``obj.tegument.collider_collection``.
 
 Each collider object carries its own settings in ``obj.tegument_collider``
-(thickness, friction). A :class:`ColliderRig` reads the colliders' evaluated
+(thickness, friction, and a compliant region: a vertex group and a
+stiffness). A :class:`ColliderRig` reads the colliders' evaluated
 world-space triangles frame after frame and keeps one ``tegument.Collider``
 per object, whose previous/current positions give the motion over the frame
 that continuous collision detection sweeps.
@@ -10,12 +11,52 @@ that continuous collision detection sweeps.
 
 from __future__ import annotations
 
+import contextlib
+
 import bpy
 import numpy as np
-from bpy.props import FloatProperty, PointerProperty
+from bpy.props import FloatProperty, PointerProperty, StringProperty
 
 from .. import mesh_arrays
-from .evaluate import DeformError, to_world
+from .evaluate import DeformError, hidden_in_viewport, to_local, to_world
+
+# The Mesh Cache modifier that plays a compliant collider's solved positions back.
+COMPLIANCE_MODIFIER_NAME = "Tegument Compliance"
+
+
+# Blender 4.5 made blend-relative ("//") paths an explicit option of path properties.
+_RELATIVE_PATH = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set()
+
+
+def is_compliant(collider) -> bool:
+    settings = collider.tegument_collider
+    return bool(settings.compliant_group) and settings.stiffness > 0.0
+
+
+def compliance_cache_path(collider) -> str:
+    """Absolute path of a compliant collider's PC2 cache."""
+    path = collider.tegument_collider.cache_path or f"//tegument/{bpy.path.clean_name(collider.name)}.compliant.pc2"
+    return bpy.path.abspath(path)
+
+
+def compliance_modifier(collider):
+    modifier = collider.modifiers.get(COMPLIANCE_MODIFIER_NAME)
+    return modifier if modifier is not None and modifier.type == "MESH_CACHE" else None
+
+
+def compliant_stiffness(collider, vertex_count: int) -> np.ndarray:
+    """Stiffness per vertex of the evaluated collider: the setting times the group weights."""
+    settings = collider.tegument_collider
+    group = collider.vertex_groups.get(settings.compliant_group)
+    if group is None:
+        raise DeformError(f"collider {collider.name}: the compliant vertex group \"{settings.compliant_group}\" does not exist")
+    if len(collider.data.vertices) != vertex_count:
+        raise DeformError(
+            f"collider {collider.name}: its modifiers give {vertex_count} vertices but the mesh has "
+            f"{len(collider.data.vertices)}; a compliant collider must keep its vertex count (the group "
+            "weights belong to the mesh's vertices): apply or remove the modifier that changes it"
+        )
+    return (settings.stiffness * mesh_arrays.vertex_group_weights(collider.data, group.index)).astype(np.float32)
 
 
 class TEGUMENT_PG_collider(bpy.types.PropertyGroup):
@@ -30,6 +71,21 @@ class TEGUMENT_PG_collider(bpy.types.PropertyGroup):
     kinetic_friction: FloatProperty(
         name="Kinetic Friction", default=0.2, min=0.0, soft_max=2.0,
         description="Once slipping, the slip is reduced by this times the contact depth",
+    )
+    compliant_group: StringProperty(
+        name="Compliant Group",
+        description="Vertex group of the region that gives way where it meets the skin (weights scale "
+        "Stiffness; 0 or not in the group = follows its animation exactly). Empty: fully kinematic",
+    )
+    stiffness: FloatProperty(
+        name="Stiffness", default=200.0, min=0.0, soft_max=10000.0,
+        description="How hard the compliant region holds its animated shape, against the skin's own "
+        "stiffness of 1000: lower values recede more. Does not depend on substeps",
+    )
+    cache_path: StringProperty(
+        name="Compliance Cache", subtype="FILE_PATH", default="", options=_RELATIVE_PATH,
+        description="PC2 cache of where the compliant region receded, played back by this collider's "
+        "Tegument Compliance modifier (empty: //tegument/<collider>.compliant.pc2)",
     )
 
 
@@ -62,13 +118,37 @@ class ColliderRig:
         self.objects = collider_objects(obj)
         self.colliders: list = []
         self._topology: list[tuple[int, int]] = []
+        self._matrices: list = []
         self.warnings: list[str] = []
+        # Indices (into objects) of the compliant colliders.
+        self.compliant = [k for k, o in enumerate(self.objects) if is_compliant(o)]
         collection = obj.tegument.collider_collection
         if collection is not None and not self.objects:
             self.warnings.append(f"the collider collection \"{collection.name}\" holds no mesh objects")
 
     def __bool__(self) -> bool:
         return bool(self.objects)
+
+    @contextlib.contextmanager
+    def animated_only(self):
+        """Within the block, colliders evaluate to their animation: a Tegument Compliance
+        modifier (and everything below it) is left out, also on a collider no longer compliant."""
+        hide = []
+        for collider in self.objects:
+            modifiers = list(collider.modifiers)
+            names = [m.name for m in modifiers]
+            if COMPLIANCE_MODIFIER_NAME in names:
+                hide.extend(modifiers[names.index(COMPLIANCE_MODIFIER_NAME):])
+        with hidden_in_viewport(hide):
+            yield
+
+    def solved_local(self, k: int) -> np.ndarray:
+        """Where compliant collider ``k`` was solved this frame, in its object space."""
+        return np.ascontiguousarray(to_local(self.colliders[k].positions, self._matrices[k]), dtype=np.float32)
+
+    def place_local(self, k: int, local: np.ndarray) -> None:
+        """Puts compliant collider ``k`` where a cached frame solved it (object space)."""
+        self.colliders[k].place(np.ascontiguousarray(to_world(local, self._matrices[k]), dtype=np.float32))
 
     def update(self, depsgraph, frame: int) -> None:
         """Moves every collider to this frame (the first call places them, without motion)."""
@@ -78,6 +158,11 @@ class ColliderRig:
         for k, collider in enumerate(self.objects):
             positions, triangles = _world_triangles(collider, depsgraph)
             topology = (len(positions), len(triangles))
+            matrix = collider.evaluated_get(depsgraph).matrix_world.copy()
+            if first:
+                self._matrices.append(matrix)
+            else:
+                self._matrices[k] = matrix
             if first:
                 if not len(triangles):
                     raise DeformError(f"collider {collider.name} has no faces")
@@ -92,6 +177,11 @@ class ColliderRig:
                 except tegument.TegumentError as error:
                     raise DeformError(f"collider {collider.name}, frame {frame}: {error}") from None
                 self._topology.append(topology)
+                if k in self.compliant:
+                    try:
+                        self.colliders[-1].set_compliance(compliant_stiffness(collider, len(positions)))
+                    except tegument.TegumentError as error:
+                        raise DeformError(f"collider {collider.name}: {error}") from None
                 if not self.colliders[-1].is_closed:
                     self.warnings.append(f"collider {collider.name} is open: the audit cannot tell inside from outside")
                 continue

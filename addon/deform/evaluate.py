@@ -103,3 +103,44 @@ def closeness_weights(obj) -> float | np.ndarray:
 
 def cache_file(obj) -> str:
     return bpy.path.abspath(obj.tegument.cache_path)
+
+
+def max_stretch(obj) -> float | np.ndarray | None:
+    """ε for ``PyramidDeformer.step``: None without limits, a float, or per vertex from the group
+    (Max Stretch / weight; no limit where the weight is 0)."""
+    settings = obj.tegument
+    if not settings.limit_stretch:
+        return None
+    if not settings.max_stretch_group:
+        return float(settings.max_stretch)
+    group = obj.vertex_groups.get(settings.max_stretch_group)
+    if group is None:
+        raise DeformError(f"{obj.name}: the max stretch vertex group \"{settings.max_stretch_group}\" does not exist")
+    weights = mesh_arrays.vertex_group_weights(obj.data, group.index)
+    with np.errstate(divide="ignore"):
+        return np.where(weights > 0, settings.max_stretch / np.maximum(weights, 1e-30), np.inf).astype(np.float32)
+
+
+def step_options(obj, scene) -> dict:
+    """The keyword arguments of ``PyramidDeformer.step`` from the object's settings (beyond
+    iterations and closeness); empty when a plain frame-by-frame solve will do."""
+    import tegument
+
+    settings = obj.tegument
+    options: dict = {}
+    if settings.substeps > 1:
+        options["substeps"] = settings.substeps
+    if settings.dynamic:
+        fps = scene.render.fps / scene.render.fps_base
+        gravity = tuple(scene.gravity) if settings.use_gravity and scene.use_gravity else (0.0, 0.0, 0.0)
+        try:
+            options["dynamics"] = tegument.Dynamics(
+                frame_time=1.0 / fps, mass=settings.mass, damping=settings.damping, gravity=gravity
+            )
+        except tegument.TegumentError as error:
+            raise DeformError(f"{obj.name}: {error}") from None
+    stretch = max_stretch(obj)
+    if stretch is not None:
+        options["max_stretch"] = stretch
+        options["strain_mode"] = settings.strain_mode.lower()
+    return options

@@ -69,6 +69,54 @@ class TEGUMENT_PG_deform(bpy.types.PropertyGroup):
         description="Solve and cache each frame as the timeline advances by one frame",
     )
 
+    # Dynamics (seed 000 §4): projective dynamics on top of the pyramid solve.
+    dynamic: BoolProperty(
+        name="Dynamics", default=False,
+        description="Give the skin inertia: flesh lags, overshoots and settles. Closeness becomes the goal "
+        "strength: low values jiggle, 1 follows the rig exactly",
+    )
+    substeps: IntProperty(
+        name="Substeps", default=1, min=1, max=64,
+        description="Solver steps per frame (the rig and colliders are interpolated between frames): "
+        "more follow fast motion and stiff contacts more closely, at a proportional cost",
+    )
+    damping: FloatProperty(
+        name="Damping", default=1.0, min=0.0, soft_max=20.0,
+        description="How fast motion dies out, per second (0: only the solver's own dissipation)",
+    )
+    mass: FloatProperty(
+        name="Mass", default=1.0, min=0.001, soft_max=10.0,
+        description="Surface density: each vertex weighs this times the area around it. "
+        "Heavier flesh swings slower and further",
+    )
+    use_gravity: BoolProperty(
+        name="Gravity", default=False,
+        description="Pull the flesh with the scene's gravity (Scene properties) while it moves",
+    )
+    # Strain limits (seed 002 §2).
+    limit_stretch: BoolProperty(
+        name="Limit Stretch", default=False,
+        description="Keep every edge no longer than (1 + Max Stretch) times its rest length",
+    )
+    max_stretch: FloatProperty(
+        name="Max Stretch", default=0.1, min=0.0, soft_max=1.0,
+        description="ε: how much longer than at rest an edge may get (0.1 = 10%)",
+    )
+    max_stretch_group: StringProperty(
+        name="Max Stretch Group",
+        description="Vertex group where the limit applies: weight 1 = Max Stretch, lower weights allow "
+        "proportionally more (Max Stretch / weight), 0 or not in the group = no limit (empty: everywhere)",
+    )
+    strain_mode: EnumProperty(
+        name="Strain Mode",
+        items=(
+            ("UNIFIED", "With Contacts", "Limit stretch in the same loop as the contacts, until both hold"),
+            ("POST", "After Contacts", "Limit stretch after the collision passes; can pull skin back "
+             "into colliders (kept to show the difference)"),
+        ),
+        default="UNIFIED",
+    )
+
     audit: BoolProperty(
         name="Audit", default=True,
         description="After each baked frame, count skin vertices inside colliders and edges crossing "
@@ -82,6 +130,14 @@ class TEGUMENT_PG_deform(bpy.types.PropertyGroup):
     audit_vertices_inside: IntProperty(name="Vertices Inside", default=0, options={"HIDDEN"})
     audit_edges_crossing: IntProperty(name="Edges Crossing", default=0, options={"HIDDEN"})
     audit_collider_edges_crossing: IntProperty(name="Collider Edges Crossing", default=0, options={"HIDDEN"})
+    worst_stretch: FloatProperty(
+        name="Worst Stretch", default=0.0, options={"HIDDEN"},
+        description="Largest length / rest length of a limited edge in the last bake",
+    )
+    max_recession: FloatProperty(
+        name="Collider Recession", default=0.0, options={"HIDDEN"},
+        description="Farthest a compliant collider vertex receded from its animation in the last bake",
+    )
     pinched_vertices: IntProperty(
         name="Pinched", default=0, options={"HIDDEN"},
         description="Most vertices pinched between colliders in one frame of the last bake",

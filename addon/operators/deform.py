@@ -14,7 +14,7 @@ import traceback
 import bpy
 
 from .. import mesh_arrays, pc2
-from ..deform import bake, evaluate
+from ..deform import bake, colliders, evaluate
 from ..deform.evaluate import DeformError
 from ..deform.properties import MODIFIER_NAME
 
@@ -283,6 +283,18 @@ class TEGUMENT_OT_free_bake(bpy.types.Operator):
     def execute(self, context):
         obj = context.active_object
         path = evaluate.cache_file(obj)
+        # The compliant colliders' caches belong to this bake too.
+        for collider in colliders.collider_objects(obj):
+            if colliders.is_compliant(collider):
+                compliance_path = colliders.compliance_cache_path(collider)
+                try:
+                    os.remove(compliance_path)
+                except FileNotFoundError:
+                    pass
+                except OSError as error:
+                    self.report({"ERROR"}, f"cannot delete {compliance_path}: {error.strerror}")
+                    return {"CANCELLED"}
+                collider.update_tag()
         try:
             os.remove(path)
         except FileNotFoundError:

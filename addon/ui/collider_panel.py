@@ -24,3 +24,7 @@ class TEGUMENT_PT_collider(bpy.types.Panel):
         layout.prop(settings, "thickness")
         layout.prop(settings, "friction")
         layout.prop(settings, "kinetic_friction")
+        layout.prop_search(settings, "compliant_group", context.object, "vertex_groups")
+        if settings.compliant_group:
+            layout.prop(settings, "stiffness")
+            layout.prop(settings, "cache_path")

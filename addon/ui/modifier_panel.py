@@ -40,6 +40,19 @@ class TEGUMENT_PT_modifier(bpy.types.Panel):
             column.prop(settings, "collider_collection")
             if settings.collider_collection is not None:
                 column.prop(settings, "audit")
+            column.prop(settings, "substeps")
+            column.prop(settings, "dynamic")
+            if settings.dynamic:
+                dynamics = column.column(align=True)
+                dynamics.prop(settings, "mass")
+                dynamics.prop(settings, "damping")
+                dynamics.prop(settings, "use_gravity")
+            column.prop(settings, "limit_stretch")
+            if settings.limit_stretch:
+                strain = column.column(align=True)
+                strain.prop(settings, "max_stretch")
+                strain.prop_search(settings, "max_stretch_group", obj, "vertex_groups")
+                strain.prop(settings, "strain_mode")
             frames = column.column(align=True)
             frames.prop(settings, "frame_start", text="Frame Start")
             frames.prop(settings, "frame_end", text="End")
@@ -62,6 +75,13 @@ class TEGUMENT_PT_modifier(bpy.types.Panel):
                     icon="CHECKMARK" if not (settings.audit_vertices_inside or settings.audit_edges_crossing
                                              or settings.audit_collider_edges_crossing) else "ERROR",
                 )
+            if cached and (settings.limit_stretch or settings.max_recession):
+                extras = []
+                if settings.limit_stretch:
+                    extras.append(f"worst stretch {100 * (settings.worst_stretch - 1):.1f}%")
+                if settings.max_recession:
+                    extras.append(f"colliders receded up to {settings.max_recession:.3g}")
+                status.label(text=" · ".join(extras), icon="INFO")
             if settings.warnings:
                 status.label(text=settings.warnings, icon="ERROR")
         layout.operator("tegument.check_mesh", icon="CHECKMARK")

@@ -104,6 +104,16 @@ impl Collider {
         Ok(dict)
     }
 
+    /// Puts the collider at ``positions`` (float32 ``(N, 3)``) without motion
+    /// (previous = current = ``positions``). A compliant collider keeps its
+    /// goals: this is how a resumed bake puts it back where the last cached
+    /// frame solved it.
+    fn place(&self, py: Python<'_>, positions: &Bound<'_, PyAny>) -> PyResult<()> {
+        let count = self.read().vertex_count();
+        let positions: Vec<Vec3> = positions_arg("positions", positions, Some(count))?;
+        run_detached(py, move || self.write().set_positions(&positions, &positions).map(|_| ()))
+    }
+
     /// Forgets the motion (previous = current), e.g. after a jump in time.
     fn hold(&self, py: Python<'_>) -> PyResult<()> {
         run_detached(py, move || self.write().hold().map(|_| ()))

@@ -141,3 +141,16 @@ def test_bad_compliance_is_refused_and_none_turns_it_off():
     assert collider.is_compliant
     collider.set_compliance(None)
     assert not collider.is_compliant
+
+
+def test_place_moves_a_compliant_collider_without_touching_its_goals():
+    sphere, tris = uv_sphere(0.3)
+    collider = tegument.Collider(sphere, tris)
+    collider.set_compliance(10.0)
+    collider.update(sphere + np.float32([0, 0, 1]))
+    collider.place(sphere + np.float32([0, 0, 0.5]))
+    np.testing.assert_array_equal(collider.positions, sphere + np.float32([0, 0, 0.5]))
+    np.testing.assert_array_equal(collider.previous_positions, collider.positions)
+    np.testing.assert_array_equal(collider.goal_positions, sphere + np.float32([0, 0, 1]))
+    with pytest.raises(tegument.TegumentError, match="positions"):
+        collider.place(sphere[:3])

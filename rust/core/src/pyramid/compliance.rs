@@ -123,16 +123,20 @@ pub(super) fn recede_from(
     };
     let params = ResolveParams { motion: ColliderMotion::AtCurrent, friction: false, ..ResolveParams::in_loop() };
     let set = ColliderSet::new([&*obstacle]);
-    // What each spring wants is its goal or, where the goal lies behind the
-    // skin (or within the thickness of it), the point of the skin's offset
-    // surface nearest the goal, on the side the vertex is on. That depends on
-    // the goal and the skin only, not on the path: heading there directly
-    // keeps the result independent of substeps and iterations. The move is
-    // still checked by continuous collision detection, which stops what the
-    // heading did not foresee.
+    // Where a goal lies behind the skin (or within the thickness of it), the
+    // vertex recedes along its own normal (the direction its region pushes
+    // into the skin) to the skin's offset surface on the side it is on;
+    // elsewhere it heads for its goal. That depends on the goal and the skin
+    // only, not on the path, so the result does not depend on substeps or
+    // iterations. (The point of the skin nearest the goal would minimise the
+    // spring exactly, but for a goal deep behind a curved skin it moves much
+    // further than the skin does: 1 and 4 substeps then differ by 6% of the
+    // motion.) The move is still checked by continuous collision detection,
+    // which stops what the heading did not foresee.
     let clearance = settings.thickness * CLEARANCE + 1e-6;
     let start = collider.current().to_vec();
     let stiffness = collider.compliance().map(|k| k.stiffness.clone()).unwrap_or_default();
+    let normals = vertex_normals(goal, collider.triangles());
     let heading: Vec<Vec3> = (0..goal.len())
         .into_par_iter()
         .map(|v| {
@@ -141,14 +145,29 @@ pub(super) fn recede_from(
                 return g;
             }
             let Some(near) = obstacle.closest_point(g) else { return g };
-            let [a, b, c] = obstacle.triangles()[near.triangle as usize].map(|k| x[k as usize]);
-            let normal = (b - a).cross(c - a).normalize_or_zero();
+            let face_normal = |t: u32| {
+                let [a, b, c] = obstacle.triangles()[t as usize].map(|k| x[k as usize]);
+                (b - a).cross(c - a).normalize_or_zero()
+            };
+            let normal = face_normal(near.triangle);
             let side = if normal.dot(start[v] - near.point) >= 0.0 { normal } else { -normal };
-            let behind = side.dot(g - near.point) < clearance;
-            if behind {
-                near.point + side * clearance
-            } else {
-                g
+            if side.dot(g - near.point) >= clearance {
+                return g;
+            }
+            let fallback = near.point + side * clearance;
+            let n = normals[v];
+            let dir = if n.dot(side) >= 0.0 { n } else { -n };
+            if dir.dot(side) < 0.3 {
+                return fallback; // the normal runs along the skin: no well-defined crossing
+            }
+            let reach = 4.0 * ((g - near.point).length() + clearance);
+            match obstacle.first_hit(g, g + dir * reach) {
+                Some((t, tri)) => {
+                    let m = face_normal(tri);
+                    let m = if m.dot(dir) >= 0.0 { m } else { -m };
+                    g + dir * (t * reach + clearance / m.dot(dir).max(0.3))
+                }
+                None => fallback,
             }
         })
         .collect();
@@ -167,4 +186,17 @@ pub(super) fn recede_from(
 pub(super) fn compliant_skin(collider: &Collider, stiffness: &[f32]) -> Result<Skin> {
     let inverse_mass = stiffness.iter().map(|&k| if k > 0.0 { 1.0 } else { 0.0 }).collect();
     Skin::new(collider.vertex_count(), collider.edges().to_vec(), collider.triangles().to_vec())?.with_inverse_mass(inverse_mass)
+}
+
+/// Area-weighted vertex normals (unit, or zero where undefined).
+fn vertex_normals(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
+    let mut normals = vec![Vec3::ZERO; positions.len()];
+    for tri in triangles {
+        let [a, b, c] = tri.map(|v| positions[v as usize]);
+        let n = (b - a).cross(c - a);
+        for &v in tri {
+            normals[v as usize] += n;
+        }
+    }
+    normals.iter().map(|n| n.normalize_or_zero()).collect()
 }

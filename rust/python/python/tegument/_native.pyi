@@ -137,6 +137,8 @@ class Collider:
         """Next frame: current positions become the previous ones; ``positions`` (same N)
         the current ones. Refits the BVH (rebuilds it when degraded). Returns
         ``{"cost_ratio": float, "rebuilt": bool}``."""
+    def place(self, positions: npt.NDArray[np.float32]) -> None:
+        """Puts the collider at ``positions`` without motion; a compliant collider keeps its goals."""
     def hold(self) -> None:
         """Forgets the motion (previous = current), e.g. after a jump in time."""
     def set_compliance(self, stiffness: float | npt.NDArray[np.float32] | None) -> None:
