@@ -2,7 +2,8 @@
 
 The table (``docs/performance-table.md``, linked from ``docs/performance.md``) puts every comparison
 side by side, each measured in the same run on the same mesh: Pyramid Deform against Corrective
-Smooth, collisions against Cloth and Shrinkwrap + Corrective Smooth, the UV warp against the seed
+Smooth, collisions against Cloth and Shrinkwrap + Corrective Smooth, what dynamics, strain limits
+and compliant colliders add to a step, the UV warp against the seed
 paper's published GPU figures, and each hot loop as a multiple of the memory-bandwidth reference
 measured in that run. Below it, every row the benchmarks wrote.
 
@@ -101,6 +102,18 @@ def summary(rows: Rows) -> list[Line]:
                           vertices_inside=rows.value("blender", skin, f"{label}: vertices inside (all frames)"),
                           edges_crossing=rows.value("blender", skin, f"{label}: edges crossing (all frames)"),
                           times_bandwidth=in_loop_ratio if method.startswith("Tegument") else None, note=note))
+
+    # Flesh: what dynamics, strain limits and a compliant collider add to a whole step on the
+    # collision scene (tegument-core, the pyramid solve included).
+    flesh = r"skin .* vs collider .*, step"
+    comparison = "flesh: added cost per frame (whole step, 10 it., 2 threads)"
+    case = rows.find("flesh", flesh, "collisions only")["case"]
+    lines.append(Line(comparison, case, "Tegument step: collisions only", rows.value("flesh", flesh, "collisions only"),
+                      note="the baseline the additions below are measured against"))
+    for feature in ("dynamics", "strain limits (unified)", "strain limits (post)", "compliant collider", "all three"):
+        total = rows.value("flesh", flesh, f"+ {feature}")
+        added = rows.value("flesh", flesh, f"added by {feature}")
+        lines.append(Line(comparison, case, f"+ {feature}", total, note=f"adds {added:+.0f} ms"))
 
     # UV warp: each grid size against the seed's GPU figure.
     comparison = "UV warp, per frame (warm)"
@@ -210,7 +223,7 @@ def main() -> None:
     parser.add_argument("--plot", help="path of the plot relative to the Markdown file, to show under the table")
     args = parser.parse_args()
     rows = []
-    for name in ("pyramid", "collide", "warp", "blender"):
+    for name in ("pyramid", "collide", "flesh", "warp", "blender"):
         path = args.results / f"{name}.json"
         if not path.exists():
             raise SystemExit(f"error: {path} is missing: the {name} benchmark did not run")

@@ -1,7 +1,7 @@
 """`make bench`: every benchmark in one run, then one table.
 
-Steps, in order, each as a child process: build the Rust benchmarks; the pyramid solver, collision
-and UV warp benchmarks (``rust/core/benches``, rows in ``bench/results/<name>.json``); the Blender
+Steps, in order, each as a child process: build the Rust benchmarks; the pyramid solver, collision,
+flesh (dynamics, strain limits, compliant colliders) and UV warp benchmarks (``rust/core/benches``, rows in ``bench/results/<name>.json``); the Blender
 benchmark (``bench/blender_bench.py``: Pyramid Deform against Corrective Smooth, collisions against
 Cloth and Shrinkwrap + Corrective Smooth, in real Blender with the built extension). Then
 ``bench/collect.py`` merges the rows into ``bench/results.json`` and ``docs/performance-table.md``
@@ -85,9 +85,10 @@ def main() -> int:
     cargo = ["cargo", "bench", "-p", "tegument-core"]
     steps = [
         # Compiled first, so no benchmark is timed while its successors compile.
-        ("build", cargo + ["--no-run", "--bench", "pyramid", "--bench", "collide", "--bench", "warp"], {}),
+        ("build", cargo + ["--no-run", "--bench", "pyramid", "--bench", "collide", "--bench", "flesh", "--bench", "warp"], {}),
         ("pyramid", cargo + ["--bench", "pyramid"], results_env),
         ("collide", cargo + ["--bench", "collide"], results_env),
+        ("flesh", cargo + ["--bench", "flesh"], results_env),
         ("warp", cargo + ["--bench", "warp"], {**results_env, "TEGUMENT_WARP_SIZES": "1024,2048,4096"}),
         ("blender", [python, str(HERE / "blender_bench.py"), "--out", str(args.results), "--zip", str(args.zip)], {}),
     ]

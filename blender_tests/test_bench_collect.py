@@ -19,6 +19,7 @@ import collect  # noqa: E402
 TUBE = "armature-bent tube, 100k vertices"
 SKIN = "skin 100k vertices vs sphere 20k triangles"
 CORE_SKIN = "skin 100489 v / 199712 tri vs collider 20172 tri"
+FLESH = "skin 100489 v vs collider 20172 tri, step"
 
 
 def row(benchmark, case, metric, value, threads=2, unit="ms"):
@@ -48,6 +49,9 @@ def run_rows() -> list[dict]:
                      row("pyramid", case, "targets: iteration / reference", 2.0 / threads, threads, unit="x")]
     rows += [row("collide", CORE_SKIN, "one in-loop pass", 100.0), row("collide", CORE_SKIN, "pass 1 (swept collider)", 400.0),
              row("collide", CORE_SKIN, "bandwidth reference", 0.5), row("collide", CORE_SKIN, "in-loop pass / reference", 200.0, unit="x")]
+    rows.append(row("flesh", FLESH, "collisions only", 800.0))
+    for k, feature in enumerate(("dynamics", "strain limits (unified)", "strain limits (post)", "compliant collider", "all three")):
+        rows += [row("flesh", FLESH, f"+ {feature}", 810.0 + 10 * k), row("flesh", FLESH, f"added by {feature}", 10.0 + 10 * k)]
     for n in (1024, 2048, 4096):
         case = f"{n}x{n} cylinder 33k verts, 25% rigid"
         scale = (n // 1024) ** 2
@@ -75,6 +79,9 @@ def test_summary_puts_each_comparison_side_by_side():
     assert [line.ms_per_frame for line in warps] == [100.0, 3.87, 400.0, 14.03, 1600.0, 119.31]
     assert [line.peak_mib for line in warps[::2]] == [70.0, 280.0, 1120.0]
     assert [line.times_bandwidth for line in warps[::2]] == [50.0, 50.0, 50.0]  # frame ÷ that size's reference
+    flesh = [line for line in lines if line.comparison.startswith("flesh")]
+    assert [line.ms_per_frame for line in flesh] == [800.0, 810.0, 820.0, 830.0, 840.0, 850.0]
+    assert flesh[4].method == "+ compliant collider" and flesh[4].note == "adds +40 ms"
     loops = [line for line in lines if line.comparison.startswith("hot loops")]
     assert len(loops) == 6 + 2 + 6
     assert loops[6].times_bandwidth == 200.0 and loops[7].times_bandwidth == 800.0  # in-loop and pass 1 ÷ 0.5 ms
@@ -88,7 +95,7 @@ def test_a_missing_figure_is_named():
 
 def test_command_writes_the_json_and_the_table_with_the_load_of_each_step(tmp_path):
     rows = run_rows()
-    for name in ("pyramid", "collide", "warp", "blender"):
+    for name in ("pyramid", "collide", "flesh", "warp", "blender"):
         (tmp_path / f"{name}.json").write_text(json.dumps([r for r in rows if r["benchmark"] == name]))
     (tmp_path / "machine.txt").write_text("Test CPU, 2 cores\nBlender 5.0.1\n")
     run = {"started": "2026-11-23T15:00:00+00:00", "seconds": 600.0, "steps": [

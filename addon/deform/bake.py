@@ -187,9 +187,7 @@ class BakeJob:
         """Solves and writes the next frame; returns it."""
         frame = self.frames[self.done]
         started = time.perf_counter()
-        solved, self._world = solve_frame(
-            self.scene, self.obj, frame, self.deformer, self.closeness, self.rig, self.options, history=self.uses_step
-        )
+        solved, self._world = solve_frame(self.scene, self.obj, frame, self.deformer, self.closeness, self.rig, self.options)
         self.writer.append(solved)
         for k, writer in self.collider_writers.items():
             writer.append(self.rig.solved_local(k))
@@ -299,9 +297,7 @@ class BakeJob:
         self.scene.frame_set(self.frame_before)
 
 
-def solve_frame(
-    scene, obj, frame: int, deformer, closeness, rig=None, options=None, *, history: bool | None = None
-) -> tuple[np.ndarray, np.ndarray]:
+def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=None) -> tuple[np.ndarray, np.ndarray]:
     """``(object space, world space)`` result of one frame; the caller hides Tegument's modifier.
 
     With colliders (``rig``), dynamics, substeps or strain limits (``options``,
@@ -309,8 +305,7 @@ def solve_frame(
     the deformer's last output; otherwise a plain solve from the input.
     """
     options = options or {}
-    if history is None:
-        history = bool(rig) or bool(options)
+    history = bool(rig) or bool(options)
     import tegument
 
     scene.frame_set(frame)

@@ -1,0 +1,108 @@
+//! Flesh benchmark (issue 6): the added per-frame cost of dynamics, strain
+//! limits and a compliant collider on the scene of the collision benchmark —
+//! a ~100k-vertex skin (a 316² grid) and a ~20k-triangle quad sphere that
+//! rises into it and slides sideways — through the whole
+//! `PyramidDeformer::step` (pyramid solve, both collision passes, and the
+//! feature under test), 10 iterations, 2 threads.
+//!
+//! `cargo bench -p tegument-core --bench flesh`
+
+mod common;
+
+use common::{machine, with_threads, Report};
+use glam::Vec3;
+use tegument_core::collide::audit::fan_triangles;
+use tegument_core::collide::{Collider, ColliderSettings};
+use tegument_core::mesh::shapes::{grid, quad_sphere};
+use tegument_core::pyramid::{Closeness, DeformerOptions, Dynamics, PyramidDeformer, StepOptions, StrainMode, StrainOptions};
+use tegument_core::strain::MaxStretch;
+
+const FRAMES: usize = 8;
+/// Frames timed at the end of the animation (the sliding phase, in contact).
+const TIMED: usize = 3;
+const RADIUS: f32 = 0.3;
+
+/// Sphere centre at frame `k`, as in the collision benchmark.
+fn centre(k: usize) -> Vec3 {
+    let k = k as f32;
+    Vec3::new(-0.3 + 0.04 * (k - 6.0).max(0.0), 0.05, -RADIUS - 0.02 + 0.03 * k.min(6.0))
+}
+
+struct Config {
+    name: &'static str,
+    options: StepOptions<'static>,
+    compliant: bool,
+}
+
+fn main() {
+    let mut report = Report::new("flesh");
+    report.add("machine", &machine(), 0.0, "", 0, "");
+    let skin = grid(316, 316, 2.0);
+    let sphere = quad_sphere(41, RADIUS);
+    let tris = fan_triangles(&sphere.corner_verts, &sphere.input().validate().unwrap());
+    let case = format!("skin {} v vs collider {} tri, step", skin.positions.len(), tris.len());
+    println!("{case}");
+    let settings = ColliderSettings { thickness: 0.005, static_friction: 0.4, kinetic_friction: 0.3 };
+    let base = StepOptions::new(10, Closeness::Uniform(0.1));
+    let configs = [
+        Config { name: "collisions only", options: base, compliant: false },
+        Config { name: "+ dynamics", options: StepOptions { dynamics: Some(Dynamics::default()), ..base }, compliant: false },
+        Config {
+            name: "+ strain limits (unified)",
+            options: StepOptions { strain: Some(StrainOptions { max_stretch: MaxStretch::Uniform(0.1), mode: StrainMode::Unified }), ..base },
+            compliant: false,
+        },
+        Config {
+            name: "+ strain limits (post)",
+            options: StepOptions { strain: Some(StrainOptions { max_stretch: MaxStretch::Uniform(0.1), mode: StrainMode::Post }), ..base },
+            compliant: false,
+        },
+        Config { name: "+ compliant collider", options: base, compliant: true },
+        Config {
+            name: "+ all three",
+            options: StepOptions {
+                dynamics: Some(Dynamics::default()),
+                strain: Some(StrainOptions { max_stretch: MaxStretch::Uniform(0.1), mode: StrainMode::Unified }),
+                ..base
+            },
+            compliant: true,
+        },
+    ];
+    let mut baseline = None;
+    for config in &configs {
+        let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let at = |k: usize| sphere.positions.iter().map(|&p| p + centre(k)).collect::<Vec<_>>();
+        let mut collider = Collider::new(&at(0), &tris, settings).unwrap();
+        if config.compliant {
+            collider.set_compliance(Some(&vec![200.0; sphere.positions.len()])).unwrap();
+        }
+        let mut times = Vec::new();
+        let mut last = None;
+        with_threads(2, || {
+            for k in 1..=FRAMES {
+                collider.update(&at(k)).unwrap();
+                let started = std::time::Instant::now();
+                let (_, step) = deformer.step(&skin.positions, &mut [&mut collider], &config.options).unwrap();
+                let ms = started.elapsed().as_secs_f64() * 1e3;
+                println!("{:<28} frame {k}: {ms:.0} ms, {} pinched", config.name, step.pinched.len());
+                if k > FRAMES - TIMED {
+                    times.push(ms);
+                }
+                last = Some(step);
+            }
+        });
+        times.sort_by(f64::total_cmp);
+        let median = times[times.len() / 2];
+        let step = last.unwrap();
+        let note = format!(
+            "median of the last {TIMED} frames; worst stretch {:.3}, {} compliant skin vertices, recession {:.4}",
+            step.worst_stretch, step.compliant_skin_vertices, step.max_recession
+        );
+        report.add(&case, config.name, median, "ms", 2, &note);
+        match baseline {
+            None => baseline = Some(median),
+            Some(base) => report.add(&case, &format!("added by {}", config.name.trim_start_matches("+ ")), median - base, "ms", 2, ""),
+        }
+    }
+    report.save();
+}
