@@ -45,7 +45,8 @@ def compliance_modifier(collider):
 
 
 def compliant_stiffness(collider, vertex_count: int) -> np.ndarray:
-    """Stiffness per vertex of the evaluated collider: the setting times the group weights."""
+    """Stiffness per vertex of the evaluated collider: the setting divided by the group weight (0, kinematic,
+    where the weight is 0)."""
     settings = collider.tegument_collider
     group = collider.vertex_groups.get(settings.compliant_group)
     if group is None:
@@ -56,7 +57,11 @@ def compliant_stiffness(collider, vertex_count: int) -> np.ndarray:
             f"{len(collider.data.vertices)}; a compliant collider must keep its vertex count (the group "
             "weights belong to the mesh's vertices): apply or remove the modifier that changes it"
         )
-    return (settings.stiffness * mesh_arrays.vertex_group_weights(collider.data, group.index)).astype(np.float32)
+    # Weight = how compliant: 1 gives Stiffness, lower weights stiffer springs, and 0 none at all
+    # (kinematic), so painting fades continuously into the rigid part.
+    weights = mesh_arrays.vertex_group_weights(collider.data, group.index)
+    with np.errstate(divide="ignore"):
+        return np.where(weights > 0, settings.stiffness / np.maximum(weights, 1e-30), 0.0).astype(np.float32)
 
 
 class TEGUMENT_PG_collider(bpy.types.PropertyGroup):
@@ -74,8 +79,9 @@ class TEGUMENT_PG_collider(bpy.types.PropertyGroup):
     )
     compliant_group: StringProperty(
         name="Compliant Group",
-        description="Vertex group of the region that gives way where it meets the skin (weights scale "
-        "Stiffness; 0 or not in the group = follows its animation exactly). Empty: fully kinematic",
+        description="Vertex group of the region that gives way where it meets the skin: weight 1 springs "
+        "with Stiffness, lower weights stiffer (Stiffness / weight), 0 or not in the group follows its "
+        "animation exactly. Empty: fully kinematic",
     )
     stiffness: FloatProperty(
         name="Stiffness", default=200.0, min=0.0, soft_max=10000.0,
