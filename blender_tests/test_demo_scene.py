@@ -15,6 +15,7 @@ import bpy
 import numpy as np
 import pytest
 
+import flesh
 import pictures
 import scene as demo_scene
 
@@ -94,6 +95,18 @@ def test_limb_with_body_collider_and_materials():
     clay = demo_scene.body_material(body)
     demo_scene.set_alpha(clay, 0.25)
     assert clay.node_tree.nodes["Principled BSDF"].inputs["Alpha"].default_value == pytest.approx(0.25)
+
+
+def test_plane_section_of_a_sphere_is_its_great_circle():
+    # The compliance picture draws the arm and torso as these sections: they must lie on the outline.
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=32, ring_count=16, radius=0.3, location=(0.1, 0.0, -0.2))
+    sphere = bpy.context.object
+    positions, triangles = flesh.world_mesh(sphere, 1)
+    segments = flesh.plane_section(positions, triangles, y=0.0)
+    assert segments.shape[1:] == (2, 2) and len(segments) >= 32
+    radius = np.linalg.norm(segments.reshape(-1, 2) - (0.1, -0.2), axis=1)
+    assert radius.max() <= 0.3 + 1e-5 and radius.min() > 0.29  # chords of the faceted sphere, near its circle
+    assert len(flesh.plane_section(positions, triangles, y=0.5)) == 0
 
 
 def rgba(height, width, value):

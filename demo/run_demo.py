@@ -10,10 +10,14 @@ scales. The demo then, through the installed extension:
    on the cached result, against the body at that frame);
 4. bakes the Tegument UV Warp node into an OpenEXR sequence (``tegument.warp_bind``, then the bake
    that ``blender --command tegument warp-bake`` runs), with a stretch heat map;
-5. renders with Cycles on the CPU: skinning only | Tegument, and the texture without | with the warp.
+5. renders with Cycles on the CPU: skinning only | Tegument, and the texture without | with the warp;
+6. shows the flesh features of Pyramid Deform (``demo/flesh.py``), each in a small scene of its
+   own: dynamics (lag, overshoot, settling; 1 vs 4 substeps), a compliant collider that gives way
+   where a kinematic one pinches, and strain limits (unified with collisions, or after them).
 
-Writes into ``--out``: the PNG pictures, the PC2 cache, the EXR sequence, ``demo.blend`` and
-``report.json`` (time per frame of each stage, audit counts, rigid stretch errors). Run through
+Writes into ``--out``: the PNG pictures, the PC2 cache, the EXR sequence, ``demo.blend``, the flesh
+scenes and their caches in ``flesh/`` and ``report.json`` (time per frame of each stage, audit
+counts, rigid stretch errors; the flesh figures under ``"flesh"``). Run through
 the Makefile, which builds the extension first.
 """
 
@@ -205,6 +209,7 @@ def run(args, out: pathlib.Path, user: str) -> int:
     import numpy as np
 
     sys.path.insert(0, str(HERE))
+    import flesh
     import pictures
     import scene as demo_scene
 
@@ -403,6 +408,8 @@ def run(args, out: pathlib.Path, user: str) -> int:
                     seconds_per_render=round(float(np.mean(seconds)), 2))
 
     bpy.ops.wm.save_as_mainfile(filepath=str(out / "demo.blend"))
+    # Last: each flesh scene replaces the open file with one of its own.
+    report.data["flesh"] = flesh.run(out, tegument, stage)
     data = report.data
     data["outputs"] = {
         "blend": str(out / "demo.blend"),
@@ -432,6 +439,16 @@ def print_summary(data: dict, out: pathlib.Path) -> None:
     print(f"[demo] UV warp {warp['resolution']}²: {warp['ms_per_frame']:.0f} ms per frame; rigid stretch "
           f"{warp['rigid_stretch_before']:.3f} → {warp['rigid_stretch_after']:.3f}, fold-overs {warp['foldovers']}")
     print(f"[demo] renders: {s['render']['renders']} × {s['render']['seconds_per_render']:.1f} s")
+    dynamics, compliance, strain = (data["flesh"][k] for k in ("dynamics", "compliance", "strain"))
+    print(f"[demo] dynamics: overshoot {dynamics['peak_overshoot']:.3f} (motion {dynamics['motion']}), settled to "
+          f"{dynamics['settle_error']:.4f}; 1 vs 4 substeps {dynamics['substeps_1_vs_4_last_frame_difference']:.4f} apart "
+          f"at the last frame ({dynamics['substeps_1_vs_4_max_difference']:.3f} at most) -> {dynamics['picture']}")
+    print(f"[demo] compliance: kinematic arm {compliance['kinematic']['bake_audit']['pinched_vertices']} pinched, "
+          f"compliant arm {sum(compliance['compliant']['independent_audit'].values())} penetrations, receded "
+          f"{compliance['compliant']['played_back_recession']:.3f} -> {compliance['picture']}")
+    print("[demo] strain: " + "; ".join(
+        f"{mode} worst {strain[mode]['worst_stretch']:.3f}, {sum(strain[mode]['independent_audit'].values())} penetrations"
+        for mode in ("no limit", "UNIFIED", "POST")) + f" -> {strain['picture']}")
     print(f"[demo] done in {data['total_seconds']:.1f} s; everything is in {out}:")
     for path in sorted(out.iterdir()):
         suffix = f"  ({len(list(path.iterdir()))} files)" if path.is_dir() else ""

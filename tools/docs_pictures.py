@@ -22,6 +22,10 @@ PICTURES = {
     "collisions_before_after.png": ("collisions_before_after.png", 128),
     "uv_warp_before_after.png": ("uv_warp_demo_before_after.png", 128),
     "uv_warp_heat_map.png": ("uv_warp_heat_map.png", 64),
+    # matplotlib plots: flat colours and anti-aliased lines; the strain picture's colour map needs more.
+    "flesh_dynamics.png": ("flesh_dynamics.png", 64),
+    "flesh_compliance.png": ("flesh_compliance.png", 64),
+    "flesh_strain.png": ("flesh_strain.png", 128),
 }
 
 
