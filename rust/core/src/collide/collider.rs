@@ -350,6 +350,20 @@ impl Collider {
         }
     }
 
+    /// Whether any triangle (at the current positions) is within `distance` of `p`.
+    pub fn is_within(&self, p: Vec3, distance: f32) -> bool {
+        let pd = p.as_dvec3();
+        let limit = (distance as f64) * (distance as f64);
+        let mut found = false;
+        self.tree.query(&Bounds { min: p, max: p }.inflated(distance), |t| {
+            let [a, b, c] = self.triangles[t].map(|v| self.current[v as usize].as_dvec3());
+            let (v, w) = closest_on_triangle(pd, a, b, c);
+            found = (pd - (a + v * (b - a) + w * (c - a))).length_squared() <= limit;
+            !found
+        });
+        found
+    }
+
     /// Where segment `p → q` first meets the surface (at the current
     /// positions): the fraction along it and the triangle, or `None`.
     pub fn first_hit(&self, p: Vec3, q: Vec3) -> Option<(f32, u32)> {

@@ -144,6 +144,11 @@ pub(super) fn recede_from(
             if stiffness.get(v).is_none_or(|&k| k == 0.0) {
                 return g;
             }
+            // A goal clear of the skin and reachable in a straight line needs no
+            // search for the skin's closest point (which is slow far from it).
+            if obstacle.first_hit(start[v], g).is_none() && !obstacle.is_within(g, clearance) {
+                return g;
+            }
             let Some(near) = obstacle.closest_point(g) else { return g };
             let face_normal = |t: u32| {
                 let [a, b, c] = obstacle.triangles()[t as usize].map(|k| x[k as usize]);
