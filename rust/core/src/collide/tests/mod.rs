@@ -5,4 +5,5 @@ mod data;
 mod datasets;
 mod ccd_props;
 mod funnel;
+mod queries;
 mod response;
