@@ -99,11 +99,11 @@ class Writer:
         if positions.shape != (self.vertex_count, 3):
             self.abort()
             raise CacheError(f"cache frame {self.frames} has shape {positions.shape}, expected ({self.vertex_count}, 3)")
-        bad = np.argwhere(~np.isfinite(positions))
-        if len(bad):
+        if not np.isfinite(positions).all():  # one pass; the search for the culprit only on failure
+            bad = np.argwhere(~np.isfinite(positions))
             self.abort()
             raise CacheError(f"refusing to write {self.path}: vertex {bad[0][0]} of cache frame {self.frames} is not finite")
-        self._guard(self.file.write, positions.tobytes())
+        self._guard(self.file.write, memoryview(positions).cast("B"))  # no copy of the frame
         self.frames += 1
 
     def commit(self) -> None:

@@ -2,7 +2,7 @@
 
 use std::sync::Mutex;
 
-use numpy::{PyArray1, PyArray2, PyUntypedArray};
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyUntypedArray};
 use pyo3::prelude::*;
 use tegument_core::mesh::MeshInput;
 use pyo3::types::PyDict;
@@ -117,8 +117,17 @@ impl PyramidDeformer {
         closeness: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let (input, iterations, weights) = self.frame_args(positions, iterations, closeness)?;
-        let output = self.with(py, move |core| core.solve(&input, iterations, weights.as_closeness()))?;
-        Ok(positions_to_py(py, &output))
+        // The solve starts from the input and runs in the returned array itself:
+        // no result vector to copy out at 100k+ vertices per frame.
+        let output = PyArray2::<f32>::zeros(py, [input.len(), 3], false);
+        {
+            let mut writable = output.readwrite();
+            let flat = writable.as_slice_mut().expect("a new C-contiguous array");
+            let out: &mut [glam::Vec3] = bytemuck::cast_slice_mut(flat);
+            out.copy_from_slice(&input);
+            self.with(py, move |core| core.solve_into(&input, out, iterations, weights.as_closeness(), None))?;
+        }
+        Ok(output)
     }
 
     /// Solves the next frame of an animation against ``colliders`` and

@@ -133,13 +133,7 @@ impl Packed {
         // SAFETY: every stored index is a vertex of the encoding's mesh
         // (checked when the topology was built) and `targets` checked that
         // `x` has that many vertices.
-        let p = |l: usize| unsafe { *x.get_unchecked(index[l] as usize) };
-        let (a, b, c, d) = (p(0), p(1), p(2), p(3));
-        [
-            F4::new(a.x, b.x, c.x, d.x),
-            F4::new(a.y, b.y, c.y, d.y),
-            F4::new(a.z, b.z, c.z, d.z),
-        ]
+        unsafe { F4::gather_xyz(x, [index[0], index[1], index[2], index[3]]) }
     }
 
     #[inline(always)]
@@ -237,6 +231,9 @@ mod f4 {
     use std::arch::x86_64::*;
     use std::ops::{Add, BitAnd, Div, Mul, Sub};
 
+    // `gather_xyz` reads a point as 16 bytes from its first float.
+    const _: () = assert!(std::mem::size_of::<glam::Vec3>() == 12);
+
     /// Four f32 lanes (SSE2, part of every x86-64 CPU).
     #[derive(Clone, Copy, Debug)]
     pub struct F4(__m128);
@@ -281,6 +278,40 @@ mod f4 {
         #[inline(always)]
         pub fn to_array(self) -> [f32; 4] {
             unsafe { std::mem::transmute::<__m128, [f32; 4]>(self.0) }
+        }
+        /// `[x, y, z]` lanes of the points `x[index[l]]`: one 16-byte load per
+        /// point and a 4×3 transpose, instead of twelve scalar loads and their
+        /// inserts (the gathers are most of the kernel's work). The last point
+        /// of `x` has no fourth float after it to over-read, so it is loaded
+        /// by parts.
+        ///
+        /// # Safety
+        /// Every index is below `x.len()`.
+        #[inline(always)]
+        pub unsafe fn gather_xyz(x: &[glam::Vec3], index: [u32; 4]) -> [F4; 3] {
+            let last = x.len() - 1;
+            let row = |i: u32| -> __m128 {
+                let i = i as usize;
+                if i < last {
+                    // Vec3 is three packed f32; x[i + 1] exists, so 16 bytes are in bounds.
+                    unsafe { _mm_loadu_ps(x.as_ptr().add(i) as *const f32) }
+                } else {
+                    let p = unsafe { *x.get_unchecked(i) };
+                    unsafe { _mm_setr_ps(p.x, p.y, p.z, 0.0) }
+                }
+            };
+            let (r0, r1, r2, r3) = (row(index[0]), row(index[1]), row(index[2]), row(index[3]));
+            unsafe {
+                let xy01 = _mm_unpacklo_ps(r0, r1); // x0 x1 y0 y1
+                let xy23 = _mm_unpacklo_ps(r2, r3); // x2 x3 y2 y3
+                let zw01 = _mm_unpackhi_ps(r0, r1); // z0 z1 w0 w1
+                let zw23 = _mm_unpackhi_ps(r2, r3); // z2 z3 w2 w3
+                [
+                    F4(_mm_movelh_ps(xy01, xy23)),
+                    F4(_mm_movehl_ps(xy23, xy01)),
+                    F4(_mm_movelh_ps(zw01, zw23)),
+                ]
+            }
         }
         /// Lanes of a comparison mask as booleans.
         #[inline(always)]
@@ -352,6 +383,19 @@ mod f4 {
         #[inline(always)]
         pub fn to_array(self) -> [f32; 4] {
             self.0
+        }
+        /// `[x, y, z]` lanes of the points `x[index[l]]`.
+        ///
+        /// # Safety
+        /// Every index is below `x.len()`.
+        #[inline(always)]
+        pub unsafe fn gather_xyz(x: &[glam::Vec3], index: [u32; 4]) -> [F4; 3] {
+            let p = index.map(|i| unsafe { *x.get_unchecked(i as usize) });
+            [
+                F4(p.map(|p| p.x)),
+                F4(p.map(|p| p.y)),
+                F4(p.map(|p| p.z)),
+            ]
         }
         #[inline(always)]
         pub fn to_mask(self) -> [bool; 4] {

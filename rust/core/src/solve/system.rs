@@ -112,6 +112,13 @@ impl Gather {
 /// a chunk's positions and targets stay in L1/L2.
 pub(crate) const CHUNK: usize = 4096;
 
+thread_local! {
+    /// Each worker's target buffer for the fused step, kept between chunks and
+    /// iterations: allocating and zero-filling one per chunk cost several
+    /// percent of an iteration. Every row's target is written before it is read.
+    static TARGETS: std::cell::RefCell<Vec<Vec3>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
 /// One variable identity block of a diagonal system, by rows: the vertex of
 /// each row, its weight, and where each vertex chunk's rows start. Only built
 /// when the rows' vertices are strictly ascending, so that a chunk of
@@ -238,18 +245,30 @@ impl System {
             // By chunks of vertices: start from the constant right-hand side,
             // add each constraint's weighted targets (batched projection, in
             // block then row order: the same sums as the gather below), divide.
-            out.par_chunks_mut(CHUNK).enumerate().for_each_init(Vec::new, |targets, (c, o)| {
+            out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, o)| {
                 let base = c * CHUNK;
                 o.copy_from_slice(&rhs_constant[base..base + o.len()]);
-                for (block, &(constraint, _)) in blocks.iter().zip(constraints) {
-                    let rows = block.chunk_rows[c] as usize..block.chunk_rows[c + 1] as usize;
-                    targets.resize(rows.len(), Vec3::ZERO);
-                    constraint.project_rows(context, rows.clone(), targets);
-                    for ((t, &v), &w) in targets.iter().zip(&block.vertex[rows.clone()]).zip(&block.weight[rows]) {
-                        let o = &mut o[v as usize - base];
-                        *o += *t * w;
+                let mut accumulate = |targets: &mut Vec<Vec3>| {
+                    for (block, &(constraint, _)) in blocks.iter().zip(constraints) {
+                        let rows = block.chunk_rows[c] as usize..block.chunk_rows[c + 1] as usize;
+                        if targets.len() < rows.len() {
+                            targets.resize(rows.len(), Vec3::ZERO);
+                        }
+                        let targets = &mut targets[..rows.len()];
+                        constraint.project_rows(context, rows.clone(), targets);
+                        for ((t, &v), &w) in targets.iter().zip(&block.vertex[rows.clone()]).zip(&block.weight[rows]) {
+                            let o = &mut o[v as usize - base];
+                            *o += *t * w;
+                        }
                     }
-                }
+                };
+                // A projection that itself runs parallel work could let this
+                // thread start another chunk while the buffer is lent out:
+                // that chunk gets its own.
+                TARGETS.with(|cell| match cell.try_borrow_mut() {
+                    Ok(mut targets) => accumulate(&mut targets),
+                    Err(_) => accumulate(&mut Vec::new()),
+                });
                 for (o, &inv) in o.iter_mut().zip(&inverse[base..]) {
                     *o = *o * inv;
                 }
