@@ -126,16 +126,6 @@ impl Packed {
         }
     }
 
-    /// Gathers slot entries of `x` into lanes.
-    #[inline(always)]
-    fn gather(&self, x: &[Vec3], at: usize) -> [F4; 3] {
-        let index = &self.index[at..at + LANES];
-        // SAFETY: every stored index is a vertex of the encoding's mesh
-        // (checked when the topology was built) and `targets` checked that
-        // `x` has that many vertices.
-        unsafe { F4::gather_xyz(x, [index[0], index[1], index[2], index[3]]) }
-    }
-
     #[inline(always)]
     fn slots(&self, b: usize) -> usize {
         (self.offsets[b + 1] - self.offsets[b]) as usize / LANES
@@ -149,23 +139,37 @@ impl Packed {
         let slots = if K < super::encode::MAX_VALENCE { K } else { self.slots(b) };
         let zero = F4::ZERO;
 
+        // The block's slot entries, four lanes per slot; iterating them by
+        // exact chunks lets the compiler drop every bounds check of the loops.
+        let end = start + LANES * slots;
+        let index = self.index[start..end].chunks_exact(LANES);
+        let mut slot = index.zip(self.weight[start..end].chunks_exact(LANES));
+        let gather = |ix: &[u32]| {
+            // SAFETY: every stored index is a vertex of the encoding's mesh
+            // (checked when the topology was built) and `targets` checked
+            // that `x` has that many vertices.
+            unsafe { F4::gather_xyz(x, [ix[0], ix[1], ix[2], ix[3]]) }
+        };
+
         // Pass 1: gather, vector area relative to the first neighbour, mean.
-        let [ox, oy, oz] = self.gather(x, start);
+        let Some((i0, w0)) = slot.next() else {
+            return std::array::from_fn(|l| x[self.vertices[b * LANES + l] as usize]);
+        };
+        let [ox, oy, oz] = gather(i0);
         cache[0] = [ox, oy, oz];
-        let w0 = F4::load(&self.weight[start..]);
+        let w0 = F4::load(w0);
         let (mut mx, mut my, mut mz) = (zero + w0 * ox, zero + w0 * oy, zero + w0 * oz);
         let (mut ax, mut ay, mut az) = (zero, zero, zero);
         let mut previous = [zero; 3];
-        for (j, cached) in cache.iter_mut().enumerate().take(slots).skip(1) {
-            let at = start + LANES * j;
-            let [px, py, pz] = self.gather(x, at);
+        for (j, (cached, (ix, w))) in cache[1..slots].iter_mut().zip(slot).enumerate() {
+            let [px, py, pz] = gather(ix);
             *cached = [px, py, pz];
-            let w = F4::load(&self.weight[at..]);
+            let w = F4::load(w);
             mx = mx + w * px;
             my = my + w * py;
             mz = mz + w * pz;
             let current = [px - ox, py - oy, pz - oz];
-            if j >= 2 {
+            if j >= 1 {
                 let [bx, by, bz] = previous;
                 let [cx, cy, cz] = current;
                 ax = ax + (by * cz - cy * bz);
@@ -181,18 +185,19 @@ impl Packed {
         // Pass 2: the offset along the normal.
         let offset = if self.scale_safe {
             let mut s = zero;
-            for (j, &[px, py, pz]) in cache.iter().enumerate().take(slots) {
-                let at = start + LANES * j;
+            let tangent = self.weighted_tangent[start..end].chunks_exact(LANES);
+            for (&[px, py, pz], t) in cache[..slots].iter().zip(tangent) {
                 let (dx, dy, dz) = (mx - px, my - py, mz - pz);
                 let along = dx * nx + dy * ny + dz * nz;
                 let q = (dx * dx + dy * dy + dz * dz) - along * along;
-                s = s + F4::load(&self.weighted_tangent[at..]) * q.max_zero().sqrt();
+                s = s + F4::load(t) * q.max_zero().sqrt();
             }
             s
         } else {
             let (mut cx, mut cy, mut cz) = (zero, zero, zero);
-            for (j, &[px, py, pz]) in cache.iter().enumerate().take(slots) {
-                let u = F4::load(&self.unit[start + LANES * j..]);
+            let unit = self.unit[start..end].chunks_exact(LANES);
+            for (&[px, py, pz], u) in cache[..slots].iter().zip(unit) {
+                let u = F4::load(u);
                 cx = cx + u * px;
                 cy = cy + u * py;
                 cz = cz + u * pz;
