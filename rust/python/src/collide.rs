@@ -247,7 +247,8 @@ impl Collider {
 /// ``positions`` float32 ``(N, 3)``, ``corner_verts`` and ``polygon_sizes`` int32
 /// in Blender's layout, ``colliders`` a sequence of :class:`Collider`. Counts
 /// vertices inside a closed collider deeper than ``depth_tolerance``, mesh edges
-/// crossing a collider triangle, and collider edges crossing a mesh polygon.
+/// (with the diagonals of its fan-triangulated polygons) crossing a collider
+/// triangle, and collider edges crossing a mesh polygon.
 /// Returns a dict with the counts ``vertices_inside``, ``edges_crossing``,
 /// ``collider_edges_crossing``, the index arrays ``vertices_inside_indices``
 /// ``(K,)``, ``edges_crossing_indices`` ``(K, 2)`` (vertex pairs),

@@ -4,7 +4,8 @@
 //! * vertices inside a **closed** collider deeper than a tolerance: exact ray
 //!   parity along +z (see [`ray_up_crosses`]) through the collider's BVH, then
 //!   "deeper than the tolerance" = no collider triangle within that distance;
-//! * mesh edges properly crossing a collider triangle;
+//! * mesh edges (with the diagonals of its fan-triangulated polygons)
+//!   properly crossing a collider triangle;
 //! * collider edges properly crossing a mesh polygon (fan-triangulated).
 //!
 //! Thickness is ignored: the audit counts real interpenetrations.
@@ -62,6 +63,23 @@ pub fn polygon_edges(corner_verts: &[i32], offsets: &[u32]) -> Vec<[u32; 2]> {
             }
         }
     }
+    edges.par_sort_unstable();
+    edges.dedup();
+    edges
+}
+
+/// Unique edges `[min, max]` of triangles, sorted: a fan-triangulated
+/// polygon's edges *and* its diagonals. Collision tests and the audit need the
+/// diagonals: two triangulated surfaces meet where an edge of one crosses a
+/// triangle of the other, and a folded quad first meets a collider edge along
+/// its diagonal.
+pub fn triangle_edges(triangles: &[[u32; 3]]) -> Vec<[u32; 2]> {
+    let mut edges: Vec<[u32; 2]> = triangles
+        .iter()
+        .flat_map(|&[a, b, c]| [[a, b], [b, c], [c, a]])
+        .filter(|[a, b]| a != b)
+        .map(|[a, b]| [a.min(b), a.max(b)])
+        .collect();
     edges.par_sort_unstable();
     edges.dedup();
     edges
@@ -136,8 +154,10 @@ pub fn audit(mesh: MeshInput<'_>, colliders: &[&Collider], params: &AuditParams)
         })
         .collect();
 
-    // 2. Skin edges crossing collider triangles.
-    let edges = polygon_edges(mesh.corner_verts, &offsets);
+    // 2. Skin edges (the polygons' and their triangulation's diagonals)
+    // crossing collider triangles.
+    let tris = fan_triangles(mesh.corner_verts, &offsets);
+    let edges = triangle_edges(&tris);
     report.edges_crossing = edges
         .par_iter()
         .copied()
@@ -157,8 +177,7 @@ pub fn audit(mesh: MeshInput<'_>, colliders: &[&Collider], params: &AuditParams)
         })
         .collect();
 
-    // 3. Collider edges crossing skin polygons.
-    let tris = fan_triangles(mesh.corner_verts, &offsets);
+    // 3. Collider edges crossing skin polygons (fan-triangulated).
     let boxes: Vec<Bounds> = tris
         .par_iter()
         .map(|t| Bounds::of_points(&t.map(|v| positions[v as usize])))

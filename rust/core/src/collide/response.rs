@@ -56,7 +56,7 @@
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
-use super::audit::{fan_triangles, polygon_edges};
+use super::audit::{fan_triangles, triangle_edges};
 use super::bvh::Bounds;
 use super::ccd::{self, CcdParams};
 use super::collider::Collider;
@@ -174,14 +174,12 @@ impl Skin {
         self.inverse_mass.as_ref().map_or(1.0, |w| w[v as usize] as f64)
     }
 
-    /// Edges and fan-triangulated polygons of a polygon mesh.
+    /// Fan-triangulated polygons of a polygon mesh and their edges, the
+    /// diagonals included (see [`triangle_edges`]).
     pub fn from_mesh(mesh: MeshInput<'_>) -> Result<Self> {
         let offsets = mesh.validate()?;
-        Skin::new(
-            mesh.positions.len(),
-            polygon_edges(mesh.corner_verts, &offsets),
-            fan_triangles(mesh.corner_verts, &offsets),
-        )
+        let triangles = fan_triangles(mesh.corner_verts, &offsets);
+        Skin::new(mesh.positions.len(), triangle_edges(&triangles), triangles)
     }
 
     /// Vertices only: no edge–edge or collider-vertex tests.

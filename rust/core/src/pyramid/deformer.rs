@@ -116,6 +116,9 @@ pub struct PyramidDeformer {
     pub(super) closeness_weights: Vec<f32>,
     /// Rest positions (strain limits measure against them).
     pub(super) rest: Vec<Vec3>,
+    /// The mesh's own edges, which strain limits hold (the collision skin's
+    /// edges also include the diagonals of triangulated polygons).
+    pub(super) mesh_edges: Vec<[u32; 2]>,
     /// Area around each vertex at rest (a third of its triangles'): masses.
     pub(super) vertex_area: Vec<f32>,
     /// Dynamics state: velocities at the end of the last step.
@@ -146,6 +149,7 @@ impl PyramidDeformer {
         let mut deformer = Self::from_encoding(encoding, options.formulation)?;
         deformer.skin = Skin::from_mesh(mesh)?;
         deformer.rest = mesh.positions.to_vec();
+        deformer.mesh_edges = crate::collide::audit::polygon_edges(mesh.corner_verts, &mesh.validate()?);
         deformer.vertex_area = vertex_areas(mesh.positions, deformer.skin.triangles());
         Ok(deformer)
     }
@@ -177,6 +181,7 @@ impl PyramidDeformer {
             history: None,
             closeness_weights: Vec::new(),
             rest: Vec::new(),
+            mesh_edges: Vec::new(),
             vertex_area: vec![1.0; n],
             velocity: None,
             last_input: None,

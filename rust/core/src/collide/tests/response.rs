@@ -235,3 +235,30 @@ fn audit_inside_test_matches_distance_on_a_sphere() {
         }
     }
 }
+
+/// A quad folded along its fan diagonal rises into a static blade (a vertical
+/// triangle whose lower edge lies across the diagonal): only the diagonal meets
+/// the blade's edge, no polygon edge and no vertex does. The collision skin
+/// tests the diagonals, so the fold stops under the blade.
+#[test]
+fn a_quad_folded_along_its_diagonal_is_stopped_by_a_collider_edge() {
+    let blade = [Vec3::new(-0.5, 1.5, 0.5), Vec3::new(1.5, -0.5, 0.5), Vec3::new(0.5, 0.5, 5.0)];
+    let c = Collider::new(&blade, &[[0, 1, 2]], ColliderSettings::new(0.01, 0.0)).unwrap();
+    let (corners, sizes) = ([0, 1, 2, 3], [4]);
+    let start = [Vec3::new(0.0, 0.0, 0.0), Vec3::new(1.0, 0.0, 0.0), Vec3::new(1.0, 1.0, 0.0), Vec3::new(0.0, 1.0, 0.0)];
+    // Corners 0 and 2 (the fan diagonal 0–2) rise to 1; 1 and 3 stay.
+    let requested = [Vec3::new(0.0, 0.0, 1.0), start[1], Vec3::new(1.0, 1.0, 1.0), start[3]];
+    let mesh = |positions| crate::mesh::MeshInput { positions, corner_verts: &corners, polygon_sizes: &sizes };
+    let unresolved = audit(mesh(&requested), &[&c], &AuditParams::default()).unwrap();
+    assert_eq!(unresolved.edges_crossing, vec![[0, 2]], "the requested fold pierces the blade with its diagonal only");
+
+    let skin = Skin::from_mesh(mesh(&start)).unwrap();
+    let mut end = requested;
+    let stats = ColliderSet::new([&c]).resolve_path(&start, &mut end, &skin, &ResolveParams::first_pass()).unwrap();
+    assert!(stats.edge_contacts > 0 && stats.pinched.is_empty(), "{stats:?}");
+    let found = audit(mesh(&end), &[&c], &AuditParams::default()).unwrap();
+    assert!(found.edges_crossing.is_empty() && found.collider_edges_crossing.is_empty(), "{found:?}");
+    // The diagonal stops at the blade's edge, its thickness below.
+    let middle = (end[0] + end[2]) / 2.0;
+    assert!(middle.z < 0.5 && middle.z > 0.4, "{end:?}");
+}
