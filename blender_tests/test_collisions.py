@@ -10,21 +10,8 @@ from __future__ import annotations
 import bpy
 import numpy as np
 import pytest
-
+from scene import add_sphere, world_mesh
 from test_pyramid_deform import read_pc2
-
-
-def world_mesh(obj, frame: int) -> tuple[np.ndarray, np.ndarray]:
-    """World positions and triangles of `obj` evaluated at `frame`, read without the add-on."""
-    bpy.context.scene.frame_set(frame)
-    evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
-    mesh = evaluated.to_mesh()
-    mesh.calc_loop_triangles()
-    local = np.array([v.co[:] for v in mesh.vertices], dtype=np.float64)
-    triangles = np.array([t.vertices[:] for t in mesh.loop_triangles], dtype=np.int32)
-    evaluated.to_mesh_clear()
-    m = np.array(evaluated.matrix_world)
-    return (local @ m[:3, :3].T + m[:3, 3]).astype(np.float32), triangles
 
 
 def make_skin(tmp_path, frames: int, name: str = "Skin", location=(0.0, 0.0, 0.0)):
@@ -36,27 +23,6 @@ def make_skin(tmp_path, frames: int, name: str = "Skin", location=(0.0, 0.0, 0.0
     scene.frame_start, scene.frame_end = 1, frames
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "skin.blend"))
     return skin
-
-
-def add_sphere(name: str, centres, *, radius: float = 0.3, thickness: float = 0.01, friction: float = 0.0,
-               collection: str = "Colliders"):
-    """A UV sphere keyed at every frame to `centres[frame - 1]`, in the Colliders collection."""
-    bpy.ops.mesh.primitive_uv_sphere_add(segments=32, ring_count=16, radius=radius, location=centres[0])
-    sphere = bpy.context.object
-    sphere.name = name
-    for frame, centre in enumerate(centres, start=1):
-        sphere.location = centre
-        sphere.keyframe_insert("location", frame=frame)
-    settings = sphere.tegument_collider
-    settings.thickness = thickness
-    settings.friction = settings.kinetic_friction = friction
-    collection = bpy.data.collections.get(collection) or bpy.data.collections.new(collection)
-    if collection.name not in bpy.context.scene.collection.children:
-        bpy.context.scene.collection.children.link(collection)
-    for owner in list(sphere.users_collection):
-        owner.objects.unlink(sphere)
-    collection.objects.link(sphere)
-    return sphere
 
 
 def bake(skin, frames: int, closeness: float = 0.02, collection: str = "Colliders"):

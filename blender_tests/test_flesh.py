@@ -11,8 +11,8 @@ from __future__ import annotations
 import bpy
 import numpy as np
 import pytest
-
-from test_collisions import add_sphere, independent_audit, make_skin, world_mesh
+from scene import add_sphere, world_mesh
+from test_collisions import independent_audit, make_skin
 from test_pyramid_deform import read_pc2
 
 FPS = 24

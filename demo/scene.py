@@ -173,6 +173,40 @@ def make_collider(body, collection_name: str = "Colliders", thickness: float = 0
     return collection
 
 
+def add_sphere(name: str, centres, *, radius: float = 0.3, thickness: float = 0.01, friction: float = 0.0,
+               collection: str = "Colliders"):
+    """A UV sphere keyed at every frame to ``centres[frame - 1]``, in a collider collection."""
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=32, ring_count=16, radius=radius, location=centres[0])
+    sphere = bpy.context.object
+    sphere.name = name
+    for frame, centre in enumerate(centres, start=1):
+        sphere.location = centre
+        sphere.keyframe_insert("location", frame=frame)
+    settings = sphere.tegument_collider
+    settings.thickness = thickness
+    settings.friction = settings.kinetic_friction = friction
+    owner = bpy.data.collections.get(collection) or bpy.data.collections.new(collection)
+    if owner.name not in bpy.context.scene.collection.children:
+        bpy.context.scene.collection.children.link(owner)
+    for old in list(sphere.users_collection):
+        old.objects.unlink(sphere)
+    owner.objects.link(sphere)
+    return sphere
+
+
+def world_mesh(obj, frame: int) -> tuple[np.ndarray, np.ndarray]:
+    """World positions and triangles of `obj` evaluated at `frame`, read without the add-on."""
+    bpy.context.scene.frame_set(frame)
+    evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    mesh = evaluated.to_mesh()
+    mesh.calc_loop_triangles()
+    local = np.array([v.co[:] for v in mesh.vertices], dtype=np.float64)
+    triangles = np.array([t.vertices[:] for t in mesh.loop_triangles], dtype=np.int32)
+    evaluated.to_mesh_clear()
+    m = np.array(evaluated.matrix_world)
+    return (local @ m[:3, :3].T + m[:3, 3]).astype(np.float32), triangles
+
+
 def tube_side_chart(size: int, radius: float, length: float) -> np.ndarray:
     """``(size, size)`` bool: the texels of the tube's side chart (row 0 = v = 0)."""
     s = tube_uv_scale(radius, length)
