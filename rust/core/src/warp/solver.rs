@@ -274,7 +274,7 @@ fn iterate<M: Metric>(lv: &mut Level, metric: M, n: usize, s: &WarpSettings, avx
     let parallel = w * h >= PARALLEL_TEXELS;
     for _ in 0..n {
         {
-            let sw = Sweep { w, active: &lv.active, rig: &lv.rig, mask: &lv.mask, metric: &metric, orientation: s.orientation, avx2 };
+            let sw = Sweep { w, active: &lv.active, metric: &metric, orientation: s.orientation, avx2 };
             let active = &lv.active;
             let phase_a = |p: usize, cx: &mut [f32], cy: &mut [f32]| {
                 let j = 2 * p;

@@ -7,7 +7,8 @@
 //! compiler can vectorise it:
 //! - constraints of one set in one row are independent (that is what makes
 //!   the set a set), so they are processed in runs of [`LANES`] lanes: node
-//!   values and metrics are gathered into small arrays, the projection is
+//!   values and metrics are gathered into small arrays (what rigidity and mask
+//!   contribute is precomputed per constraint and loaded as vectors), the projection is
 //!   evaluated branch-free over the lanes (skipped constraints get a zero
 //!   correction, not a branch), and the corrections are scattered back;
 //! - only constraints that can be active are visited: rigidity and mask are
@@ -108,8 +109,6 @@ impl Metric for ByTexel<'_> {
 pub struct Sweep<'a, M: Metric> {
     pub w: usize,
     pub active: &'a ActiveSpans,
-    pub rig: &'a [u8],
-    pub mask: &'a [u8],
     pub metric: M,
     pub orientation: f32,
     /// Whether to use the AVX2 build of the kernels.
@@ -117,17 +116,18 @@ pub struct Sweep<'a, M: Metric> {
 }
 
 /// One set's constraints in a slice of rows: constraint `k` joins local nodes
-/// `a0 + k·stride` and `b0 + k·stride` (global: plus `g0`); its rest texel is
-/// `rest0 + k·stride`. Only the constraints in `spans` can be active.
+/// `a0 + k·stride` and `b0 + k·stride`; its rest texel is
+/// `rest0 + k·stride`. Only the constraints in `spans` can be active; their
+/// coefficients follow one another in `coef` from index `coef0`.
 #[derive(Clone, Copy)]
 struct Run<'s> {
     dir: usize,
     a0: usize,
     b0: usize,
     stride: usize,
-    g0: usize,
     rest0: usize,
     spans: &'s [Span],
+    coef0: usize,
 }
 
 /// A half-open range of constraint indices of one set in one row (pair).
@@ -147,6 +147,39 @@ pub struct ActiveSpans {
     spans: Vec<Span>,
     /// `first[j·SETS + set]` .. `first[j·SETS + set + 1]` index `spans`.
     first: Vec<u32>,
+    /// Per constraint of the spans, in span order: what the projection needs
+    /// from rigidity and mask, computed here once instead of per lane and
+    /// iteration (four byte gathers and two divisions). `coef_first[j·SETS +
+    /// set]` is the first entry of row `j`'s set.
+    coef: Coefficients,
+    coef_first: Vec<u32>,
+}
+
+/// Structure of arrays, so that a run of lanes loads each as one vector.
+#[derive(Debug, Clone, Default)]
+struct Coefficients {
+    /// Share of the correction taken by node a, b: `ma / (ma + mb)`, `mb / (ma + mb)`.
+    fa: Vec<f32>,
+    fb: Vec<f32>,
+    /// Weight of the constraint, `max(rig) / 255`; 0 when it is inactive
+    /// (both ends elastic or both fixed: whole-row spans include such).
+    kk: Vec<f32>,
+}
+
+impl Coefficients {
+    /// Exactly the reference's arithmetic (`solver::Ctx::project`), so that the
+    /// sweeps stay bitwise equal to it.
+    fn push(&mut self, ra: u8, rb: u8, mka: u8, mkb: u8) {
+        let ma = mka as f32 * (1.0 - 0.9 / 255.0 * ra as f32);
+        let mb = mkb as f32 * (1.0 - 0.9 / 255.0 * rb as f32);
+        let ms = ma + mb;
+        let k8 = ra.max(rb);
+        let live = k8 > 0 && ms > 0.0;
+        let mss = if ms > 0.0 { ms } else { 1.0 };
+        self.fa.push(ma / mss);
+        self.fb.push(mb / mss);
+        self.kk.push(if live { k8 as f32 * (1.0 / 255.0) } else { 0.0 });
+    }
 }
 
 impl ActiveSpans {
@@ -154,10 +187,13 @@ impl ActiveSpans {
         let live = |a: usize, b: usize| (rig[a] > 0 || rig[b] > 0) && (mask[a] > 0 || mask[b] > 0);
         let mut spans = Vec::new();
         let mut first = Vec::with_capacity(h * SETS + 1);
+        let mut coef = Coefficients::default();
+        let mut coef_first = Vec::with_capacity(h * SETS + 1);
         for j in 0..h {
             let g0 = j * w;
             for set in 0..SETS {
                 first.push(spans.len() as u32);
+                coef_first.push(coef.kk.len() as u32);
                 let (count, a, b, stride): (usize, usize, usize, usize) = match set {
                     0 | 1 => ((w - set) / 2, g0 + set, g0 + set + 1, 2),
                     _ if j + 1 == h => (0, 0, 0, 1),
@@ -184,17 +220,25 @@ impl ActiveSpans {
                     spans.truncate(start);
                     spans.push((0, count as u32));
                 }
+                for &(s, e) in &spans[start..] {
+                    for k in s as usize..e as usize {
+                        let (ga, gb) = (a + k * stride, b + k * stride);
+                        coef.push(rig[ga], rig[gb], mask[ga], mask[gb]);
+                    }
+                }
             }
         }
         first.push(spans.len() as u32);
+        coef_first.push(coef.kk.len() as u32);
         spans.shrink_to_fit();
-        ActiveSpans { spans, first }
+        ActiveSpans { spans, first, coef, coef_first }
     }
 
+    /// Row `j`'s spans of `set` and the index of their first coefficient.
     #[inline]
-    fn of(&self, j: usize, set: usize) -> &[Span] {
+    fn of(&self, j: usize, set: usize) -> (&[Span], usize) {
         let i = j * SETS + set;
-        &self.spans[self.first[i] as usize..self.first[i + 1] as usize]
+        (&self.spans[self.first[i] as usize..self.first[i + 1] as usize], self.coef_first[i] as usize)
     }
 
     /// Whether row `j`'s sets (`between`: only the three between rows `j` and `j + 1`) have any work.
@@ -214,8 +258,8 @@ impl<M: Metric> Sweep<'_, M> {
         for r in 0..rows {
             for parity in 0..2 {
                 let a0 = r * w + parity;
-                let spans = self.active.of(j + r, parity);
-                self.run(Run { dir: HORIZONTAL, a0, b0: a0 + 1, stride: 2, g0, rest0: g0 + a0 + 1, spans }, dx, dy);
+                let (spans, coef0) = self.active.of(j + r, parity);
+                self.run(Run { dir: HORIZONTAL, a0, b0: a0 + 1, stride: 2, rest0: g0 + a0 + 1, spans, coef0 }, dx, dy);
             }
         }
         if rows == 2 {
@@ -228,9 +272,10 @@ impl<M: Metric> Sweep<'_, M> {
         let w = self.w;
         let g0 = j * w;
         let a = self.active;
-        self.run(Run { dir: VERTICAL, a0: 0, b0: w, stride: 1, g0, rest0: g0 + w, spans: a.of(j, 2) }, dx, dy);
-        self.run(Run { dir: DIAGONAL, a0: 0, b0: w + 1, stride: 1, g0, rest0: g0 + w + 1, spans: a.of(j, 3) }, dx, dy);
-        self.run(Run { dir: ANTIDIAGONAL, a0: 1, b0: w, stride: 1, g0, rest0: g0 + w + 1, spans: a.of(j, 4) }, dx, dy);
+        let ((v, cv), (d, cd), (e, ce)) = (a.of(j, 2), a.of(j, 3), a.of(j, 4));
+        self.run(Run { dir: VERTICAL, a0: 0, b0: w, stride: 1, rest0: g0 + w, spans: v, coef0: cv }, dx, dy);
+        self.run(Run { dir: DIAGONAL, a0: 0, b0: w + 1, stride: 1, rest0: g0 + w + 1, spans: d, coef0: cd }, dx, dy);
+        self.run(Run { dir: ANTIDIAGONAL, a0: 1, b0: w, stride: 1, rest0: g0 + w + 1, spans: e, coef0: ce }, dx, dy);
     }
 
     #[inline]
@@ -259,32 +304,38 @@ impl<M: Metric> Sweep<'_, M> {
         // Constraints of one set are independent, so lanes are packed across spans.
         let mut idx = [0usize; LANES];
         let mut n = 0;
+        let mut ci = run.coef0;
         for &(s, e) in run.spans {
             for k in s as usize..e as usize {
                 idx[n] = k * run.stride;
                 n += 1;
                 if n == LANES {
-                    self.batch(&run, &idx, n, dx, dy);
+                    self.batch(&run, &idx, n, ci, dx, dy);
+                    ci += n;
                     n = 0;
                 }
             }
         }
         if n > 0 {
-            self.batch(&run, &idx, n, dx, dy);
+            self.batch(&run, &idx, n, ci, dx, dy);
         }
     }
 
-    /// Projects the `n` constraints at offsets `idx` (constraint index · stride).
+    /// Projects the `n` constraints at offsets `idx` (constraint index · stride)
+    /// whose coefficients start at `ci`.
     #[inline(always)]
-    fn batch(&self, run: &Run<'_>, idx: &[usize; LANES], n: usize, dx: &mut [f32], dy: &mut [f32]) {
-        let Run { dir, a0, b0, g0, rest0, .. } = *run;
+    fn batch(&self, run: &Run<'_>, idx: &[usize; LANES], n: usize, ci: usize, dx: &mut [f32], dy: &mut [f32]) {
+        let Run { dir, a0, b0, rest0, .. } = *run;
         let (ex, ey) = rest_segment(dir);
         let el = (ex * ex + ey * ey).sqrt();
-        let (rig, mask) = (self.rig, self.mask);
-        let mut ra = [0.0f32; LANES];
-        let mut rb = [0.0f32; LANES];
-        let mut mka = [0.0f32; LANES];
-        let mut mkb = [0.0f32; LANES];
+        // Unused lanes keep zero coefficients: inactive, no correction.
+        let mut fa = [0.0f32; LANES];
+        let mut fb = [0.0f32; LANES];
+        let mut kk = [0.0f32; LANES];
+        let coef = &self.active.coef;
+        fa[..n].copy_from_slice(&coef.fa[ci..ci + n]);
+        fb[..n].copy_from_slice(&coef.fb[ci..ci + n]);
+        kk[..n].copy_from_slice(&coef.kk[ci..ci + n]);
         let mut pax = [0.0f32; LANES];
         let mut pay = [0.0f32; LANES];
         let mut pbx = [0.0f32; LANES];
@@ -296,10 +347,6 @@ impl<M: Metric> Sweep<'_, M> {
         for l in 0..n {
             let c = idx[l];
             let (la, lb) = (a0 + c, b0 + c);
-            ra[l] = rig[g0 + la] as f32;
-            rb[l] = rig[g0 + lb] as f32;
-            mka[l] = mask[g0 + la] as f32;
-            mkb[l] = mask[g0 + lb] as f32;
             pax[l] = dx[la];
             pay[l] = dy[la];
             pbx[l] = dx[lb];
@@ -310,7 +357,7 @@ impl<M: Metric> Sweep<'_, M> {
         let mut cay = [0.0f32; LANES];
         let mut cbx = [0.0f32; LANES];
         let mut cby = [0.0f32; LANES];
-        let lanes = Lanes { ra: &ra, rb: &rb, mka: &mka, mkb: &mkb, pax: &pax, pay: &pay, pbx: &pbx, pby: &pby, g0: &mg0, g1: &mg1, g2: &mg2, l02: &ml0 };
+        let lanes = Lanes { fa: &fa, fb: &fb, kk: &kk, pax: &pax, pay: &pay, pbx: &pbx, pby: &pby, g0: &mg0, g1: &mg1, g2: &mg2, l02: &ml0 };
         if self.orientation > 0.0 {
             project_lanes::<true>(&lanes, ex, ey, el, self.orientation, [&mut cax, &mut cay, &mut cbx, &mut cby]);
         } else {
@@ -329,10 +376,9 @@ impl<M: Metric> Sweep<'_, M> {
 
 /// Inputs of [`project_lanes`], one entry per lane.
 struct Lanes<'a> {
-    ra: &'a [f32; LANES],
-    rb: &'a [f32; LANES],
-    mka: &'a [f32; LANES],
-    mkb: &'a [f32; LANES],
+    fa: &'a [f32; LANES],
+    fb: &'a [f32; LANES],
+    kk: &'a [f32; LANES],
     pax: &'a [f32; LANES],
     pay: &'a [f32; LANES],
     pbx: &'a [f32; LANES],
@@ -350,16 +396,12 @@ struct Lanes<'a> {
 fn project_lanes<const ORIENT: bool>(i: &Lanes<'_>, ex: f32, ey: f32, el: f32, orientation: f32, out: [&mut [f32; LANES]; 4]) {
     let [cax, cay, cbx, cby] = out;
     for l in 0..LANES {
-        let k8 = i.ra[l].max(i.rb[l]);
-        let ma = i.mka[l] * (1.0 - 0.9 / 255.0 * i.ra[l]);
-        let mb = i.mkb[l] * (1.0 - 0.9 / 255.0 * i.rb[l]);
-        let ms = ma + mb;
-        let kk = k8 * (1.0 / 255.0);
+        let kk = i.kk[l];
         let vx = ex + i.pbx[l] - i.pax[l];
         let vy = ey + i.pby[l] - i.pay[l];
         let ld2 = i.g0[l] * vx * vx + 2.0 * i.g1[l] * vx * vy + i.g2[l] * vy * vy;
         let l02 = i.l02[l];
-        let active = (k8 > 0.0) & (ms > 0.0) & (l02 > 0.0) & (ld2 > l02 * 1e-6);
+        let active = (kk > 0.0) & (l02 > 0.0) & (ld2 > l02 * 1e-6);
         let l02s = if active { l02 } else { 1.0 };
         let ld2s = if active { ld2 } else { 1.0 };
         let ratio = (l02s / ld2s).sqrt().max(0.25).min(4.0);
@@ -382,13 +424,10 @@ fn project_lanes<const ORIENT: bool>(i: &Lanes<'_>, ex: f32, ey: f32, el: f32, o
         }
         let cx = if active { tx - vx } else { 0.0 };
         let cy = if active { ty - vy } else { 0.0 };
-        let mss = if ms > 0.0 { ms } else { 1.0 };
-        let fa = ma / mss;
-        let fb = mb / mss;
-        cax[l] = cx * fa;
-        cay[l] = cy * fa;
-        cbx[l] = cx * fb;
-        cby[l] = cy * fb;
+        cax[l] = cx * i.fa[l];
+        cay[l] = cy * i.fa[l];
+        cbx[l] = cx * i.fb[l];
+        cby[l] = cy * i.fb[l];
     }
 }
 
