@@ -104,7 +104,9 @@ fn rest_point(ci: usize, cj: usize, t: usize, l: [f32; 3]) -> (f32, f32) {
 #[inline]
 fn locate(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y: usize) -> (f32, f32) {
     let n = y * w + x;
-    let clamp_cell = |v: f32, hi: usize| (v.floor().max(0.0) as usize).min(hi);
+    // Truncation is the floor once negatives are clamped to 0, and unlike
+    // `floor` (a libm call without SSE4.1) it is one instruction.
+    let clamp_cell = |v: f32, hi: usize| (v.max(0.0) as usize).min(hi);
     // First guess: the rest position the texel's own node displacement points back to.
     let (mut ci, mut cj) = (clamp_cell(x as f32 - dx[n], w - 2), clamp_cell(y as f32 - dy[n], h - 2));
     let cross = |o: (f32, f32), u: (f32, f32), v: (f32, f32)| (u.0 - o.0) * (v.1 - o.1) - (u.1 - o.1) * (v.0 - o.0);
