@@ -195,17 +195,18 @@ impl<L: Lookup> Ctx<'_, L> {
         let s = 1.0 + RELAXATION * k * (ratio - 1.0);
         let (mut tx, mut ty) = (vx * s, vy * s);
         if self.orientation > 0.0 {
+            // The blend of the unit directions, `t/|t|·(1−o) + e/|e|·o`, scaled
+            // by `|t|` (same direction, one division fewer), then set to length `|t|`.
             let o = self.orientation * k;
-            let len = (tx * tx + ty * ty).sqrt();
+            let t2 = tx * tx + ty * ty;
+            let len = t2.sqrt();
             let el = (ex * ex + ey * ey).sqrt();
-            if len > 1e-12 {
-                let ux = tx / len * (1.0 - o) + ex / el * o;
-                let uy = ty / len * (1.0 - o) + ey / el * o;
-                let ul = (ux * ux + uy * uy).sqrt();
-                if ul > 1e-12 {
-                    tx = ux / ul * len;
-                    ty = uy / ul * len;
-                }
+            let (ux, uy) = (tx * (1.0 - o) + ex / el * (o * len), ty * (1.0 - o) + ey / el * (o * len));
+            let u2 = ux * ux + uy * uy;
+            if len > 1e-12 && u2 > 1e-24 * t2 {
+                let f = (t2 / u2).sqrt();
+                tx = ux * f;
+                ty = uy * f;
             }
         }
         let (cx, cy) = (tx - vx, ty - vy);

@@ -410,17 +410,14 @@ fn project_lanes<const ORIENT: bool>(i: &Lanes<'_>, ex: f32, ey: f32, el: f32, o
         let mut ty = vy * s;
         if ORIENT {
             let o = orientation * kk;
-            let len = (tx * tx + ty * ty).sqrt();
-            let len_ok = len > 1e-12;
-            let lens = if len_ok { len } else { 1.0 };
-            let ux = tx / lens * (1.0 - o) + ex / el * o;
-            let uy = ty / lens * (1.0 - o) + ey / el * o;
-            let ul = (ux * ux + uy * uy).sqrt();
-            let ul_ok = ul > 1e-12;
-            let uls = if ul_ok { ul } else { 1.0 };
-            let turn = len_ok & ul_ok;
-            tx = if turn { ux / uls * len } else { tx };
-            ty = if turn { uy / uls * len } else { ty };
+            let t2 = tx * tx + ty * ty;
+            let len = t2.sqrt();
+            let (ux, uy) = (tx * (1.0 - o) + ex / el * (o * len), ty * (1.0 - o) + ey / el * (o * len));
+            let u2 = ux * ux + uy * uy;
+            let turn = (len > 1e-12) & (u2 > 1e-24 * t2);
+            let f = (t2 / if turn { u2 } else { 1.0 }).sqrt();
+            tx = if turn { ux * f } else { tx };
+            ty = if turn { uy * f } else { ty };
         }
         let cx = if active { tx - vx } else { 0.0 };
         let cy = if active { ty - vy } else { 0.0 };
