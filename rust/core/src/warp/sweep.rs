@@ -214,9 +214,14 @@ impl ActiveSpans {
                     }
                     spans.push((s as u32, k as u32));
                 }
-                // Scattered rigidity (noise) would make many tiny spans: past
-                // one span per 16 constraints, sweep the whole row instead.
-                if spans.len() - start > count / 16 + 1 {
+                // Lanes are packed across spans, so a span costs a few
+                // instructions and a skipped constraint saves a whole lane:
+                // sweep the whole row only when its gaps are on average
+                // shorter than one constraint (scattered rigidity). (A rule of
+                // one span per 16 constraints swept whole rows of the coarse
+                // levels here, 24 scales per row.)
+                let live_count: usize = spans[start..].iter().map(|&(s, e)| (e - s) as usize).sum();
+                if count - live_count < spans.len() - start {
                     spans.truncate(start);
                     spans.push((0, count as u32));
                 }
