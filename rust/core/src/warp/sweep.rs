@@ -29,8 +29,11 @@
 
 use super::solver::RELAXATION;
 
-/// Constraints per run.
+/// Constraints per packed run (gathered across spans).
 pub const LANES: usize = 16;
+/// Constraints per contiguous run: a span's constraints in blocks of this
+/// many are loaded and stored as vectors; only its remainder is packed.
+pub const CONTIG: usize = 8;
 
 /// The four constraint directions: rest segment `(ex, ey)` from node a to node b.
 pub const HORIZONTAL: usize = 0;
@@ -133,6 +136,12 @@ struct Run<'s> {
 /// A half-open range of constraint indices of one set in one row (pair).
 pub type Span = (u32, u32);
 
+/// End of the whole [`CONTIG`] blocks of span `s..e`.
+#[inline(always)]
+fn blocks_end(s: u32, e: u32) -> usize {
+    s as usize + (e - s) as usize / CONTIG * CONTIG
+}
+
 /// The sets of a row `j`: the even and odd horizontal sets of row `j`, and the
 /// vertical, diagonal and antidiagonal sets between rows `j` and `j + 1`.
 pub const SETS: usize = 5;
@@ -225,11 +234,13 @@ impl ActiveSpans {
                     spans.truncate(start);
                     spans.push((0, count as u32));
                 }
+                // In the sweep's order: every span's whole blocks, then the remainders.
+                let mut push = |k: usize| coef.push(rig[a + k * stride], rig[b + k * stride], mask[a + k * stride], mask[b + k * stride]);
                 for &(s, e) in &spans[start..] {
-                    for k in s as usize..e as usize {
-                        let (ga, gb) = (a + k * stride, b + k * stride);
-                        coef.push(rig[ga], rig[gb], mask[ga], mask[gb]);
-                    }
+                    (s as usize..blocks_end(s, e)).for_each(&mut push);
+                }
+                for &(s, e) in &spans[start..] {
+                    (blocks_end(s, e)..e as usize).for_each(&mut push);
                 }
             }
         }
@@ -306,12 +317,22 @@ impl<M: Metric> Sweep<'_, M> {
 
     #[inline(always)]
     fn run_body(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
-        // Constraints of one set are independent, so lanes are packed across spans.
-        let mut idx = [0usize; LANES];
-        let mut n = 0;
+        // Constraints of one set are independent, so they may be taken in any
+        // order: first the whole blocks of every span, then the remainders
+        // packed across spans (the order of the coefficients, see `ActiveSpans::new`).
         let mut ci = run.coef0;
         for &(s, e) in run.spans {
-            for k in s as usize..e as usize {
+            let mut k = s as usize;
+            while k < blocks_end(s, e) {
+                self.block(&run, k, ci, dx, dy);
+                ci += CONTIG;
+                k += CONTIG;
+            }
+        }
+        let mut idx = [0usize; LANES];
+        let mut n = 0;
+        for &(s, e) in run.spans {
+            for k in blocks_end(s, e)..e as usize {
                 idx[n] = k * run.stride;
                 n += 1;
                 if n == LANES {
@@ -323,6 +344,64 @@ impl<M: Metric> Sweep<'_, M> {
         }
         if n > 0 {
             self.batch(&run, &idx, n, ci, dx, dy);
+        }
+    }
+
+    /// Projects the [`CONTIG`] constraints `k0..k0 + CONTIG` of one span, whose
+    /// coefficients start at `ci`: node values are loaded and stored as
+    /// vectors (horizontal sets: a and b interleave, `b = a + 1`; the other
+    /// sets: a and b lie in different rows), only the metric is gathered.
+    #[inline(always)]
+    fn block(&self, run: &Run<'_>, k0: usize, ci: usize, dx: &mut [f32], dy: &mut [f32]) {
+        const C: usize = CONTIG;
+        let Run { dir, a0, b0, stride, rest0, .. } = *run;
+        let (ex, ey) = rest_segment(dir);
+        let el = (ex * ex + ey * ey).sqrt();
+        let coef = &self.active.coef;
+        let vec = |v: &[f32], at: usize| -> [f32; C] { v[at..at + C].try_into().expect("block") };
+        let (fa, fb, kk) = (vec(&coef.fa, ci), vec(&coef.fb, ci), vec(&coef.kk, ci));
+        let (la0, lb0) = (a0 + k0 * stride, b0 + k0 * stride);
+        let (mut pax, mut pay, mut pbx, mut pby) = ([0.0f32; C], [0.0f32; C], [0.0f32; C], [0.0f32; C]);
+        if stride == 2 {
+            let (sx, sy): (&[f32; 2 * C], &[f32; 2 * C]) = (dx[la0..la0 + 2 * C].try_into().expect("block"), dy[la0..la0 + 2 * C].try_into().expect("block"));
+            for l in 0..C {
+                (pax[l], pbx[l], pay[l], pby[l]) = (sx[2 * l], sx[2 * l + 1], sy[2 * l], sy[2 * l + 1]);
+            }
+        } else {
+            (pax, pay, pbx, pby) = (vec(dx, la0), vec(dy, la0), vec(dx, lb0), vec(dy, lb0));
+        }
+        let (mut mg0, mut mg1, mut mg2, mut ml0) = ([0.0f32; C], [0.0f32; C], [0.0f32; C], [0.0f32; C]);
+        for l in 0..C {
+            [mg0[l], mg1[l], mg2[l], ml0[l]] = self.metric.fetch(rest0 + (k0 + l) * stride, dir);
+        }
+        let (mut cax, mut cay, mut cbx, mut cby) = ([0.0f32; C], [0.0f32; C], [0.0f32; C], [0.0f32; C]);
+        let lanes = Lanes { fa: &fa, fb: &fb, kk: &kk, pax: &pax, pay: &pay, pbx: &pbx, pby: &pby, g0: &mg0, g1: &mg1, g2: &mg2, l02: &ml0 };
+        if self.orientation > 0.0 {
+            project_lanes::<true, C>(&lanes, ex, ey, el, self.orientation, [&mut cax, &mut cay, &mut cbx, &mut cby]);
+        } else {
+            project_lanes::<false, C>(&lanes, ex, ey, el, 0.0, [&mut cax, &mut cay, &mut cbx, &mut cby]);
+        }
+        if stride == 2 {
+            let (sx, sy): (&mut [f32; 2 * C], &mut [f32; 2 * C]) = ((&mut dx[la0..la0 + 2 * C]).try_into().expect("block"), (&mut dy[la0..la0 + 2 * C]).try_into().expect("block"));
+            for l in 0..C {
+                sx[2 * l] = pax[l] - cax[l];
+                sx[2 * l + 1] = pbx[l] + cbx[l];
+                sy[2 * l] = pay[l] - cay[l];
+                sy[2 * l + 1] = pby[l] + cby[l];
+            }
+        } else {
+            for (o, (p, c)) in dx[la0..la0 + C].iter_mut().zip(pax.iter().zip(&cax)) {
+                *o = p - c;
+            }
+            for (o, (p, c)) in dy[la0..la0 + C].iter_mut().zip(pay.iter().zip(&cay)) {
+                *o = p - c;
+            }
+            for (o, (p, c)) in dx[lb0..lb0 + C].iter_mut().zip(pbx.iter().zip(&cbx)) {
+                *o = p + c;
+            }
+            for (o, (p, c)) in dy[lb0..lb0 + C].iter_mut().zip(pby.iter().zip(&cby)) {
+                *o = p + c;
+            }
         }
     }
 
@@ -364,9 +443,9 @@ impl<M: Metric> Sweep<'_, M> {
         let mut cby = [0.0f32; LANES];
         let lanes = Lanes { fa: &fa, fb: &fb, kk: &kk, pax: &pax, pay: &pay, pbx: &pbx, pby: &pby, g0: &mg0, g1: &mg1, g2: &mg2, l02: &ml0 };
         if self.orientation > 0.0 {
-            project_lanes::<true>(&lanes, ex, ey, el, self.orientation, [&mut cax, &mut cay, &mut cbx, &mut cby]);
+            project_lanes::<true, LANES>(&lanes, ex, ey, el, self.orientation, [&mut cax, &mut cay, &mut cbx, &mut cby]);
         } else {
-            project_lanes::<false>(&lanes, ex, ey, el, 0.0, [&mut cax, &mut cay, &mut cbx, &mut cby]);
+            project_lanes::<false, LANES>(&lanes, ex, ey, el, 0.0, [&mut cax, &mut cay, &mut cbx, &mut cby]);
         }
         for l in 0..n {
             let c = idx[l];
@@ -380,27 +459,27 @@ impl<M: Metric> Sweep<'_, M> {
 }
 
 /// Inputs of [`project_lanes`], one entry per lane.
-struct Lanes<'a> {
-    fa: &'a [f32; LANES],
-    fb: &'a [f32; LANES],
-    kk: &'a [f32; LANES],
-    pax: &'a [f32; LANES],
-    pay: &'a [f32; LANES],
-    pbx: &'a [f32; LANES],
-    pby: &'a [f32; LANES],
-    g0: &'a [f32; LANES],
-    g1: &'a [f32; LANES],
-    g2: &'a [f32; LANES],
-    l02: &'a [f32; LANES],
+struct Lanes<'a, const N: usize> {
+    fa: &'a [f32; N],
+    fb: &'a [f32; N],
+    kk: &'a [f32; N],
+    pax: &'a [f32; N],
+    pay: &'a [f32; N],
+    pbx: &'a [f32; N],
+    pby: &'a [f32; N],
+    g0: &'a [f32; N],
+    g1: &'a [f32; N],
+    g2: &'a [f32; N],
+    l02: &'a [f32; N],
 }
 
 /// The reference projection (`solver::Ctx::project`), branch-free over
-/// [`LANES`] independent constraints; writes the corrections of node a
+/// `N` independent constraints; writes the corrections of node a
 /// (subtracted) and node b (added).
 #[inline(always)]
-fn project_lanes<const ORIENT: bool>(i: &Lanes<'_>, ex: f32, ey: f32, el: f32, orientation: f32, out: [&mut [f32; LANES]; 4]) {
+fn project_lanes<const ORIENT: bool, const N: usize>(i: &Lanes<'_, N>, ex: f32, ey: f32, el: f32, orientation: f32, out: [&mut [f32; N]; 4]) {
     let [cax, cay, cbx, cby] = out;
-    for l in 0..LANES {
+    for l in 0..N {
         let kk = i.kk[l];
         let vx = ex + i.pbx[l] - i.pax[l];
         let vy = ey + i.pby[l] - i.pay[l];
