@@ -40,7 +40,7 @@ pub fn invert(dx: &[f32], dy: &[f32], w: usize, h: usize, offset: Vec2, out: &mu
             for x in 0..w {
                 let n = y * w + x;
                 let (u, v) = if dx[n] == 0.0 && dy[n] == 0.0 {
-                    (x as f64, y as f64)
+                    (x as i32 as f64, y as i32 as f64)
                 } else {
                     let (u, v) = locate(dx, dy, w, h, x, y);
                     (u as f64, v as f64)
@@ -81,7 +81,7 @@ fn cell_weights(dx: &[f32], dy: &[f32], w: usize, ci: usize, cj: usize, x: usize
     let pb = (1.0 + dx[b], dy[b]);
     let pc = (1.0 + dx[c], 1.0 + dy[c]);
     let pd = (dx[d], 1.0 + dy[d]);
-    let p = ((x as f32 - ci as f32), (y as f32 - cj as f32));
+    let p = ((x as i32 as f32 - ci as i32 as f32), (y as i32 as f32 - cj as i32 as f32));
     [bary(pa, pb, pc, p), bary(pa, pc, pd, p)]
 }
 
@@ -89,7 +89,7 @@ fn cell_weights(dx: &[f32], dy: &[f32], w: usize, ci: usize, cj: usize, x: usize
 /// `t` (0: a, b, c; 1: a, c, d) of cell `(ci, cj)`.
 #[inline(always)]
 fn rest_point(ci: usize, cj: usize, t: usize, l: [f32; 3]) -> (f32, f32) {
-    let (ci, cj) = (ci as f32, cj as f32);
+    let (ci, cj) = (ci as i32 as f32, cj as i32 as f32);
     if t == 0 {
         (ci + l[1] + l[2], cj + l[2])
     } else {
@@ -104,9 +104,15 @@ fn rest_point(ci: usize, cj: usize, t: usize, l: [f32; 3]) -> (f32, f32) {
 #[inline]
 fn locate(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y: usize) -> (f32, f32) {
     let n = y * w + x;
-    let clamp_cell = |v: f32, hi: usize| (v.floor().max(0.0) as usize).min(hi);
+    // Grid coordinates fit in i32 (sides up to 16384), and conversions
+    // between f32 and i32 are one instruction, those with usize a branchy
+    // sequence (no unsigned 64-bit conversions before AVX-512).
+    let (xf, yf) = (x as i32 as f32, y as i32 as f32);
+    // Truncation is the floor once negatives are clamped to 0 (and unlike
+    // `floor`, not a libm call without SSE4.1); NaN truncates to 0.
+    let clamp_cell = |v: f32, hi: usize| (v as i32).clamp(0, hi as i32) as usize;
     // First guess: the rest position the texel's own node displacement points back to.
-    let (mut ci, mut cj) = (clamp_cell(x as f32 - dx[n], w - 2), clamp_cell(y as f32 - dy[n], h - 2));
+    let (mut ci, mut cj) = (clamp_cell(xf - dx[n], w - 2), clamp_cell(yf - dy[n], h - 2));
     let cross = |o: (f32, f32), u: (f32, f32), v: (f32, f32)| (u.0 - o.0) * (v.1 - o.1) - (u.1 - o.1) * (v.0 - o.0);
     for _ in 0..MAX_WALK {
         let a = cj * w + ci;
@@ -116,7 +122,7 @@ fn locate(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y: usize) -> (f3
         let pb = (1.0 + dx[b], dy[b]);
         let pc = (1.0 + dx[c], 1.0 + dy[c]);
         let pd = (dx[d], 1.0 + dy[d]);
-        let p = (x as f32 - ci as f32, y as f32 - cj as f32);
+        let p = (xf - ci as i32 as f32, yf - cj as i32 as f32);
         // Lower-right triangle (a, b, c): edge functions = weights × area.
         let area0 = cross(pa, pb, pc);
         let (ea, eb) = (cross(pb, pc, p), cross(pc, pa, p));

@@ -7,7 +7,8 @@
 //! compiler can vectorise it:
 //! - constraints of one set in one row are independent (that is what makes
 //!   the set a set), so they are processed in runs of [`LANES`] lanes: node
-//!   values and metrics are gathered into small arrays, the projection is
+//!   values and metrics are gathered into small arrays (what rigidity and mask
+//!   contribute is precomputed per constraint and loaded as vectors), the projection is
 //!   evaluated branch-free over the lanes (skipped constraints get a zero
 //!   correction, not a branch), and the corrections are scattered back;
 //! - only constraints that can be active are visited: rigidity and mask are
@@ -28,8 +29,11 @@
 
 use super::solver::RELAXATION;
 
-/// Constraints per run.
+/// Constraints per packed run (gathered across spans).
 pub const LANES: usize = 16;
+/// Constraints per contiguous run: a span's constraints in blocks of this
+/// many are loaded and stored as vectors; only its remainder is packed.
+pub const CONTIG: usize = 8;
 
 /// The four constraint directions: rest segment `(ex, ey)` from node a to node b.
 pub const HORIZONTAL: usize = 0;
@@ -108,8 +112,6 @@ impl Metric for ByTexel<'_> {
 pub struct Sweep<'a, M: Metric> {
     pub w: usize,
     pub active: &'a ActiveSpans,
-    pub rig: &'a [u8],
-    pub mask: &'a [u8],
     pub metric: M,
     pub orientation: f32,
     /// Whether to use the AVX2 build of the kernels.
@@ -117,21 +119,28 @@ pub struct Sweep<'a, M: Metric> {
 }
 
 /// One set's constraints in a slice of rows: constraint `k` joins local nodes
-/// `a0 + k·stride` and `b0 + k·stride` (global: plus `g0`); its rest texel is
-/// `rest0 + k·stride`. Only the constraints in `spans` can be active.
+/// `a0 + k·stride` and `b0 + k·stride`; its rest texel is
+/// `rest0 + k·stride`. Only the constraints in `spans` can be active; their
+/// coefficients follow one another in `coef` from index `coef0`.
 #[derive(Clone, Copy)]
 struct Run<'s> {
     dir: usize,
     a0: usize,
     b0: usize,
     stride: usize,
-    g0: usize,
     rest0: usize,
     spans: &'s [Span],
+    coef0: usize,
 }
 
 /// A half-open range of constraint indices of one set in one row (pair).
 pub type Span = (u32, u32);
+
+/// End of the whole [`CONTIG`] blocks of span `s..e`.
+#[inline(always)]
+fn blocks_end(s: u32, e: u32) -> usize {
+    s as usize + (e - s) as usize / CONTIG * CONTIG
+}
 
 /// The sets of a row `j`: the even and odd horizontal sets of row `j`, and the
 /// vertical, diagonal and antidiagonal sets between rows `j` and `j + 1`.
@@ -147,6 +156,39 @@ pub struct ActiveSpans {
     spans: Vec<Span>,
     /// `first[j·SETS + set]` .. `first[j·SETS + set + 1]` index `spans`.
     first: Vec<u32>,
+    /// Per constraint of the spans, in span order: what the projection needs
+    /// from rigidity and mask, computed here once instead of per lane and
+    /// iteration (four byte gathers and two divisions). `coef_first[j·SETS +
+    /// set]` is the first entry of row `j`'s set.
+    coef: Coefficients,
+    coef_first: Vec<u32>,
+}
+
+/// Structure of arrays, so that a run of lanes loads each as one vector.
+#[derive(Debug, Clone, Default)]
+struct Coefficients {
+    /// Share of the correction taken by node a, b: `ma / (ma + mb)`, `mb / (ma + mb)`.
+    fa: Vec<f32>,
+    fb: Vec<f32>,
+    /// Weight of the constraint, `max(rig) / 255`; 0 when it is inactive
+    /// (both ends elastic or both fixed: whole-row spans include such).
+    kk: Vec<f32>,
+}
+
+impl Coefficients {
+    /// Exactly the reference's arithmetic (`solver::Ctx::project`), so that the
+    /// sweeps stay bitwise equal to it.
+    fn push(&mut self, ra: u8, rb: u8, mka: u8, mkb: u8) {
+        let ma = mka as f32 * (1.0 - 0.9 / 255.0 * ra as f32);
+        let mb = mkb as f32 * (1.0 - 0.9 / 255.0 * rb as f32);
+        let ms = ma + mb;
+        let k8 = ra.max(rb);
+        let live = k8 > 0 && ms > 0.0;
+        let mss = if ms > 0.0 { ms } else { 1.0 };
+        self.fa.push(ma / mss);
+        self.fb.push(mb / mss);
+        self.kk.push(if live { k8 as f32 * (1.0 / 255.0) } else { 0.0 });
+    }
 }
 
 impl ActiveSpans {
@@ -154,10 +196,13 @@ impl ActiveSpans {
         let live = |a: usize, b: usize| (rig[a] > 0 || rig[b] > 0) && (mask[a] > 0 || mask[b] > 0);
         let mut spans = Vec::new();
         let mut first = Vec::with_capacity(h * SETS + 1);
+        let mut coef = Coefficients::default();
+        let mut coef_first = Vec::with_capacity(h * SETS + 1);
         for j in 0..h {
             let g0 = j * w;
             for set in 0..SETS {
                 first.push(spans.len() as u32);
+                coef_first.push(coef.kk.len() as u32);
                 let (count, a, b, stride): (usize, usize, usize, usize) = match set {
                     0 | 1 => ((w - set) / 2, g0 + set, g0 + set + 1, 2),
                     _ if j + 1 == h => (0, 0, 0, 1),
@@ -178,23 +223,38 @@ impl ActiveSpans {
                     }
                     spans.push((s as u32, k as u32));
                 }
-                // Scattered rigidity (noise) would make many tiny spans: past
-                // one span per 16 constraints, sweep the whole row instead.
-                if spans.len() - start > count / 16 + 1 {
+                // Lanes are packed across spans, so a span costs a few
+                // instructions and a skipped constraint saves a whole lane:
+                // sweep the whole row only when its gaps are on average
+                // shorter than one constraint (scattered rigidity). (A rule of
+                // one span per 16 constraints swept whole rows of the coarse
+                // levels here, 24 scales per row.)
+                let live_count: usize = spans[start..].iter().map(|&(s, e)| (e - s) as usize).sum();
+                if count - live_count < spans.len() - start {
                     spans.truncate(start);
                     spans.push((0, count as u32));
+                }
+                // In the sweep's order: every span's whole blocks, then the remainders.
+                let mut push = |k: usize| coef.push(rig[a + k * stride], rig[b + k * stride], mask[a + k * stride], mask[b + k * stride]);
+                for &(s, e) in &spans[start..] {
+                    (s as usize..blocks_end(s, e)).for_each(&mut push);
+                }
+                for &(s, e) in &spans[start..] {
+                    (blocks_end(s, e)..e as usize).for_each(&mut push);
                 }
             }
         }
         first.push(spans.len() as u32);
+        coef_first.push(coef.kk.len() as u32);
         spans.shrink_to_fit();
-        ActiveSpans { spans, first }
+        ActiveSpans { spans, first, coef, coef_first }
     }
 
+    /// Row `j`'s spans of `set` and the index of their first coefficient.
     #[inline]
-    fn of(&self, j: usize, set: usize) -> &[Span] {
+    fn of(&self, j: usize, set: usize) -> (&[Span], usize) {
         let i = j * SETS + set;
-        &self.spans[self.first[i] as usize..self.first[i + 1] as usize]
+        (&self.spans[self.first[i] as usize..self.first[i + 1] as usize], self.coef_first[i] as usize)
     }
 
     /// Whether row `j`'s sets (`between`: only the three between rows `j` and `j + 1`) have any work.
@@ -214,8 +274,8 @@ impl<M: Metric> Sweep<'_, M> {
         for r in 0..rows {
             for parity in 0..2 {
                 let a0 = r * w + parity;
-                let spans = self.active.of(j + r, parity);
-                self.run(Run { dir: HORIZONTAL, a0, b0: a0 + 1, stride: 2, g0, rest0: g0 + a0 + 1, spans }, dx, dy);
+                let (spans, coef0) = self.active.of(j + r, parity);
+                self.run(Run { dir: HORIZONTAL, a0, b0: a0 + 1, stride: 2, rest0: g0 + a0 + 1, spans, coef0 }, dx, dy);
             }
         }
         if rows == 2 {
@@ -228,9 +288,10 @@ impl<M: Metric> Sweep<'_, M> {
         let w = self.w;
         let g0 = j * w;
         let a = self.active;
-        self.run(Run { dir: VERTICAL, a0: 0, b0: w, stride: 1, g0, rest0: g0 + w, spans: a.of(j, 2) }, dx, dy);
-        self.run(Run { dir: DIAGONAL, a0: 0, b0: w + 1, stride: 1, g0, rest0: g0 + w + 1, spans: a.of(j, 3) }, dx, dy);
-        self.run(Run { dir: ANTIDIAGONAL, a0: 1, b0: w, stride: 1, g0, rest0: g0 + w + 1, spans: a.of(j, 4) }, dx, dy);
+        let ((v, cv), (d, cd), (e, ce)) = (a.of(j, 2), a.of(j, 3), a.of(j, 4));
+        self.run(Run { dir: VERTICAL, a0: 0, b0: w, stride: 1, rest0: g0 + w, spans: v, coef0: cv }, dx, dy);
+        self.run(Run { dir: DIAGONAL, a0: 0, b0: w + 1, stride: 1, rest0: g0 + w + 1, spans: d, coef0: cd }, dx, dy);
+        self.run(Run { dir: ANTIDIAGONAL, a0: 1, b0: w, stride: 1, rest0: g0 + w + 1, spans: e, coef0: ce }, dx, dy);
     }
 
     #[inline]
@@ -256,35 +317,109 @@ impl<M: Metric> Sweep<'_, M> {
 
     #[inline(always)]
     fn run_body(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
-        // Constraints of one set are independent, so lanes are packed across spans.
+        // Constraints of one set are independent, so they may be taken in any
+        // order: first the whole blocks of every span, then the remainders
+        // packed across spans (the order of the coefficients, see `ActiveSpans::new`).
+        let mut ci = run.coef0;
+        for &(s, e) in run.spans {
+            let mut k = s as usize;
+            while k < blocks_end(s, e) {
+                self.block(&run, k, ci, dx, dy);
+                ci += CONTIG;
+                k += CONTIG;
+            }
+        }
         let mut idx = [0usize; LANES];
         let mut n = 0;
         for &(s, e) in run.spans {
-            for k in s as usize..e as usize {
+            for k in blocks_end(s, e)..e as usize {
                 idx[n] = k * run.stride;
                 n += 1;
                 if n == LANES {
-                    self.batch(&run, &idx, n, dx, dy);
+                    self.batch(&run, &idx, n, ci, dx, dy);
+                    ci += n;
                     n = 0;
                 }
             }
         }
         if n > 0 {
-            self.batch(&run, &idx, n, dx, dy);
+            self.batch(&run, &idx, n, ci, dx, dy);
         }
     }
 
-    /// Projects the `n` constraints at offsets `idx` (constraint index · stride).
+    /// Projects the [`CONTIG`] constraints `k0..k0 + CONTIG` of one span, whose
+    /// coefficients start at `ci`: node values are loaded and stored as
+    /// vectors (horizontal sets: a and b interleave, `b = a + 1`; the other
+    /// sets: a and b lie in different rows), only the metric is gathered.
     #[inline(always)]
-    fn batch(&self, run: &Run<'_>, idx: &[usize; LANES], n: usize, dx: &mut [f32], dy: &mut [f32]) {
-        let Run { dir, a0, b0, g0, rest0, .. } = *run;
+    fn block(&self, run: &Run<'_>, k0: usize, ci: usize, dx: &mut [f32], dy: &mut [f32]) {
+        const C: usize = CONTIG;
+        let Run { dir, a0, b0, stride, rest0, .. } = *run;
         let (ex, ey) = rest_segment(dir);
         let el = (ex * ex + ey * ey).sqrt();
-        let (rig, mask) = (self.rig, self.mask);
-        let mut ra = [0.0f32; LANES];
-        let mut rb = [0.0f32; LANES];
-        let mut mka = [0.0f32; LANES];
-        let mut mkb = [0.0f32; LANES];
+        let coef = &self.active.coef;
+        let vec = |v: &[f32], at: usize| -> [f32; C] { v[at..at + C].try_into().expect("block") };
+        let (fa, fb, kk) = (vec(&coef.fa, ci), vec(&coef.fb, ci), vec(&coef.kk, ci));
+        let (la0, lb0) = (a0 + k0 * stride, b0 + k0 * stride);
+        let (mut pax, mut pay, mut pbx, mut pby) = ([0.0f32; C], [0.0f32; C], [0.0f32; C], [0.0f32; C]);
+        if stride == 2 {
+            let (sx, sy): (&[f32; 2 * C], &[f32; 2 * C]) = (dx[la0..la0 + 2 * C].try_into().expect("block"), dy[la0..la0 + 2 * C].try_into().expect("block"));
+            for l in 0..C {
+                (pax[l], pbx[l], pay[l], pby[l]) = (sx[2 * l], sx[2 * l + 1], sy[2 * l], sy[2 * l + 1]);
+            }
+        } else {
+            (pax, pay, pbx, pby) = (vec(dx, la0), vec(dy, la0), vec(dx, lb0), vec(dy, lb0));
+        }
+        let (mut mg0, mut mg1, mut mg2, mut ml0) = ([0.0f32; C], [0.0f32; C], [0.0f32; C], [0.0f32; C]);
+        for l in 0..C {
+            [mg0[l], mg1[l], mg2[l], ml0[l]] = self.metric.fetch(rest0 + (k0 + l) * stride, dir);
+        }
+        let (mut cax, mut cay, mut cbx, mut cby) = ([0.0f32; C], [0.0f32; C], [0.0f32; C], [0.0f32; C]);
+        let lanes = Lanes { fa: &fa, fb: &fb, kk: &kk, pax: &pax, pay: &pay, pbx: &pbx, pby: &pby, g0: &mg0, g1: &mg1, g2: &mg2, l02: &ml0 };
+        if self.orientation > 0.0 {
+            project_lanes::<true, C>(&lanes, ex, ey, el, self.orientation, [&mut cax, &mut cay, &mut cbx, &mut cby]);
+        } else {
+            project_lanes::<false, C>(&lanes, ex, ey, el, 0.0, [&mut cax, &mut cay, &mut cbx, &mut cby]);
+        }
+        if stride == 2 {
+            let (sx, sy): (&mut [f32; 2 * C], &mut [f32; 2 * C]) = ((&mut dx[la0..la0 + 2 * C]).try_into().expect("block"), (&mut dy[la0..la0 + 2 * C]).try_into().expect("block"));
+            for l in 0..C {
+                sx[2 * l] = pax[l] - cax[l];
+                sx[2 * l + 1] = pbx[l] + cbx[l];
+                sy[2 * l] = pay[l] - cay[l];
+                sy[2 * l + 1] = pby[l] + cby[l];
+            }
+        } else {
+            for (o, (p, c)) in dx[la0..la0 + C].iter_mut().zip(pax.iter().zip(&cax)) {
+                *o = p - c;
+            }
+            for (o, (p, c)) in dy[la0..la0 + C].iter_mut().zip(pay.iter().zip(&cay)) {
+                *o = p - c;
+            }
+            for (o, (p, c)) in dx[lb0..lb0 + C].iter_mut().zip(pbx.iter().zip(&cbx)) {
+                *o = p + c;
+            }
+            for (o, (p, c)) in dy[lb0..lb0 + C].iter_mut().zip(pby.iter().zip(&cby)) {
+                *o = p + c;
+            }
+        }
+    }
+
+    /// Projects the `n` constraints at offsets `idx` (constraint index · stride)
+    /// whose coefficients start at `ci`.
+    #[inline(always)]
+    fn batch(&self, run: &Run<'_>, idx: &[usize; LANES], n: usize, ci: usize, dx: &mut [f32], dy: &mut [f32]) {
+        let Run { dir, a0, b0, rest0, .. } = *run;
+        let (ex, ey) = rest_segment(dir);
+        let el = (ex * ex + ey * ey).sqrt();
+        // Unused lanes keep zero coefficients: inactive, no correction.
+        let mut fa = [0.0f32; LANES];
+        let mut fb = [0.0f32; LANES];
+        let mut kk = [0.0f32; LANES];
+        let coef = &self.active.coef;
+        fa[..n].copy_from_slice(&coef.fa[ci..ci + n]);
+        fb[..n].copy_from_slice(&coef.fb[ci..ci + n]);
+        kk[..n].copy_from_slice(&coef.kk[ci..ci + n]);
         let mut pax = [0.0f32; LANES];
         let mut pay = [0.0f32; LANES];
         let mut pbx = [0.0f32; LANES];
@@ -296,10 +431,6 @@ impl<M: Metric> Sweep<'_, M> {
         for l in 0..n {
             let c = idx[l];
             let (la, lb) = (a0 + c, b0 + c);
-            ra[l] = rig[g0 + la] as f32;
-            rb[l] = rig[g0 + lb] as f32;
-            mka[l] = mask[g0 + la] as f32;
-            mkb[l] = mask[g0 + lb] as f32;
             pax[l] = dx[la];
             pay[l] = dy[la];
             pbx[l] = dx[lb];
@@ -310,11 +441,11 @@ impl<M: Metric> Sweep<'_, M> {
         let mut cay = [0.0f32; LANES];
         let mut cbx = [0.0f32; LANES];
         let mut cby = [0.0f32; LANES];
-        let lanes = Lanes { ra: &ra, rb: &rb, mka: &mka, mkb: &mkb, pax: &pax, pay: &pay, pbx: &pbx, pby: &pby, g0: &mg0, g1: &mg1, g2: &mg2, l02: &ml0 };
+        let lanes = Lanes { fa: &fa, fb: &fb, kk: &kk, pax: &pax, pay: &pay, pbx: &pbx, pby: &pby, g0: &mg0, g1: &mg1, g2: &mg2, l02: &ml0 };
         if self.orientation > 0.0 {
-            project_lanes::<true>(&lanes, ex, ey, el, self.orientation, [&mut cax, &mut cay, &mut cbx, &mut cby]);
+            project_lanes::<true, LANES>(&lanes, ex, ey, el, self.orientation, [&mut cax, &mut cay, &mut cbx, &mut cby]);
         } else {
-            project_lanes::<false>(&lanes, ex, ey, el, 0.0, [&mut cax, &mut cay, &mut cbx, &mut cby]);
+            project_lanes::<false, LANES>(&lanes, ex, ey, el, 0.0, [&mut cax, &mut cay, &mut cbx, &mut cby]);
         }
         for l in 0..n {
             let c = idx[l];
@@ -328,38 +459,33 @@ impl<M: Metric> Sweep<'_, M> {
 }
 
 /// Inputs of [`project_lanes`], one entry per lane.
-struct Lanes<'a> {
-    ra: &'a [f32; LANES],
-    rb: &'a [f32; LANES],
-    mka: &'a [f32; LANES],
-    mkb: &'a [f32; LANES],
-    pax: &'a [f32; LANES],
-    pay: &'a [f32; LANES],
-    pbx: &'a [f32; LANES],
-    pby: &'a [f32; LANES],
-    g0: &'a [f32; LANES],
-    g1: &'a [f32; LANES],
-    g2: &'a [f32; LANES],
-    l02: &'a [f32; LANES],
+struct Lanes<'a, const N: usize> {
+    fa: &'a [f32; N],
+    fb: &'a [f32; N],
+    kk: &'a [f32; N],
+    pax: &'a [f32; N],
+    pay: &'a [f32; N],
+    pbx: &'a [f32; N],
+    pby: &'a [f32; N],
+    g0: &'a [f32; N],
+    g1: &'a [f32; N],
+    g2: &'a [f32; N],
+    l02: &'a [f32; N],
 }
 
 /// The reference projection (`solver::Ctx::project`), branch-free over
-/// [`LANES`] independent constraints; writes the corrections of node a
+/// `N` independent constraints; writes the corrections of node a
 /// (subtracted) and node b (added).
 #[inline(always)]
-fn project_lanes<const ORIENT: bool>(i: &Lanes<'_>, ex: f32, ey: f32, el: f32, orientation: f32, out: [&mut [f32; LANES]; 4]) {
+fn project_lanes<const ORIENT: bool, const N: usize>(i: &Lanes<'_, N>, ex: f32, ey: f32, el: f32, orientation: f32, out: [&mut [f32; N]; 4]) {
     let [cax, cay, cbx, cby] = out;
-    for l in 0..LANES {
-        let k8 = i.ra[l].max(i.rb[l]);
-        let ma = i.mka[l] * (1.0 - 0.9 / 255.0 * i.ra[l]);
-        let mb = i.mkb[l] * (1.0 - 0.9 / 255.0 * i.rb[l]);
-        let ms = ma + mb;
-        let kk = k8 * (1.0 / 255.0);
+    for l in 0..N {
+        let kk = i.kk[l];
         let vx = ex + i.pbx[l] - i.pax[l];
         let vy = ey + i.pby[l] - i.pay[l];
         let ld2 = i.g0[l] * vx * vx + 2.0 * i.g1[l] * vx * vy + i.g2[l] * vy * vy;
         let l02 = i.l02[l];
-        let active = (k8 > 0.0) & (ms > 0.0) & (l02 > 0.0) & (ld2 > l02 * 1e-6);
+        let active = (kk > 0.0) & (l02 > 0.0) & (ld2 > l02 * 1e-6);
         let l02s = if active { l02 } else { 1.0 };
         let ld2s = if active { ld2 } else { 1.0 };
         let ratio = (l02s / ld2s).sqrt().max(0.25).min(4.0);
@@ -368,27 +494,21 @@ fn project_lanes<const ORIENT: bool>(i: &Lanes<'_>, ex: f32, ey: f32, el: f32, o
         let mut ty = vy * s;
         if ORIENT {
             let o = orientation * kk;
-            let len = (tx * tx + ty * ty).sqrt();
-            let len_ok = len > 1e-12;
-            let lens = if len_ok { len } else { 1.0 };
-            let ux = tx / lens * (1.0 - o) + ex / el * o;
-            let uy = ty / lens * (1.0 - o) + ey / el * o;
-            let ul = (ux * ux + uy * uy).sqrt();
-            let ul_ok = ul > 1e-12;
-            let uls = if ul_ok { ul } else { 1.0 };
-            let turn = len_ok & ul_ok;
-            tx = if turn { ux / uls * len } else { tx };
-            ty = if turn { uy / uls * len } else { ty };
+            let t2 = tx * tx + ty * ty;
+            let len = t2.sqrt();
+            let (ux, uy) = (tx * (1.0 - o) + ex / el * (o * len), ty * (1.0 - o) + ey / el * (o * len));
+            let u2 = ux * ux + uy * uy;
+            let turn = (len > 1e-12) & (u2 > 1e-24 * t2);
+            let f = (t2 / if turn { u2 } else { 1.0 }).sqrt();
+            tx = if turn { ux * f } else { tx };
+            ty = if turn { uy * f } else { ty };
         }
         let cx = if active { tx - vx } else { 0.0 };
         let cy = if active { ty - vy } else { 0.0 };
-        let mss = if ms > 0.0 { ms } else { 1.0 };
-        let fa = ma / mss;
-        let fb = mb / mss;
-        cax[l] = cx * fa;
-        cay[l] = cy * fa;
-        cbx[l] = cx * fb;
-        cby[l] = cy * fb;
+        cax[l] = cx * i.fa[l];
+        cay[l] = cy * i.fa[l];
+        cbx[l] = cx * i.fb[l];
+        cby[l] = cy * i.fb[l];
     }
 }
 
