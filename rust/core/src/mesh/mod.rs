@@ -11,7 +11,7 @@ mod topology;
 mod validate;
 
 pub use topology::{Topology, TopologyReport};
-pub use validate::{as_vec3, validate_positions, MeshInput};
+pub use validate::{all_finite, as_vec3, validate_positions, MeshInput};
 
 #[cfg(test)]
 mod tests;

@@ -272,7 +272,8 @@ impl Solver {
         if in_work {
             positions.copy_from_slice(&self.work);
         }
-        if let Some(v) = positions.iter().position(|p| !p.is_finite()) {
+        if !crate::mesh::all_finite(bytemuck::cast_slice(positions)) {
+            let v = positions.iter().position(|p| !p.is_finite()).unwrap_or(0);
             return Err(Error::Numerical(format!(
                 "the solve produced a non-finite position at vertex {v}"
             )));

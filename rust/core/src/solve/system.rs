@@ -93,7 +93,7 @@ impl Gather {
     }
 
     /// `(AᵀW p)_k`.
-    #[inline]
+    #[inline(always)]
     pub fn apply(&self, k: usize, projections: &[Vec3]) -> Vec3 {
         let range = self.offsets[k] as usize..self.offsets[k + 1] as usize;
         let mut sum = Vec3::ZERO;
@@ -222,9 +222,12 @@ impl System {
 
     /// `AᵀW p` over the constant rows, once per solve.
     pub fn constant_rhs(&self, projections: &[Vec3], out: &mut [Vec3]) {
-        out.par_iter_mut()
-            .enumerate()
-            .for_each(|(k, o)| *o = self.constant.apply(k, projections));
+        // By chunks, like the fused step: per-vertex tasks cost more than the sums.
+        out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, o)| {
+            for (i, o) in o.iter_mut().enumerate() {
+                *o = self.constant.apply(c * CHUNK + i, projections);
+            }
+        });
     }
 
     /// One fused local + global step for a diagonal system: every row
