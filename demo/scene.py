@@ -158,8 +158,10 @@ def build_body(name: str = "Body", location=(0.9, 0.9, 0.0), radius: float = 0.6
     return body
 
 
-def make_collider(body, collection_name: str = "Colliders", thickness: float = 0.01, friction: float = 0.3):
-    """Moves `body` into its own collection and sets its Tegument collider settings."""
+def make_collider(body, collection_name: str = "Colliders", thickness: float = 0.01, friction: float = 0.3,
+                  kinetic_friction: float | None = None):
+    """Moves `body` into its own collection and sets its Tegument collider settings
+    (kinetic friction 0.7 × the static one unless given)."""
     collection = bpy.data.collections.get(collection_name) or bpy.data.collections.new(collection_name)
     if collection.name not in bpy.context.scene.collection.children:
         bpy.context.scene.collection.children.link(collection)
@@ -169,7 +171,7 @@ def make_collider(body, collection_name: str = "Colliders", thickness: float = 0
     settings = body.tegument_collider
     settings.thickness = thickness
     settings.friction = friction
-    settings.kinetic_friction = 0.7 * friction
+    settings.kinetic_friction = 0.7 * friction if kinetic_friction is None else kinetic_friction
     return collection
 
 
@@ -182,15 +184,7 @@ def add_sphere(name: str, centres, *, radius: float = 0.3, thickness: float = 0.
     for frame, centre in enumerate(centres, start=1):
         sphere.location = centre
         sphere.keyframe_insert("location", frame=frame)
-    settings = sphere.tegument_collider
-    settings.thickness = thickness
-    settings.friction = settings.kinetic_friction = friction
-    owner = bpy.data.collections.get(collection) or bpy.data.collections.new(collection)
-    if owner.name not in bpy.context.scene.collection.children:
-        bpy.context.scene.collection.children.link(owner)
-    for old in list(sphere.users_collection):
-        old.objects.unlink(sphere)
-    owner.objects.link(sphere)
+    make_collider(sphere, collection, thickness, friction, kinetic_friction=friction)
     return sphere
 
 
