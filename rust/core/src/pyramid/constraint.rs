@@ -16,7 +16,7 @@ use glam::Vec3;
 use super::encode::Encoding;
 use super::kernel::Packed;
 use super::project::frame;
-use crate::solve::{Constraint, Context, Rows};
+use crate::solve::{Constraint, Context, DiagonalChunk, Rows};
 
 /// Per-vertex targets: row `e_i`, projection `m + s n`.
 pub struct PyramidTargets {
@@ -54,6 +54,17 @@ impl Constraint for PyramidTargets {
     fn project_rows(&self, context: &Context<'_>, rows: std::ops::Range<usize>, out: &mut [Vec3]) {
         self.packed.targets(context.positions, rows, out);
     }
+
+    fn solve_chunk(
+        &self,
+        context: &Context<'_>,
+        rows: std::ops::Range<usize>,
+        chunk: &DiagonalChunk<'_>,
+        out: &mut [Vec3],
+    ) -> bool {
+        self.packed.solve_chunk(context.positions, rows, chunk, out);
+        true
+    }
 }
 
 /// Linearised: row `e_i − Σ w_j e_j`, projection `s n`.
@@ -90,7 +101,7 @@ impl Constraint for PyramidLaplacian {
     fn project_row(&self, context: &Context<'_>, e: usize) -> Vec3 {
         let (encoding, x) = (&*self.encoding, context.positions);
         match frame(encoding, e, x) {
-            Some(f) => f.offset * f.normal,
+            Some(f) => f.lift,
             // Neutral: the row's current value.
             None => {
                 let mut mean = Vec3::ZERO;

@@ -18,6 +18,7 @@
 use glam::Vec3;
 
 use super::encode::Encoding;
+use crate::solve::DiagonalChunk;
 
 /// Rows per block.
 pub const LANES: usize = 4;
@@ -126,6 +127,45 @@ impl Packed {
         }
     }
 
+    /// The fused diagonal step of one chunk with these targets as the only
+    /// varying rows (see [`crate::solve::Constraint::solve_chunk`]): each
+    /// target goes from the kernel's registers straight into its vertex's
+    /// weighted average, with no target buffer and no separate passes to
+    /// start from the constant sums and to divide.
+    pub fn solve_chunk(&self, x: &[Vec3], rows: std::ops::Range<usize>, chunk: &DiagonalChunk<'_>, out: &mut [Vec3]) {
+        assert_eq!(x.len(), self.vertex_count, "positions of another mesh");
+        assert!(rows.end <= self.rows && chunk.weights.len() == rows.len());
+        assert!(chunk.constant.len() == out.len() && chunk.inverse.len() == out.len());
+        let (constant, inverse) = (chunk.constant, chunk.inverse);
+        // Vertices of the chunk are written in order; `next` is the first one
+        // not yet written. Those without a row (pinned) only have the constant sum.
+        let mut next = 0;
+        let fill_to = |end: usize, out: &mut [Vec3], next: &mut usize| {
+            for k in *next..end {
+                out[k] = constant[k] * inverse[k];
+            }
+            *next = end;
+        };
+        if !rows.is_empty() {
+            let (first, last) = (rows.start / LANES, (rows.end - 1) / LANES);
+            let mut cache = [[F4::ZERO; 3]; super::encode::MAX_VALENCE];
+            for b in first..=last {
+                let lanes = self.block(b, x, &mut cache);
+                for (l, t) in lanes.iter().enumerate() {
+                    let r = b * LANES + l;
+                    if !rows.contains(&r) {
+                        continue;
+                    }
+                    let k = self.vertices[r] as usize - chunk.base;
+                    fill_to(k, out, &mut next);
+                    out[k] = (constant[k] + *t * chunk.weights[r - rows.start]) * inverse[k];
+                    next = k + 1;
+                }
+            }
+        }
+        fill_to(out.len(), out, &mut next);
+    }
+
     #[inline(always)]
     fn slots(&self, b: usize) -> usize {
         (self.offsets[b + 1] - self.offsets[b]) as usize / LANES
@@ -178,22 +218,27 @@ impl Packed {
             }
             previous = current;
         }
-        let length = (ax * ax + ay * ay + az * az).sqrt();
-        let inverse = F4::splat(1.0) / length;
-        let (nx, ny, nz) = (ax * inverse, ay * inverse, az * inverse);
-
-        // Pass 2: the offset along the normal.
-        let offset = if self.scale_safe {
+        let ((tx, ty, tz), area_valid) = if self.scale_safe {
+            // Pass 2, scale-safe: the projected edge lengths |(m − x_j) × a| / |a|
+            // from the unnormalised area vector, so no square root or division
+            // stands between the two passes.
+            let scale = F4::normalising_power_of_two(ax, ay, az);
+            let (ax, ay, az) = (ax * scale, ay * scale, az * scale);
+            let area2 = ax * ax + ay * ay + az * az;
             let mut s = zero;
             let tangent = self.weighted_tangent[start..end].chunks_exact(LANES);
             for (&[px, py, pz], t) in cache[..slots].iter().zip(tangent) {
                 let (dx, dy, dz) = (mx - px, my - py, mz - pz);
-                let along = dx * nx + dy * ny + dz * nz;
-                let q = (dx * dx + dy * dy + dz * dz) - along * along;
-                s = s + F4::load(t) * q.max_zero().sqrt();
+                let (cx, cy, cz) = (dy * az - dz * ay, dz * ax - dx * az, dx * ay - dy * ax);
+                s = s + F4::load(t) * (cx * cx + cy * cy + cz * cz).sqrt();
             }
-            s
+            let k = s / area2;
+            ((mx + ax * k, my + ay * k, mz + az * k), area2.gt(zero) & area2.finite())
         } else {
+            // Pass 2, plain: the offset of the mean from the ring centroid along the normal.
+            let length = (ax * ax + ay * ay + az * az).sqrt();
+            let inverse = F4::splat(1.0) / length;
+            let (nx, ny, nz) = (ax * inverse, ay * inverse, az * inverse);
             let (mut cx, mut cy, mut cz) = (zero, zero, zero);
             let unit = self.unit[start..end].chunks_exact(LANES);
             for (&[px, py, pz], u) in cache[..slots].iter().zip(unit) {
@@ -205,15 +250,10 @@ impl Packed {
             let k = F4::load(&self.valence[b * LANES..]);
             let (cx, cy, cz) = (cx / k, cy / k, cz / k);
             let dot = (mx - cx) * nx + (my - cy) * ny + (mz - cz) * nz;
-            F4::load(&self.height[b * LANES..]) - dot
+            let offset = F4::load(&self.height[b * LANES..]) - dot;
+            ((mx + nx * offset, my + ny * offset, mz + nz * offset), length.gt(zero) & length.finite())
         };
-        let (tx, ty, tz) = (mx + offset * nx, my + offset * ny, mz + offset * nz);
-        let valid = length.gt(zero)
-            & length.finite()
-            & mx.finite()
-            & my.finite()
-            & mz.finite()
-            & offset.finite();
+        let valid = area_valid & tx.finite() & ty.finite() & tz.finite();
         let (tx, ty, tz, valid) = (tx.to_array(), ty.to_array(), tz.to_array(), valid.to_mask());
         let mut out = [Vec3::ZERO; LANES];
         for l in 0..LANES {
@@ -318,6 +358,21 @@ mod f4 {
                 ]
             }
         }
+        /// Per lane, the power of two that brings the largest of `|a|, |b|, |c|`
+        /// into [1, 2) (see [`crate::pyramid::project::normalising_power_of_two`]).
+        #[inline(always)]
+        pub fn normalising_power_of_two(a: F4, b: F4, c: F4) -> F4 {
+            unsafe {
+                let exponent = _mm_castsi128_ps(_mm_set1_epi32(crate::pyramid::project::EXPONENT as i32));
+                // Exponent fields are non-negative floats: their float maximum is the integer one.
+                let e = _mm_max_ps(
+                    _mm_max_ps(_mm_and_ps(a.0, exponent), _mm_and_ps(b.0, exponent)),
+                    _mm_and_ps(c.0, exponent),
+                );
+                let bits = _mm_sub_epi32(_mm_set1_epi32(crate::pyramid::project::REFLECTED_EXPONENT as i32), _mm_castps_si128(e));
+                F4(_mm_castsi128_ps(bits))
+            }
+        }
         /// Lanes of a comparison mask as booleans.
         #[inline(always)]
         pub fn to_mask(self) -> [bool; 4] {
@@ -401,6 +456,13 @@ mod f4 {
                 F4(p.map(|p| p.y)),
                 F4(p.map(|p| p.z)),
             ]
+        }
+        /// Per lane, [`crate::pyramid::project::normalising_power_of_two`].
+        #[inline(always)]
+        pub fn normalising_power_of_two(a: F4, b: F4, c: F4) -> F4 {
+            F4(std::array::from_fn(|l| {
+                crate::pyramid::project::normalising_power_of_two(glam::Vec3::new(a.0[l], b.0[l], c.0[l]))
+            }))
         }
         #[inline(always)]
         pub fn to_mask(self) -> [bool; 4] {

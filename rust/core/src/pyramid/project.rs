@@ -10,6 +10,14 @@
 //!   times the current projected edge lengths, so a uniform scale of the
 //!   neighbours scales `s` with them.
 //!
+//! Scale-safe evaluates `s·n` without normalising the ring's vector area `a`:
+//! `|(m − x_j)_⊥| = |(m − x_j) × a| / |a|`, so `s·n = a · Σ w_j t_j |(m − x_j) × a| / |a|²`.
+//! That keeps the square root and the division off the path between the two
+//! passes over the ring (the four-lane kernel spends its time there
+//! otherwise). `a` is first scaled by a power of two, which is exact, to a
+//! length near 1, so the products stay as far from overflow and underflow as
+//! the edge lengths themselves.
+//!
 //! Both formulations of the constraint use this frame: the per-vertex target
 //! projects to `m + s n`, the linearised row `x_i − Σ w_j x_j` projects to `s n`.
 
@@ -17,26 +25,42 @@ use glam::Vec3;
 
 use super::encode::Encoding;
 
-/// The local frame of one encoded vertex: target = `mean + offset · normal`.
+/// The exponent field of an f32.
+pub(crate) const EXPONENT: u32 = 0x7f80_0000;
+/// `REFLECTED_EXPONENT − e` is the exponent field of `2^(127 − E)` for the
+/// field `e = E << 23`.
+pub(crate) const REFLECTED_EXPONENT: u32 = 0x7f00_0000;
+
+/// The power of two that brings the largest component of `v` (in magnitude)
+/// into [1, 2): scaling by it is exact. 0 when that component is 2^127 or
+/// more, and not finite when it is infinite or NaN: either way the scaled
+/// vector then fails the area check.
+#[inline(always)]
+pub(crate) fn normalising_power_of_two(v: Vec3) -> f32 {
+    let e = (v.x.to_bits() & EXPONENT).max(v.y.to_bits() & EXPONENT).max(v.z.to_bits() & EXPONENT);
+    f32::from_bits(REFLECTED_EXPONENT.wrapping_sub(e))
+}
+
+/// The local frame of one encoded vertex: target = `mean + lift`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Frame {
     /// `Σ w_j x_j`.
     pub mean: Vec3,
-    /// Unit normal of the current ring polygon.
-    pub normal: Vec3,
-    /// Signed offset along the normal.
-    pub offset: f32,
+    /// `s n`: the signed offset along the current ring normal.
+    pub lift: Vec3,
 }
 
 impl Frame {
     #[inline]
     pub fn target(&self) -> Vec3 {
-        self.mean + self.offset * self.normal
+        self.mean + self.lift
     }
 }
 
 /// The frame of encoded vertex `e` at positions `x`, or `None` when the
 /// current ring has collapsed (no normal) or produced a non-finite value.
+///
+/// The four-lane kernel evaluates exactly these operations in this order.
 #[inline]
 pub fn frame(encoding: &Encoding, e: usize, x: &[Vec3]) -> Option<Frame> {
     let ring = encoding.ring(e);
@@ -53,38 +77,37 @@ pub fn frame(encoding: &Encoding, e: usize, x: &[Vec3]) -> Option<Frame> {
         area += previous.cross(current);
         previous = current;
     }
-    let length = area.length();
-    if !(length > 0.0 && length.is_finite()) {
-        return None;
-    }
-    // One division, then products: what the four-lane kernel does too.
-    let normal = area * (1.0 / length);
     let mut mean = Vec3::ZERO;
     for (&j, &w) in ring.iter().zip(weights) {
         mean += w * x[j as usize];
     }
-    let offset = if encoding.scale_safe() {
+    let lift = if encoding.scale_safe() {
+        let a = area * normalising_power_of_two(area);
+        let area2 = a.length_squared();
+        if !(area2 > 0.0 && area2.is_finite()) {
+            return None;
+        }
         let mut s = 0.0;
         for ((&j, &w), &t) in ring.iter().zip(weights).zip(encoding.tangents(e)) {
-            let d = mean - x[j as usize];
-            let along = d.dot(normal);
-            s += w * t * (d.length_squared() - along * along).max(0.0).sqrt();
+            s += w * t * (mean - x[j as usize]).cross(a).length();
         }
-        s
+        a * (s / area2)
     } else {
+        let length = area.length();
+        if !(length > 0.0 && length.is_finite()) {
+            return None;
+        }
+        // One division, then products: what the four-lane kernel does too.
+        let normal = area * (1.0 / length);
         let mut centroid = Vec3::ZERO;
         for &j in ring {
             centroid += x[j as usize];
         }
         centroid /= k as f32;
-        encoding.height(e) - (mean - centroid).dot(normal)
+        normal * (encoding.height(e) - (mean - centroid).dot(normal))
     };
-    let frame = Frame {
-        mean,
-        normal,
-        offset,
-    };
-    (frame.mean.is_finite() && frame.offset.is_finite()).then_some(frame)
+    let frame = Frame { mean, lift };
+    frame.target().is_finite().then_some(frame)
 }
 
 /// The target position of encoded vertex `e`.

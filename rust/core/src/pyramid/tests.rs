@@ -604,10 +604,14 @@ fn four_lane_kernel_gives_the_scalar_targets() {
         for p in collapsed.iter_mut().take(40) {
             *p = Vec3::new(0.25, 0.5, 0.75);
         }
+        // Far from unit size: the scale-safe kernel works on an unnormalised
+        // area vector, scaled by a power of two; the reference does the same.
+        let tiny: Vec<Vec3> = bent.iter().map(|p| *p * 1e-9).collect();
+        let huge: Vec<Vec3> = bent.iter().map(|p| *p * 1e9).collect();
         for scale_safe in [false, true] {
             let encoding = encode(&topology, &mesh.positions, scale_safe).unwrap();
             let packed = kernel::Packed::new(&encoding);
-            for x in [&mesh.positions, &bent, &collapsed] {
+            for x in [&mesh.positions, &bent, &collapsed, &tiny, &huge] {
                 let scalar: Vec<Vec3> = (0..encoding.len())
                     .map(|e| project::target(&encoding, e, x).unwrap_or(x[encoding.vertices()[e] as usize]))
                     .collect();
@@ -620,5 +624,78 @@ fn four_lane_kernel_gives_the_scalar_targets() {
                 }
             }
         }
+    }
+}
+
+#[test]
+fn scale_safe_targets_follow_extreme_uniform_scales() {
+    // A rigidly moved and uniformly scaled mesh is its own target, whatever
+    // the scale: the projected edge lengths are computed from an area vector
+    // normalised by a power of two, so neither its square nor the cross
+    // products leave the range of f32.
+    let mesh = quad_sphere(8, 1.0);
+    let topology = Topology::build(mesh.input()).unwrap();
+    let encoding = encode(&topology, &mesh.positions, true).unwrap();
+    let packed = kernel::Packed::new(&encoding);
+    let rotation = Quat::from_axis_angle(Vec3::new(1.0, 2.0, 3.0).normalize(), 0.7);
+    for scale in [1e-12f32, 1e-6, 1.0, 1e6, 1e12] {
+        let x = rigid(&mesh.positions, rotation, Vec3::new(0.5, -0.25, 2.0) * scale, scale);
+        let mut targets = vec![Vec3::NAN; encoding.len()];
+        packed.targets(&x, 0..encoding.len(), &mut targets);
+        for (e, t) in targets.iter().enumerate() {
+            let v = x[encoding.vertices()[e] as usize];
+            let scalar = project::frame(&encoding, e, &x).map(|f| f.target());
+            assert_eq!(scalar, Some(*t), "scale {scale}: vertex {e} has no frame or another target");
+            assert!((*t - v).length() <= 1e-4 * scale, "scale {scale}: vertex {e} moves by {}", (*t - v).length());
+        }
+    }
+}
+
+/// The pyramid targets without their fused global step: the solver then
+/// projects into a buffer, adds and divides.
+struct Unfused(PyramidTargets);
+
+impl crate::solve::Constraint for Unfused {
+    fn name(&self) -> &str {
+        "pyramid targets, unfused"
+    }
+    fn rows(&self) -> &crate::solve::Rows {
+        self.0.rows()
+    }
+    fn project_row(&self, context: &crate::solve::Context<'_>, row: usize) -> Vec3 {
+        self.0.project_row(context, row)
+    }
+    fn project_rows(&self, context: &crate::solve::Context<'_>, rows: std::ops::Range<usize>, out: &mut [Vec3]) {
+        self.0.project_rows(context, rows, out)
+    }
+}
+
+#[test]
+fn fused_step_equals_the_general_step_to_the_bit() {
+    use crate::solve::{Closeness as CloseRows, Constraint, Solver};
+    // More vertices than one chunk of the fused step, and a pinned border, so
+    // chunks start inside four-row blocks and skip vertices without rows.
+    for mesh in [grid(80, 60, 2.0), quad_sphere(30, 1.0)] {
+        let topology = Topology::build(mesh.input()).unwrap();
+        let encoding = Arc::new(encode(&topology, &mesh.positions, true).unwrap());
+        let n = mesh.positions.len();
+        let input: Vec<Vec3> = mesh.positions.iter().map(|p| *p * Vec3::new(1.3, 0.8, 1.0) + Vec3::splat(p.x * p.y)).collect();
+        let closeness: Vec<f32> = (0..n).map(|i| 0.05 + (i % 7) as f32 / 10.0).collect();
+        let pinned: std::collections::HashSet<u32> = encoding.pinned().iter().map(|&(v, _)| v).collect();
+        let closeness: Vec<f32> = (0..n).map(|i| if pinned.contains(&(i as u32)) { 1.0 } else { closeness[i] }).collect();
+        let run = |pyramid: Box<dyn Constraint>| {
+            let mut solver = Solver::new(n);
+            solver.add(Box::new(CloseRows::all(n)), closeness.clone()).unwrap();
+            let rows = pyramid.rows().len();
+            solver.add(pyramid, (0..rows).map(|r| 0.5 + (r % 3) as f32 / 4.0).collect()).unwrap();
+            let mut x = input.clone();
+            solver.solve(&input, &mut x, 5, None).unwrap();
+            x
+        };
+        let fused = run(Box::new(PyramidTargets::new(encoding.clone())));
+        let general = run(Box::new(Unfused(PyramidTargets::new(encoding.clone()))));
+        assert!(!pinned.is_empty() || n > 5000);
+        let bits = |x: &[Vec3]| x.iter().flat_map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>();
+        assert!(bits(&fused) == bits(&general), "{n} vertices: the fused step differs from the general one");
     }
 }

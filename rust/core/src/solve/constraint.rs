@@ -106,6 +106,20 @@ pub struct Context<'a> {
     pub input: &'a [Vec3],
 }
 
+/// One chunk of vertices of the fused diagonal global step (see
+/// [`Constraint::solve_chunk`]): the vertices `base..base + constant.len()`.
+#[derive(Debug, Clone, Copy)]
+pub struct DiagonalChunk<'a> {
+    /// First vertex of the chunk.
+    pub base: usize,
+    /// `Σ w·p` over the constant rows, per vertex of the chunk.
+    pub constant: &'a [Vec3],
+    /// `1 / Σ w` (the inverse of the diagonal matrix), per vertex of the chunk.
+    pub inverse: &'a [f32],
+    /// The constraint's weights of the rows it is given, in row order.
+    pub weights: &'a [f32],
+}
+
 /// A projective constraint. Implementations must be deterministic and must not
 /// depend on the thread count (write each row's projection independently).
 pub trait Constraint: Send + Sync {
@@ -153,6 +167,26 @@ pub trait Constraint: Send + Sync {
         for (o, r) in out.iter_mut().zip(rows) {
             *o = self.project_row(context, r);
         }
+    }
+
+    /// The whole fused global step of one chunk, for a constraint whose
+    /// identity rows are the only varying ones of a diagonal system: every
+    /// vertex `v` of the chunk gets `(constant_v + w_r · target_r) · inverse_v`
+    /// where row `r` of `rows` selects it, and `constant_v · inverse_v` where
+    /// none does (the rows' vertices ascend). Exactly those operations in that
+    /// order, so the result equals the general path (project into a buffer,
+    /// add, divide) to the bit. A kernel that can produce its targets in
+    /// registers overrides this to skip the buffer and the two extra passes
+    /// over the chunk; the default returns false and the solver takes the
+    /// general path.
+    fn solve_chunk(
+        &self,
+        _context: &Context<'_>,
+        _rows: std::ops::Range<usize>,
+        _chunk: &DiagonalChunk<'_>,
+        _out: &mut [Vec3],
+    ) -> bool {
+        false
     }
 
     /// The constraint as settable [`super::Targets`], if it is one: how a

@@ -26,7 +26,7 @@ mod system;
 mod targets;
 
 pub use closeness::Closeness;
-pub use constraint::{Constraint, Context, Rows};
+pub use constraint::{Constraint, Context, DiagonalChunk, Rows};
 pub use solver::{ConstraintId, IterationHook, Solver};
 pub use system::SystemKind;
 pub use targets::Targets;

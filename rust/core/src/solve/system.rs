@@ -24,7 +24,7 @@ use faer::{Conj, MatMut, Par, Side};
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::constraint::{Constraint, Context, Rows};
+use super::constraint::{Constraint, Context, DiagonalChunk, Rows};
 use crate::{Error, Result};
 
 /// Which global step a solver runs: reported so that benchmarks and tests can
@@ -250,6 +250,19 @@ impl System {
             // block then row order: the same sums as the gather below), divide.
             out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, o)| {
                 let base = c * CHUNK;
+                if let ([block], [(constraint, _)]) = (blocks.as_slice(), constraints) {
+                    // One varying constraint: it may run the whole step itself.
+                    let rows = block.chunk_rows[c] as usize..block.chunk_rows[c + 1] as usize;
+                    let chunk = DiagonalChunk {
+                        base,
+                        constant: &rhs_constant[base..base + o.len()],
+                        inverse: &inverse[base..base + o.len()],
+                        weights: &block.weight[rows.clone()],
+                    };
+                    if constraint.solve_chunk(context, rows, &chunk, o) {
+                        return;
+                    }
+                }
                 o.copy_from_slice(&rhs_constant[base..base + o.len()]);
                 let mut accumulate = |targets: &mut Vec<Vec3>| {
                     for (block, &(constraint, _)) in blocks.iter().zip(constraints) {
