@@ -88,7 +88,9 @@ class BakeJob:
         self._stack.enter_context(evaluate.upstream_only(obj))
         self.collider_writers: dict[int, pc2.Writer] = {}
         try:
-            self.writer = pc2.Writer(self.path, len(self.rest), start=self.start_frame)
+            # Frames kept before the range, then the range.
+            self.expected_frames = max(frames.start - self.start_frame, 0) + len(frames)
+            self.writer = pc2.Writer(self.path, len(self.rest), start=self.start_frame, expected_frames=self.expected_frames)
             if keep_existing and pc2.frame_count(self.path):
                 existing = pc2.read(self.path)[0]
                 # A cache of another bind (other vertex count) has nothing to keep.
@@ -137,7 +139,7 @@ class BakeJob:
             collider = self.rig.objects[k]
             count = len(collider.evaluated_get(depsgraph).data.vertices)
             path = colliders.compliance_cache_path(collider)
-            self.collider_writers[k] = pc2.Writer(path, count, start=self.start_frame)
+            self.collider_writers[k] = pc2.Writer(path, count, start=self.start_frame, expected_frames=self.expected_frames)
             if self._existing is None:
                 continue
             keep = self.frames.start - self.start_frame

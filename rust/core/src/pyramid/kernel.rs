@@ -118,7 +118,7 @@ impl Packed {
             // Copies with a constant slot count for the common ring sizes
             // (fully unrolled) were tried and measured no faster.
             let lanes = self.block(b, x, &mut cache);
-            for (l, t) in lanes.iter().enumerate() {
+            for (l, t) in self.points(b, x, &lanes).iter().enumerate() {
                 let r = b * LANES + l;
                 if rows.contains(&r) {
                     out[r - rows.start] = *t;
@@ -151,8 +151,29 @@ impl Packed {
             let mut cache = [[F4::ZERO; 3]; super::encode::MAX_VALENCE];
             for b in first..=last {
                 let lanes = self.block(b, x, &mut cache);
-                for (l, t) in lanes.iter().enumerate() {
-                    let r = b * LANES + l;
+                let r0 = b * LANES;
+                let v0 = self.vertices[r0] as usize;
+                // The common case: a whole block of rows in the chunk, for four
+                // consecutive vertices (vertices ascend, so the last is v0 + 3),
+                // all with a frame: the same sums, four vertices at a time.
+                if lanes.valid == ALL_VALID
+                    && r0 >= rows.start
+                    && r0 + LANES <= rows.end
+                    && self.vertices[r0 + LANES - 1] as usize == v0 + LANES - 1
+                {
+                    let k = v0 - chunk.base;
+                    fill_to(k, out, &mut next);
+                    let c = F4::load_points(&constant[k..k + LANES]);
+                    let w = F4::load(&chunk.weights[r0 - rows.start..]);
+                    let i = F4::load(&inverse[k..]);
+                    let [tx, ty, tz] = lanes.target;
+                    let o = [(c[0] + tx * w) * i, (c[1] + ty * w) * i, (c[2] + tz * w) * i];
+                    F4::store_points(o, &mut out[k..k + LANES]);
+                    next = k + LANES;
+                    continue;
+                }
+                for (l, t) in self.points(b, x, &lanes).iter().enumerate() {
+                    let r = r0 + l;
                     if !rows.contains(&r) {
                         continue;
                     }
@@ -173,7 +194,7 @@ impl Packed {
 
     /// The four targets of block `b`; `cache` has one entry per slot.
     #[inline(always)]
-    fn block<const K: usize>(&self, b: usize, x: &[Vec3], cache: &mut [[F4; 3]; K]) -> [Vec3; LANES] {
+    fn block<const K: usize>(&self, b: usize, x: &[Vec3], cache: &mut [[F4; 3]; K]) -> Lanes {
         let start = self.offsets[b] as usize;
         // Small caches are only used for blocks of exactly that many slots.
         let slots = if K < super::encode::MAX_VALENCE { K } else { self.slots(b) };
@@ -193,7 +214,7 @@ impl Packed {
 
         // Pass 1: gather, vector area relative to the first neighbour, mean.
         let Some((i0, w0)) = slot.next() else {
-            return std::array::from_fn(|l| x[self.vertices[b * LANES + l] as usize]);
+            return Lanes { target: [zero; 3], valid: 0 };
         };
         let [ox, oy, oz] = gather(i0);
         cache[0] = [ox, oy, oz];
@@ -254,19 +275,33 @@ impl Packed {
             ((mx + nx * offset, my + ny * offset, mz + nz * offset), length.gt(zero) & length.finite())
         };
         let valid = area_valid & tx.finite() & ty.finite() & tz.finite();
-        let (tx, ty, tz, valid) = (tx.to_array(), ty.to_array(), tz.to_array(), valid.to_mask());
-        let mut out = [Vec3::ZERO; LANES];
-        for l in 0..LANES {
-            out[l] = if valid[l] {
+        Lanes { target: [tx, ty, tz], valid: valid.to_bits() }
+    }
+
+    /// The four targets of block `b` as points; a row without a frame stays put.
+    #[inline(always)]
+    fn points(&self, b: usize, x: &[Vec3], lanes: &Lanes) -> [Vec3; LANES] {
+        let [tx, ty, tz] = lanes.target.map(F4::to_array);
+        std::array::from_fn(|l| {
+            if lanes.valid & (1 << l) != 0 {
                 Vec3::new(tx[l], ty[l], tz[l])
             } else {
                 // No frame: stay put (the row is neutral).
                 x[self.vertices[b * LANES + l] as usize]
-            };
-        }
-        out
+            }
+        })
     }
 }
+
+/// The targets of one block, one row per lane, and which lanes have a frame
+/// (bit `l` of `valid`).
+struct Lanes {
+    target: [F4; 3],
+    valid: u32,
+}
+
+/// Every lane has a frame.
+const ALL_VALID: u32 = (1 << LANES) - 1;
 
 pub use f4::F4;
 
@@ -373,11 +408,51 @@ mod f4 {
                 F4(_mm_castsi128_ps(bits))
             }
         }
-        /// Lanes of a comparison mask as booleans.
+        /// Lanes of a comparison mask as bits (lane `l` is bit `l`).
         #[inline(always)]
-        pub fn to_mask(self) -> [bool; 4] {
-            let bits = unsafe { _mm_movemask_ps(self.0) };
-            [bits & 1 != 0, bits & 2 != 0, bits & 4 != 0, bits & 8 != 0]
+        pub fn to_bits(self) -> u32 {
+            unsafe { _mm_movemask_ps(self.0) as u32 }
+        }
+        /// `[x, y, z]` lanes of four packed points: three 16-byte loads and a
+        /// transpose.
+        #[inline(always)]
+        pub fn load_points(p: &[glam::Vec3]) -> [F4; 3] {
+            let p: &[f32; 12] = bytemuck::cast_slice(&p[..4]).try_into().expect("four points");
+            unsafe {
+                // r0 = x0 y0 z0 x1, r1 = y1 z1 x2 y2, r2 = z2 x3 y3 z3
+                let r0 = _mm_loadu_ps(p.as_ptr());
+                let r1 = _mm_loadu_ps(p.as_ptr().add(4));
+                let r2 = _mm_loadu_ps(p.as_ptr().add(8));
+                let x23 = _mm_shuffle_ps::<0b00_01_00_10>(r1, r2); // x2 . x3 .
+                let x = _mm_shuffle_ps::<0b10_00_11_00>(r0, x23); // x0 x1 x2 x3
+                let y01 = _mm_shuffle_ps::<0b00_00_00_01>(r0, r1); // y0 . y1 .
+                let y23 = _mm_shuffle_ps::<0b00_10_00_11>(r1, r2); // y2 . y3 .
+                let y = _mm_shuffle_ps::<0b10_00_10_00>(y01, y23);
+                let z01 = _mm_shuffle_ps::<0b00_01_00_10>(r0, r1); // z0 . z1 .
+                let z23 = _mm_shuffle_ps::<0b00_11_00_00>(r2, r2); // z2 . z3 .
+                let z = _mm_shuffle_ps::<0b10_00_10_00>(z01, z23);
+                [F4(x), F4(y), F4(z)]
+            }
+        }
+        /// Stores `[x, y, z]` lanes as four packed points (the inverse of
+        /// [`F4::load_points`]).
+        #[inline(always)]
+        pub fn store_points([x, y, z]: [F4; 3], p: &mut [glam::Vec3]) {
+            let p: &mut [f32; 12] = bytemuck::cast_slice_mut(&mut p[..4]).try_into().expect("four points");
+            unsafe {
+                let (x, y, z) = (x.0, y.0, z.0);
+                let xy01 = _mm_unpacklo_ps(x, y); // x0 y0 x1 y1
+                let xy23 = _mm_unpackhi_ps(x, y); // x2 y2 x3 y3
+                let zx = _mm_shuffle_ps::<0b00_01_00_00>(z, x); // z0 . x1 .
+                let r0 = _mm_shuffle_ps::<0b10_00_01_00>(xy01, zx); // x0 y0 z0 x1
+                let yz = _mm_shuffle_ps::<0b00_01_00_01>(y, z); // y1 . z1 .
+                let r1 = _mm_shuffle_ps::<0b01_00_10_00>(yz, xy23); // y1 z1 x2 y2
+                let zxy = _mm_shuffle_ps::<0b11_10_11_10>(z, xy23); // z2 z3 x3 y3
+                let r2 = _mm_shuffle_ps::<0b01_11_10_00>(zxy, zxy); // z2 x3 y3 z3
+                _mm_storeu_ps(p.as_mut_ptr(), r0);
+                _mm_storeu_ps(p.as_mut_ptr().add(4), r1);
+                _mm_storeu_ps(p.as_mut_ptr().add(8), r2);
+            }
         }
     }
 
@@ -465,8 +540,21 @@ mod f4 {
             }))
         }
         #[inline(always)]
-        pub fn to_mask(self) -> [bool; 4] {
-            self.0.map(|v| v.to_bits() != 0)
+        pub fn to_bits(self) -> u32 {
+            (0..4).map(|l| ((self.0[l].to_bits() != 0) as u32) << l).sum()
+        }
+        /// `[x, y, z]` lanes of four packed points.
+        #[inline(always)]
+        pub fn load_points(p: &[glam::Vec3]) -> [F4; 3] {
+            let p = &p[..4];
+            [F4(std::array::from_fn(|l| p[l].x)), F4(std::array::from_fn(|l| p[l].y)), F4(std::array::from_fn(|l| p[l].z))]
+        }
+        /// Stores `[x, y, z]` lanes as four packed points.
+        #[inline(always)]
+        pub fn store_points([x, y, z]: [F4; 3], p: &mut [glam::Vec3]) {
+            for (l, p) in p[..4].iter_mut().enumerate() {
+                *p = glam::Vec3::new(x.0[l], y.0[l], z.0[l]);
+            }
         }
     }
 
