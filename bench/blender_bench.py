@@ -66,11 +66,12 @@ def main() -> int:
     import numpy as np
 
     sys.path.insert(0, str(ROOT / "demo"))
+    import extension
     import scene as demo_scene
 
-    bpy.ops.extensions.package_install_files(filepath=str(args.zip.resolve()), repo="user_default", enable_on_install=True)
+    addon = extension.install(args.zip, user)  # Blender runs the wheel the extension bundles
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.preferences.addon_enable(module="bl_ext.user_default.tegument")
+    bpy.ops.preferences.addon_enable(module=addon)
     from bl_ext.user_default.tegument.deform import bake
 
     rows = Rows()

@@ -28,7 +28,9 @@ import pytest  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "demo"))  # the procedural scenes are shared with the demo
 
-ADDON_MODULE = "bl_ext.user_default.tegument"
+import extension  # noqa: E402  (demo/extension.py)
+
+ADDON_MODULE = extension.ADDON_MODULE
 
 
 def _extension_zip() -> pathlib.Path:
@@ -43,24 +45,16 @@ def _extension_zip() -> pathlib.Path:
 def installed_extension() -> str:
     """Installs the built zip once per session and returns the add-on module name."""
     zip_path = _extension_zip()
-    result = bpy.ops.extensions.package_install_files(
-        filepath=str(zip_path), repo="user_default", enable_on_install=True
-    )
-    assert result == {"FINISHED"}, f"installing {zip_path} failed: {result}"
-    assert ADDON_MODULE in bpy.context.preferences.addons, "the extension installed but is not enabled"
+    module = extension.install(zip_path, _user_resources)
     installed = pathlib.Path(_user_resources, "extensions", "user_default", "tegument")
     assert (installed / "blender_manifest.toml").is_file(), f"not installed into the isolated user folder {installed}"
     # The test runner's own environment may have the wheel installed too (the
     # wheel's tests need it); Blender must use the copy the extension bundles.
-    bundled = pathlib.Path(_user_resources, "extensions", ".local", "lib", "python3.11", "site-packages")
-    assert (bundled / "tegument").is_dir(), f"the extension's wheel was not unpacked into {bundled}"
-    sys.path.insert(0, str(bundled))
-    for name in [n for n in sys.modules if n == "tegument" or n.startswith("tegument.")]:
-        del sys.modules[name]
     import tegument
 
+    bundled = extension.bundled_site_packages(_user_resources)
     assert pathlib.Path(tegument.__file__).is_relative_to(bundled), f"tegument imported from {tegument.__file__}"
-    return ADDON_MODULE
+    return module
 
 
 @pytest.fixture(autouse=True)

@@ -209,6 +209,7 @@ def run(args, out: pathlib.Path, user: str) -> int:
     import numpy as np
 
     sys.path.insert(0, str(HERE))
+    import extension
     import flesh
     import pictures
     import scene as demo_scene
@@ -219,13 +220,14 @@ def run(args, out: pathlib.Path, user: str) -> int:
     frames = range(first, last + 1)
 
     with stage("install"):
-        result = bpy.ops.extensions.package_install_files(filepath=str(pathlib.Path(args.zip).resolve()), repo="user_default", enable_on_install=True)
-        if result != {"FINISHED"}:
-            sys.exit(f"error: installing {args.zip} failed")
+        try:
+            extension.install(args.zip, user)
+        except RuntimeError as error:
+            sys.exit(f"error: {error}")
 
     with stage("scene") as info:
         demo_scene.clear()
-        bpy.ops.preferences.addon_enable(module="bl_ext.user_default.tegument")
+        bpy.ops.preferences.addon_enable(module=extension.ADDON_MODULE)
         # Saved first, so the add-on's "//" paths (cache, warp sequence) land in the output folder;
         # no .blend1 backup when it is saved again at the end (the preferences are the isolated ones).
         bpy.context.preferences.filepaths.save_version = 0

@@ -53,10 +53,12 @@ def main() -> int:
         import bpy
         import numpy as np
 
-        assert bpy.ops.extensions.package_install_files(
-            filepath=str(args.zip.resolve()), repo="user_default", enable_on_install=True) == {"FINISHED"}
+        sys.path.insert(0, str(ROOT / "demo"))
+        import extension
+
+        addon = extension.install(args.zip, user)
         bpy.ops.wm.read_factory_settings(use_empty=True)
-        bpy.ops.preferences.addon_enable(module="bl_ext.user_default.tegument")
+        bpy.ops.preferences.addon_enable(module=addon)
         bpy.ops.wm.save_as_mainfile(filepath=str(work / "picture.blend"))
 
         bpy.ops.mesh.primitive_grid_add(x_subdivisions=64, y_subdivisions=64, size=2)
