@@ -93,6 +93,27 @@ def test_round_trip_matches_the_wheel(limb, capfd):
     assert "Tegument" not in obj.modifiers and "tegument_rest" not in obj.data.attributes
 
 
+def test_a_moved_turned_and_scaled_rig_bakes_in_world_space_and_caches_object_space(limb):
+    """The object matrix path (`tegument.transform_points`, both ways) against the wheel and numpy."""
+    import tegument
+
+    obj, rig = limb
+    rig.location = (3.0, -1.0, 2.0)
+    rig.rotation_euler = (0.4, 0.1, 1.2)
+    rig.scale = (1.5, 1.5, 1.5)
+    bpy.context.view_layer.update()
+    assert not np.allclose(np.array(obj.matrix_world), np.eye(4))
+    assert bpy.ops.tegument.deform_add() == {"FINISHED"}
+    assert bpy.ops.tegument.bake() == {"FINISHED"}
+    frames, _ = read_pc2(bpy.path.abspath(obj.tegument.cache_path))
+    rest, corners, sizes = mesh_arrays(obj)
+    deformer = tegument.PyramidDeformer(rest, corners, sizes, scale_safe=True)
+    for frame in (1, 6):
+        expected = deformer.solve(upstream(obj, frame), iterations=10, closeness=obj.tegument.closeness)
+        m_inv = np.linalg.inv(np.array(obj.matrix_world))
+        np.testing.assert_allclose(frames[frame - 1], expected @ m_inv[:3, :3].T + m_inv[:3, 3], atol=1e-5)
+
+
 def test_pose_changes_result_and_full_closeness_follows_the_rig(limb):
     obj, rig = limb
     bpy.ops.tegument.deform_add()

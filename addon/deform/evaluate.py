@@ -57,9 +57,11 @@ def evaluated_positions(obj, depsgraph) -> tuple[np.ndarray, np.ndarray]:
 def _apply(positions: np.ndarray, m: np.ndarray) -> np.ndarray:
     if np.array_equal(m, np.eye(4)):
         return positions  # the common case of an untransformed rig: no pass over the data
-    out = positions @ m[:3, :3].T.astype(np.float32)
-    out += m[:3, 3].astype(np.float32)
-    return out
+    import tegument
+
+    # In Rust, on all cores: numpy's `positions @ m[:3, :3].T` took 1.6 ms for 100k vertices,
+    # twice per frame for a transformed object.
+    return tegument.transform_points(np.ascontiguousarray(positions, dtype=np.float32), np.ascontiguousarray(m))
 
 
 def to_world(local: np.ndarray, matrix) -> np.ndarray:

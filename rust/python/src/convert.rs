@@ -103,12 +103,31 @@ fn checked_array<'py, T: Element>(
 
 /// `(N, 3)` float32 positions, checked finite. `expected_count` fixes N.
 pub fn positions_arg(name: &str, obj: &Bound<'_, PyAny>, expected_count: Option<usize>) -> PyResult<Vec<Vec3>> {
+    let positions = points_arg(name, obj, expected_count)?;
+    py_result(tegument_core::mesh::validate_positions(name, &positions))?;
+    Ok(positions)
+}
+
+/// `(N, 3)` float32 points, values not checked (for pure transforms, which
+/// carry a non-finite value through for the caller to report in its terms).
+pub fn points_arg(name: &str, obj: &Bound<'_, PyAny>, expected_count: Option<usize>) -> PyResult<Vec<Vec3>> {
     let array = checked_array::<f32>(name, obj, "float32", &[expected_count, Some(3)])?;
     let readonly = read(name, &array)?;
     let flat = readonly.as_slice().map_err(|e| TegumentError::new_err(format!("{name}: {e}")))?;
-    let positions: Vec<Vec3> = bytemuck::cast_slice::<f32, Vec3>(flat).to_vec();
-    py_result(tegument_core::mesh::validate_positions(name, &positions))?;
-    Ok(positions)
+    Ok(bytemuck::cast_slice::<f32, Vec3>(flat).to_vec())
+}
+
+/// A `(4, 4)` float64 matrix in row-major order (what `numpy.array` makes of a
+/// Blender `Matrix`), checked finite; returned as glam's column-major matrix.
+pub fn matrix_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<glam::DMat4> {
+    let array = checked_array::<f64>(name, obj, "float64", &[Some(4), Some(4)])?;
+    let readonly = read(name, &array)?;
+    let flat = readonly.as_slice().map_err(|e| TegumentError::new_err(format!("{name}: {e}")))?;
+    if let Some(k) = flat.iter().position(|v| !v.is_finite()) {
+        return Err(TegumentError::new_err(format!("{name}: element ({}, {}) is {}, not finite", k / 4, k % 4, flat[k])));
+    }
+    let rows: &[f64; 16] = flat.try_into().expect("shape checked: 16 elements");
+    Ok(glam::DMat4::from_cols_array(rows).transpose())
 }
 
 /// A 1-D int32 array (any length unless `expected_len` is given).

@@ -4,8 +4,8 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use tegument_core::mesh::{MeshInput, Topology};
 
-use crate::convert::{indices_to_py, int_array_arg, positions_arg, rows_to_py, run_detached, TegumentError};
-use numpy::{PyArray1, PyArray2};
+use crate::convert::{indices_to_py, int_array_arg, matrix_arg, points_arg, positions_arg, rows_to_py, run_detached, TegumentError};
+use numpy::{PyArray1, PyArray2, PyArrayMethods};
 
 /// The topology of a polygon mesh given in Blender's layout.
 ///
@@ -102,6 +102,32 @@ impl Mesh {
     }
 }
 
+/// Applies an object matrix to points: float32 ``(N, 3)`` in, a new float32
+/// ``(N, 3)`` array out, ``matrix @ (x, y, z, 1)`` for every point.
+///
+/// ``matrix`` is float64 ``(4, 4)`` in row-major order, as
+/// ``numpy.array(obj.matrix_world)`` gives it; its affine part (the first
+/// three rows) is applied in double precision and rounded once. Points are
+/// not checked: a non-finite point stays non-finite. Runs on all cores,
+/// without the GIL; several times faster than ``points @ matrix[:3, :3].T``
+/// in numpy for a 100k-vertex mesh.
+#[pyfunction]
+fn transform_points<'py>(py: Python<'py>, points: &Bound<'py, PyAny>, matrix: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    let points = points_arg("points", points, None)?;
+    let matrix = matrix_arg("matrix", matrix)?;
+    let output = PyArray2::<f32>::zeros(py, [points.len(), 3], false);
+    {
+        let mut writable = output.readwrite();
+        let out: &mut [glam::Vec3] = bytemuck::cast_slice_mut(writable.as_slice_mut().expect("a new C-contiguous array"));
+        run_detached(py, move || {
+            tegument_core::mesh::transform_points(&matrix, &points, out);
+            Ok(())
+        })?;
+    }
+    Ok(output)
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_class::<Mesh>()
+    m.add_class::<Mesh>()?;
+    m.add_function(wrap_pyfunction!(transform_points, m)?)
 }

@@ -127,3 +127,48 @@ def test_large_mesh_releases_the_gil():
         counter.join()
     assert mesh.report()["boundary_vertices"] == 4 * n
     assert ticks > 1000, "the other thread barely ran: the GIL was held"
+
+
+def test_transform_points_applies_the_affine_part_of_an_object_matrix():
+    rng = np.random.default_rng(3)
+    points = rng.normal(size=(20_000, 3)).astype(np.float32)
+    angle = 0.7
+    matrix = np.array(
+        [
+            [np.cos(angle), -np.sin(angle) * 2.0, 0.0, 1.0e4],
+            [np.sin(angle), np.cos(angle) * 2.0, 0.0, -2.0],
+            [0.0, 0.0, 0.5, 3.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
+    moved = tegument.transform_points(points, matrix)
+    assert moved.dtype == np.float32 and moved.shape == points.shape
+    exact = points.astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
+    # Rounded once from the double-precision product: within half an ulp of the exact value.
+    assert (np.abs(moved - exact) <= np.spacing(np.abs(exact).astype(np.float32)) / 2).all()
+    back = tegument.transform_points(moved, np.linalg.inv(matrix))
+    assert np.abs(back - points).max() < 5e-3
+    # The last row is not used; a non-finite point stays non-finite.
+    projective = matrix.copy()
+    projective[3] = [1.0, 2.0, 3.0, 4.0]
+    assert np.array_equal(tegument.transform_points(points, projective), moved)
+    nan = points[:3].copy()
+    nan[1, 2] = np.nan
+    out = tegument.transform_points(nan, matrix)
+    assert np.isfinite(out[0]).all() and np.isnan(out[1]).any()
+    assert tegument.transform_points(np.zeros((0, 3), np.float32), matrix).shape == (0, 3)
+
+
+@pytest.mark.parametrize(
+    "points, matrix, message",
+    [
+        (np.zeros((4, 3), np.float64), np.eye(4), r"points: expected float32 \(N, 3\)"),
+        (np.zeros((4, 2), np.float32), np.eye(4), r"points: expected float32 \(N, 3\)"),
+        (np.zeros((4, 3), np.float32), np.eye(3), r"matrix: expected float64 \(4, 4\)"),
+        (np.zeros((4, 3), np.float32), np.eye(4, dtype=np.float32), r"matrix: expected float64 \(4, 4\)"),
+        (np.zeros((4, 3), np.float32), np.where(np.eye(4) == 1, np.inf, 0.0), r"matrix: element \(0, 0\) is inf"),
+    ],
+)
+def test_transform_points_refuses_bad_arrays(points, matrix, message):
+    with pytest.raises(tegument.TegumentError, match=message):
+        tegument.transform_points(points, matrix)

@@ -8,9 +8,11 @@
 
 pub mod shapes;
 mod topology;
+mod transform;
 mod validate;
 
 pub use topology::{Topology, TopologyReport};
+pub use transform::transform_points;
 pub use validate::{all_finite, as_vec3, validate_positions, MeshInput};
 
 #[cfg(test)]

@@ -8,7 +8,19 @@ float32 positions of shape ``(N, 3)``, int32 indices, in Blender's mesh layout
 what is wrong and where.
 """
 
-from ._native import Collider, Dynamics, Mesh, PyramidDeformer, TegumentError, UvWarp, __version__, audit, read_exr, write_exr
+from ._native import (
+    Collider,
+    Dynamics,
+    Mesh,
+    PyramidDeformer,
+    TegumentError,
+    UvWarp,
+    __version__,
+    audit,
+    read_exr,
+    transform_points,
+    write_exr,
+)
 
 __all__ = [
     "Collider",
@@ -20,5 +32,6 @@ __all__ = [
     "__version__",
     "audit",
     "read_exr",
+    "transform_points",
     "write_exr",
 ]

@@ -35,6 +35,10 @@ class Mesh:
     def report(self) -> dict[str, Any]:
         """Counts of everything unusual, plus ``is_closed_manifold`` and ``is_clean``."""
 
+def transform_points(points: npt.NDArray[np.float32], matrix: npt.NDArray[np.float64]) -> npt.NDArray[np.float32]:
+    """``matrix @ (x, y, z, 1)`` for float32 ``(N, 3)`` points; ``matrix`` float64 ``(4, 4)``
+    row-major (``numpy.array(obj.matrix_world)``), affine part only, in double precision."""
+
 class PyramidDeformer:
     """Pyramid-coordinate deformer: keeps the local shape of the rest mesh on top
     of whatever deformation the input positions carry (armature, shape keys).
