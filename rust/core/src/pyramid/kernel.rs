@@ -339,12 +339,6 @@ mod f4 {
         pub fn sqrt(self) -> F4 {
             F4(unsafe { _mm_sqrt_ps(self.0) })
         }
-        /// `max(self, 0)`, NaN → 0 like `f32::max`.
-        #[inline(always)]
-        pub fn max_zero(self) -> F4 {
-            // MAXPS returns the second operand when either is NaN.
-            F4(unsafe { _mm_max_ps(self.0, _mm_setzero_ps()) })
-        }
         /// Lane mask `self > other`.
         #[inline(always)]
         pub fn gt(self, other: F4) -> F4 {
@@ -502,10 +496,6 @@ mod f4 {
         #[inline(always)]
         pub fn sqrt(self) -> F4 {
             F4(self.0.map(f32::sqrt))
-        }
-        #[inline(always)]
-        pub fn max_zero(self) -> F4 {
-            F4(self.0.map(|v| if v > 0.0 { v } else { 0.0 }))
         }
         #[inline(always)]
         pub fn gt(self, other: F4) -> F4 {
