@@ -257,18 +257,6 @@ impl<L: Lookup> Ctx<'_, L> {
 /// iteration takes less than a fork–join of the pool under load.
 const PARALLEL_TEXELS: usize = 128 * 128;
 
-/// Whether the CPU has AVX2 (the [`sweep`] kernels have an AVX2 build).
-fn has_avx2() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx2")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
-
 /// `n` iterations of a level with the [`sweep`] kernels.
 fn iterate<M: Metric>(lv: &mut Level, metric: M, n: usize, s: &WarpSettings, avx2: bool) {
     let (w, h) = (lv.w, lv.h);
@@ -489,7 +477,7 @@ impl Solver {
         }
         // One record per triangle (deformed metric, rest lengths) for the finest level's sweeps.
         let records: Vec<TriRecord> = self.go_tri.iter().zip(gd_tri).map(|(&o, &d)| sweep::tri_record(o, d)).collect();
-        let avx2 = has_avx2();
+        let avx2 = sweep::has_avx2();
         self.last_iterations = vec![0; self.levels.len()];
         self.last_level_ms = vec![0.0; self.levels.len() + 1];
         self.last_prepare_ms = prepare.elapsed().as_secs_f64() * 1e3;

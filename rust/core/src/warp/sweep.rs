@@ -29,6 +29,18 @@
 
 use super::solver::RELAXATION;
 
+/// Whether the CPU has AVX2 (the kernels here and in [`super::invert`] have an AVX2 build).
+pub(crate) fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
 /// Constraints per packed run (gathered across spans).
 pub const LANES: usize = 16;
 /// Constraints per contiguous run: a span's constraints in blocks of this
@@ -621,3 +633,4 @@ fn regularise_one<const B: usize>(xu: &[[f32; B]; 3], xm: &[[f32; B]; 3], xd: &[
     let fixed = mask == 0;
     (if fixed { xc } else { fmin(fmax(nx, bx0), bx1) }, if fixed { yc } else { fmin(fmax(ny, by0), by1) })
 }
+

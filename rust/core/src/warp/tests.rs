@@ -484,6 +484,49 @@ fn gathered_inversion_matches_the_rasterised_reference() {
     }
 }
 
+/// The lane-wise inversion gives every texel exactly the per-texel walk's
+/// result: on solved warps, on a swirl strong enough that many texels need the
+/// second round or the one-by-one walk, and on a width that leaves a tail.
+#[test]
+fn lane_wise_inversion_equals_the_per_texel_walk_to_the_bit() {
+    let (m, mut warp) = cylinder_warp(false);
+    warp.solve(&bent(&m, 1.0)).unwrap();
+    let (dx, dy) = warp.tiles[0].displacement();
+    let mut cases = vec![(dx.to_vec(), dy.to_vec(), N, N)];
+    for (w, h, strength) in [(N, N, 2.5f32), (77, 45, 1.5)] {
+        let (mut sx, mut sy) = (vec![0.0f32; w * h], vec![0.0f32; w * h]);
+        for j in 1..h - 1 {
+            for i in 1..w - 1 {
+                let (u, v) = (i as f32 / w as f32 - 0.5, j as f32 / h as f32 - 0.5);
+                let a = strength * (1.0 - 4.0 * (u * u + v * v)).max(0.0).powi(2);
+                sx[j * w + i] = w as f32 * (u * a.cos() - v * a.sin() - u);
+                sy[j * w + i] = h as f32 * (u * a.sin() + v * a.cos() - v);
+            }
+        }
+        cases.push((sx, sy, w, h));
+    }
+    let mut all_steps = [0usize; 3];
+    for (dx, dy, w, h) in cases {
+        let mut a = vec![0.0; 2 * w * h];
+        let mut b = vec![0.0; 2 * w * h];
+        invert::invert(&dx, &dy, w, h, Vec2::new(1.0, 0.0), &mut a);
+        invert::invert_per_texel(&dx, &dy, w, h, Vec2::new(1.0, 0.0), &mut b);
+        let differ = a.iter().zip(&b).filter(|(p, q)| p.to_bits() != q.to_bits()).count();
+        assert_eq!(differ, 0, "{w}×{h}: {differ} values differ");
+        let mut steps = [0usize; 3];
+        for y in 0..h {
+            for x in 0..w {
+                if dx[y * w + x] != 0.0 || dy[y * w + x] != 0.0 {
+                    steps[invert::walk(&dx, &dy, w, h, x, y).1.min(3) - 1] += 1;
+                }
+            }
+        }
+        eprintln!("{w}×{h}: texels found in the first, second, a later cell: {steps:?}");
+        all_steps.iter_mut().zip(steps).for_each(|(a, s)| *a += s);
+    }
+    assert!(all_steps.iter().all(|&s| s > 0), "every round must be exercised: {all_steps:?}");
+}
+
 #[test]
 fn fast_kernels_match_the_reference_kernels() {
     // Cold then warm solves of the bent cylinder; equal as numbers (the
