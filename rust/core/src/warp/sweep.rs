@@ -539,11 +539,76 @@ pub fn regularise_row(dx: &[f32], dy: &[f32], rig: &[u8], mask: &[u8], w: usize,
     regularise_row_body(dx, dy, rig, mask, w, h, y, smoothing, ox, oy);
 }
 
+/// [`regularise_row_body`] written with AVX2 intrinsics, eight texels per
+/// step: the compiler's vectorisation of the portable body keeps its 3×3
+/// neighbourhoods of both channels in memory (about 2.5 times slower). Same
+/// operations in the same order, so the results are bitwise equal.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[allow(clippy::too_many_arguments)]
 unsafe fn regularise_row_avx2(dx: &[f32], dy: &[f32], rig: &[u8], mask: &[u8], w: usize, h: usize, y: usize, smoothing: f32, ox: &mut [f32], oy: &mut [f32]) {
-    regularise_row_body(dx, dy, rig, mask, w, h, y, smoothing, ox, oy);
+    use std::arch::x86_64::*;
+    let row = y * w;
+    if y == 0 || y + 1 == h || mask[row..row + w].iter().all(|&m| m == 0) {
+        ox.copy_from_slice(&dx[row..row + w]);
+        oy.copy_from_slice(&dy[row..row + w]);
+        return;
+    }
+    ox[0] = dx[row];
+    oy[0] = dy[row];
+    ox[w - 1] = dx[row + w - 1];
+    oy[w - 1] = dy[row + w - 1];
+    let n = w - 2;
+    let full = n / 8 * 8;
+    // Every load below reads columns 0..w of rows y − 1, y, y + 1 and every
+    // store writes columns 1..w − 1 of the output row.
+    assert!((y + 2) * w <= dx.len() && (y + 2) * w <= dy.len() && row + w <= rig.len() && row + w <= mask.len() && ox.len() == w && oy.len() == w);
+    let (up, dn) = (row - w, row + w);
+    let (one, neg_one, two, four) = (_mm256_set1_ps(1.0), _mm256_set1_ps(-1.0), _mm256_set1_ps(2.0), _mm256_set1_ps(4.0));
+    let (sixteenth, inv255, s) = (_mm256_set1_ps(1.0 / 16.0), _mm256_set1_ps(1.0 / 255.0), _mm256_set1_ps(smoothing));
+    let mut x0 = 0;
+    while x0 < full {
+        // Lane l is the texel of column 1 + x0 + l; `at(v, r, k)` its
+        // neighbour in column offset k − 1 of the row starting at r.
+        // SAFETY: r + x0 + k + 8 ≤ r + n + 2 = r + w, within the rows asserted above.
+        let at = |v: &[f32], r: usize, k: usize| unsafe { _mm256_loadu_ps(v.as_ptr().add(r + x0 + k)) };
+        // SAFETY: columns 1 + x0 .. 1 + x0 + 8 of row `row`, within the asserted length.
+        let bytes = |v: &[u8]| unsafe { _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(v.as_ptr().add(row + 1 + x0) as *const __m128i))) };
+        let m = bytes(mask);
+        let r = _mm256_mul_ps(bytes(rig), inv255);
+        let b = _mm256_mul_ps(_mm256_mul_ps(m, inv255), _mm256_add_ps(_mm256_sub_ps(one, r), _mm256_mul_ps(r, s)));
+        let fixed = _mm256_cmp_ps::<_CMP_EQ_OQ>(m, _mm256_setzero_ps());
+        // `gx` of `regularise_one`, summed in its order.
+        let smooth = |ul, uc, ur, l, c, r_, dl, dc, dr| {
+            let corners = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(ul, ur), dl), dr);
+            let edges = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(uc, dc), l), r_);
+            _mm256_mul_ps(_mm256_add_ps(_mm256_add_ps(corners, _mm256_mul_ps(two, edges)), _mm256_mul_ps(four, c)), sixteenth)
+        };
+        let blend = |c, g, lo, hi| {
+            let nv = _mm256_add_ps(_mm256_mul_ps(_mm256_sub_ps(one, b), c), _mm256_mul_ps(b, g));
+            _mm256_blendv_ps(_mm256_min_ps(_mm256_max_ps(nv, lo), hi), c, fixed)
+        };
+        let (xul, xuc, xur, xl, xc, xr, xdl, xdc, xdr) = (at(dx, up, 0), at(dx, up, 1), at(dx, up, 2), at(dx, row, 0), at(dx, row, 1), at(dx, row, 2), at(dx, dn, 0), at(dx, dn, 1), at(dx, dn, 2));
+        let gx = smooth(xul, xuc, xur, xl, xc, xr, xdl, xdc, xdr);
+        let bx0 = _mm256_min_ps(_mm256_min_ps(_mm256_min_ps(_mm256_min_ps(_mm256_add_ps(neg_one, xul), _mm256_add_ps(neg_one, xl)), _mm256_add_ps(neg_one, xdl)), xuc), xdc);
+        let bx1 = _mm256_max_ps(_mm256_max_ps(_mm256_max_ps(_mm256_max_ps(_mm256_add_ps(one, xur), _mm256_add_ps(one, xr)), _mm256_add_ps(one, xdr)), xuc), xdc);
+        let vx = blend(xc, gx, bx0, bx1);
+        let (yul, yuc, yur, yl, yc, yr, ydl, ydc, ydr) = (at(dy, up, 0), at(dy, up, 1), at(dy, up, 2), at(dy, row, 0), at(dy, row, 1), at(dy, row, 2), at(dy, dn, 0), at(dy, dn, 1), at(dy, dn, 2));
+        let gy = smooth(yul, yuc, yur, yl, yc, yr, ydl, ydc, ydr);
+        let by0 = _mm256_min_ps(_mm256_min_ps(_mm256_min_ps(_mm256_min_ps(_mm256_add_ps(neg_one, yul), _mm256_add_ps(neg_one, yuc)), _mm256_add_ps(neg_one, yur)), yl), yr);
+        let by1 = _mm256_max_ps(_mm256_max_ps(_mm256_max_ps(_mm256_max_ps(_mm256_add_ps(one, ydl), _mm256_add_ps(one, ydc)), _mm256_add_ps(one, ydr)), yl), yr);
+        let vy = blend(yc, gy, by0, by1);
+        // SAFETY: output columns 1 + x0 .. 1 + x0 + 8 < w.
+        unsafe {
+            _mm256_storeu_ps(ox.as_mut_ptr().add(1 + x0), vx);
+            _mm256_storeu_ps(oy.as_mut_ptr().add(1 + x0), vy);
+        }
+        x0 += 8;
+    }
+    for x in full..n {
+        let t = |v: &[f32], r: usize| -> [[f32; 1]; 3] { [[v[r + x]], [v[r + x + 1]], [v[r + x + 2]]] };
+        (ox[1 + x], oy[1 + x]) = regularise_one(&t(dx, up), &t(dx, row), &t(dx, dn), &t(dy, up), &t(dy, row), &t(dy, dn), 0, rig[row + 1 + x], mask[row + 1 + x], smoothing);
+    }
 }
 
 #[inline(always)]
@@ -634,3 +699,35 @@ fn regularise_one<const B: usize>(xu: &[[f32; B]; 3], xm: &[[f32; B]; 3], xd: &[
     (if fixed { xc } else { fmin(fmax(nx, bx0), bx1) }, if fixed { yc } else { fmin(fmax(ny, by0), by1) })
 }
 
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The AVX2 regularisation equals the portable one bit for bit, on rows
+    /// whose width leaves a tail, with fixed, elastic, rigid and partly masked
+    /// texels and displacements large enough to hit the box clamp.
+    #[test]
+    fn avx2_regularisation_equals_the_portable_one() {
+        if !has_avx2() {
+            eprintln!("skipped: this CPU has no AVX2, so only the portable regularisation runs");
+            return;
+        }
+        let (w, h) = (45, 7);
+        let wave = |k: usize, a: f32| 1.7 * (a * k as f32).sin() * ((k % 11) as f32 - 5.0) * 0.3;
+        let dx: Vec<f32> = (0..w * h).map(|k| wave(k, 0.37)).collect();
+        let dy: Vec<f32> = (0..w * h).map(|k| wave(k, 0.71)).collect();
+        let rig: Vec<u8> = (0..w * h).map(|k| [0, 255, 128, 7][k % 4]).collect();
+        let mask: Vec<u8> = (0..w * h).map(|k| [255, 0, 255, 90, 255][k % 5]).collect();
+        for y in 0..h {
+            let (mut ax, mut ay, mut px, mut py) = (vec![0.0f32; w], vec![0.0f32; w], vec![0.0f32; w], vec![0.0f32; w]);
+            regularise_row(&dx, &dy, &rig, &mask, w, h, y, 0.1, &mut ax, &mut ay, true);
+            regularise_row(&dx, &dy, &rig, &mask, w, h, y, 0.1, &mut px, &mut py, false);
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&ax), bits(&px), "row {y}, x");
+            assert_eq!(bits(&ay), bits(&py), "row {y}, y");
+            if y > 0 && y + 1 < h {
+                assert!(ax.iter().zip(&dx[y * w..]).any(|(a, d)| a != d), "row {y} must change");
+            }
+        }
+    }
+}
