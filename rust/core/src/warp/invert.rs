@@ -121,21 +121,28 @@ fn invert_row_body(dx: &[f32], dy: &[f32], w: usize, h: usize, y: usize, offset:
         let (mut ci, mut cj) = ([0i32; LANES], [0i32; LANES]);
         for l in 0..LANES {
             xs[l] = (x0 + l) as i32 as f32;
-            // As in `locate`: truncation is the floor once negatives are clamped to 0.
-            ci[l] = ((xs[l] - ddx[l]) as i32).clamp(0, hi_x);
-            cj[l] = ((yf - ddy[l]) as i32).clamp(0, hi_y);
+            ci[l] = first_cell(xs[l] - ddx[l], hi_x);
+            cj[l] = first_cell(yf - ddy[l], hi_y);
         }
         let t = try_cells(dx, dy, w, &xs, yf, &ci, &cj, hi_x, hi_y);
+        // Found and unmoved texels are written branch-free; the misses are
+        // taken from a bit mask (a branch per lane would mispredict on the
+        // fifth of the texels that miss).
+        let mut missed = 0u32;
         for l in 0..LANES {
             let x = x0 + l;
-            if ddx[l] == 0.0 && ddy[l] == 0.0 {
-                (u[x], v[x]) = (xs[l], yf);
-            } else if t.found[l] {
-                (u[x], v[x]) = (t.u[l], t.v[l]);
-            } else if t.stuck[l] {
-                fallback.push(x);
+            let unmoved = (ddx[l] == 0.0) & (ddy[l] == 0.0);
+            u[x] = if unmoved { xs[l] } else { t.u[l] };
+            v[x] = if unmoved { yf } else { t.v[l] };
+            missed |= ((!unmoved & !t.found[l]) as u32) << l;
+        }
+        while missed != 0 {
+            let l = missed.trailing_zeros() as usize;
+            missed &= missed - 1;
+            if t.stuck[l] {
+                fallback.push(x0 + l);
             } else {
-                pending.push((x as u32, t.next_ci[l], t.next_cj[l]));
+                pending.push(((x0 + l) as u32, t.next_ci[l], t.next_cj[l]));
             }
         }
     }
@@ -170,6 +177,17 @@ fn invert_row_body(dx: &[f32], dy: &[f32], w: usize, h: usize, y: usize, offset:
     }
 }
 
+/// `(v as i32).clamp(0, hi)` (what [`locate`] computes: truncation is the floor
+/// once negatives are clamped to 0, and NaN gives 0), clamped as a float first
+/// so that the conversion needs no saturation checks and vectorises.
+#[inline(always)]
+fn first_cell(v: f32, hi: i32) -> i32 {
+    let v = if v > 0.0 { v } else { 0.0 };
+    let v = if v < hi as f32 { v } else { hi as f32 };
+    // SAFETY: `v` is finite and within [0, hi] here (NaN became 0 above).
+    unsafe { v.to_int_unchecked::<i32>() }
+}
+
 /// What [`try_cells`] found for each lane.
 struct Tried {
     found: [bool; LANES],
@@ -191,13 +209,18 @@ struct Tried {
 fn try_cells(dx: &[f32], dy: &[f32], w: usize, xs: &[f32; LANES], yf: f32, ci: &[i32; LANES], cj: &[i32; LANES], hi_x: i32, hi_y: i32) -> Tried {
     let (mut ax, mut ay, mut bx, mut by) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
     let (mut cx, mut cy, mut qx, mut qy) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+    // Cells are clamped to columns 0..=w − 2 and rows 0..=h − 2, so node
+    // a + w + 1 is at most w·h − 1.
+    assert!(dx.len() == dy.len() && ci.iter().chain(cj).all(|&c| c >= 0) && ci.iter().all(|&c| c <= hi_x) && cj.iter().all(|&c| c <= hi_y) && ((hi_y as usize + 2) * w) <= dx.len() && hi_x as usize + 2 == w);
     for l in 0..LANES {
         let a = cj[l] as usize * w + ci[l] as usize;
         let (b, c, d) = (a + 1, a + w + 1, a + w);
-        (ax[l], ay[l]) = (dx[a], dy[a]);
-        (bx[l], by[l]) = (1.0 + dx[b], dy[b]);
-        (cx[l], cy[l]) = (1.0 + dx[c], 1.0 + dy[c]);
-        (qx[l], qy[l]) = (dx[d], 1.0 + dy[d]);
+        // SAFETY: a ≤ b, d ≤ c ≤ w·h − 1 < len (asserted above).
+        let (fx, fy) = (|i: usize| unsafe { *dx.get_unchecked(i) }, |i: usize| unsafe { *dy.get_unchecked(i) });
+        (ax[l], ay[l]) = (fx(a), fy(a));
+        (bx[l], by[l]) = (1.0 + fx(b), fy(b));
+        (cx[l], cy[l]) = (1.0 + fx(c), 1.0 + fy(c));
+        (qx[l], qy[l]) = (fx(d), 1.0 + fy(d));
     }
     let mut t = Tried { found: [false; LANES], u: [0.0; LANES], v: [0.0; LANES], next_ci: [0; LANES], next_cj: [0; LANES], stuck: [false; LANES] };
     let cross = |o: (f32, f32), u: (f32, f32), v: (f32, f32)| (u.0 - o.0) * (v.1 - o.1) - (u.1 - o.1) * (v.0 - o.0);
