@@ -130,13 +130,13 @@ pub struct Sweep<'a, M: Metric> {
     pub avx2: bool,
 }
 
-/// One set's constraints in a slice of rows: constraint `k` joins local nodes
+/// One set's constraints in a slice of rows (the set's direction is the
+/// kernels' `DIR` parameter, so that its rest segment is a constant): constraint `k` joins local nodes
 /// `a0 + k·stride` and `b0 + k·stride`; its rest texel is
 /// `rest0 + k·stride`. Only the constraints in `spans` can be active; their
 /// coefficients follow one another in `coef` from index `coef0`.
 #[derive(Clone, Copy)]
 struct Run<'s> {
-    dir: usize,
     a0: usize,
     b0: usize,
     stride: usize,
@@ -287,7 +287,7 @@ impl<M: Metric> Sweep<'_, M> {
             for parity in 0..2 {
                 let a0 = r * w + parity;
                 let (spans, coef0) = self.active.of(j + r, parity);
-                self.run(Run { dir: HORIZONTAL, a0, b0: a0 + 1, stride: 2, rest0: g0 + a0 + 1, spans, coef0 }, dx, dy);
+                self.run::<HORIZONTAL>(Run { a0, b0: a0 + 1, stride: 2, rest0: g0 + a0 + 1, spans, coef0 }, dx, dy);
             }
         }
         if rows == 2 {
@@ -301,34 +301,34 @@ impl<M: Metric> Sweep<'_, M> {
         let g0 = j * w;
         let a = self.active;
         let ((v, cv), (d, cd), (e, ce)) = (a.of(j, 2), a.of(j, 3), a.of(j, 4));
-        self.run(Run { dir: VERTICAL, a0: 0, b0: w, stride: 1, rest0: g0 + w, spans: v, coef0: cv }, dx, dy);
-        self.run(Run { dir: DIAGONAL, a0: 0, b0: w + 1, stride: 1, rest0: g0 + w + 1, spans: d, coef0: cd }, dx, dy);
-        self.run(Run { dir: ANTIDIAGONAL, a0: 1, b0: w, stride: 1, rest0: g0 + w + 1, spans: e, coef0: ce }, dx, dy);
+        self.run::<VERTICAL>(Run { a0: 0, b0: w, stride: 1, rest0: g0 + w, spans: v, coef0: cv }, dx, dy);
+        self.run::<DIAGONAL>(Run { a0: 0, b0: w + 1, stride: 1, rest0: g0 + w + 1, spans: d, coef0: cd }, dx, dy);
+        self.run::<ANTIDIAGONAL>(Run { a0: 1, b0: w, stride: 1, rest0: g0 + w + 1, spans: e, coef0: ce }, dx, dy);
     }
 
     #[inline]
-    fn run(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
+    fn run<const DIR: usize>(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
         #[cfg(target_arch = "x86_64")]
         if self.avx2 {
             // SAFETY: `avx2` is only set when the CPU reports AVX2.
-            unsafe { self.run_avx2(run, dx, dy) };
+            unsafe { self.run_avx2::<DIR>(run, dx, dy) };
             return;
         }
-        self.run_generic(run, dx, dy);
+        self.run_generic::<DIR>(run, dx, dy);
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn run_avx2(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
-        self.run_body(run, dx, dy);
+    unsafe fn run_avx2<const DIR: usize>(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
+        self.run_body::<DIR>(run, dx, dy);
     }
 
-    fn run_generic(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
-        self.run_body(run, dx, dy);
+    fn run_generic<const DIR: usize>(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
+        self.run_body::<DIR>(run, dx, dy);
     }
 
     #[inline(always)]
-    fn run_body(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
+    fn run_body<const DIR: usize>(&self, run: Run<'_>, dx: &mut [f32], dy: &mut [f32]) {
         // Constraints of one set are independent, so they may be taken in any
         // order: first the whole blocks of every span, then the remainders
         // packed across spans (the order of the coefficients, see `ActiveSpans::new`).
@@ -336,7 +336,7 @@ impl<M: Metric> Sweep<'_, M> {
         for &(s, e) in run.spans {
             let mut k = s as usize;
             while k < blocks_end(s, e) {
-                self.block(&run, k, ci, dx, dy);
+                self.block::<DIR>(&run, k, ci, dx, dy);
                 ci += CONTIG;
                 k += CONTIG;
             }
@@ -348,14 +348,14 @@ impl<M: Metric> Sweep<'_, M> {
                 idx[n] = k * run.stride;
                 n += 1;
                 if n == LANES {
-                    self.batch(&run, &idx, n, ci, dx, dy);
+                    self.batch::<DIR>(&run, &idx, n, ci, dx, dy);
                     ci += n;
                     n = 0;
                 }
             }
         }
         if n > 0 {
-            self.batch(&run, &idx, n, ci, dx, dy);
+            self.batch::<DIR>(&run, &idx, n, ci, dx, dy);
         }
     }
 
@@ -364,9 +364,10 @@ impl<M: Metric> Sweep<'_, M> {
     /// vectors (horizontal sets: a and b interleave, `b = a + 1`; the other
     /// sets: a and b lie in different rows), only the metric is gathered.
     #[inline(always)]
-    fn block(&self, run: &Run<'_>, k0: usize, ci: usize, dx: &mut [f32], dy: &mut [f32]) {
+    fn block<const DIR: usize>(&self, run: &Run<'_>, k0: usize, ci: usize, dx: &mut [f32], dy: &mut [f32]) {
         const C: usize = CONTIG;
-        let Run { dir, a0, b0, stride, rest0, .. } = *run;
+        let Run { a0, b0, stride, rest0, .. } = *run;
+        let dir = DIR;
         let (ex, ey) = rest_segment(dir);
         let el = (ex * ex + ey * ey).sqrt();
         let coef = &self.active.coef;
@@ -420,8 +421,9 @@ impl<M: Metric> Sweep<'_, M> {
     /// Projects the `n` constraints at offsets `idx` (constraint index · stride)
     /// whose coefficients start at `ci`.
     #[inline(always)]
-    fn batch(&self, run: &Run<'_>, idx: &[usize; LANES], n: usize, ci: usize, dx: &mut [f32], dy: &mut [f32]) {
-        let Run { dir, a0, b0, rest0, .. } = *run;
+    fn batch<const DIR: usize>(&self, run: &Run<'_>, idx: &[usize; LANES], n: usize, ci: usize, dx: &mut [f32], dy: &mut [f32]) {
+        let Run { a0, b0, rest0, .. } = *run;
+        let dir = DIR;
         let (ex, ey) = rest_segment(dir);
         let el = (ex * ex + ey * ey).sqrt();
         // Unused lanes keep zero coefficients: inactive, no correction.
