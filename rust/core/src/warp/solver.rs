@@ -460,23 +460,11 @@ impl Solver {
             let f = &fine[l - 1];
             let c = &mut coarse[0];
             c.gd = if l == 1 { maps::reduce_metric(gd_tri, Some(ids), f.w, f.h) } else { maps::reduce_metric(&f.gd, None, f.w, f.h) };
-            restrict(&f.dx, f.w, &mut c.dx, c.w);
-            restrict(&f.dy, f.w, &mut c.dy, c.w);
-            for (d, m) in c.dx.iter_mut().zip(&c.mask) {
-                if *m == 0 {
-                    *d = 0.0;
-                }
-            }
-            for (d, m) in c.dy.iter_mut().zip(&c.mask) {
-                if *m == 0 {
-                    *d = 0.0;
-                }
-            }
-            c.start_x.copy_from_slice(&c.dx);
-            c.start_y.copy_from_slice(&c.dy);
+            restrict(&f.dx, f.w, &c.mask, c.w, &mut c.dx, &mut c.start_x);
+            restrict(&f.dy, f.w, &c.mask, c.w, &mut c.dy, &mut c.start_y);
         }
         // One record per triangle (deformed metric, rest lengths) for the finest level's sweeps.
-        let records: Vec<TriRecord> = self.go_tri.iter().zip(gd_tri).map(|(&o, &d)| sweep::tri_record(o, d)).collect();
+        let records: Vec<TriRecord> = self.go_tri.par_iter().zip(gd_tri).map(|(&o, &d)| sweep::tri_record(o, d)).collect();
         let avx2 = sweep::has_avx2();
         self.last_iterations = vec![0; self.levels.len()];
         self.last_level_ms = vec![0.0; self.levels.len() + 1];
@@ -523,12 +511,17 @@ impl Solver {
     }
 }
 
-/// Fine → coarse: 2×2 mean of displacements, halved (coarse texels are twice as big).
-fn restrict(f: &[f32], fw: usize, c: &mut [f32], cw: usize) {
-    c.par_chunks_mut(cw).enumerate().for_each(|(y, row)| {
-        for (x, o) in row.iter_mut().enumerate() {
+/// Fine → coarse: 2×2 mean of displacements, halved (coarse texels are twice
+/// as big), 0 where the coarse mask fixes the node; written to the coarse
+/// level and to its starting state.
+fn restrict(f: &[f32], fw: usize, mask: &[u8], cw: usize, c: &mut [f32], start: &mut [f32]) {
+    c.par_chunks_mut(cw).zip(start.par_chunks_mut(cw)).enumerate().for_each(|(y, (row, start))| {
+        let m = &mask[y * cw..(y + 1) * cw];
+        for x in 0..cw {
             let i = 2 * y * fw + 2 * x;
-            *o = 0.125 * (f[i] + f[i + 1] + f[i + fw] + f[i + fw + 1]);
+            let v = 0.125 * (f[i] + f[i + 1] + f[i + fw] + f[i + fw + 1]);
+            row[x] = if m[x] == 0 { 0.0 } else { v };
+            start[x] = row[x];
         }
     });
 }
