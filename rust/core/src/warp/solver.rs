@@ -531,7 +531,7 @@ fn restrict(f: &[f32], fw: usize, mask: &[u8], cw: usize, c: &mut [f32], start: 
 fn prolong(c: &Level, f: &mut Level) {
     let (cw, ch, fw) = (c.w, c.h, f.w);
     // The coarse change, doubled (fine texels are half as big), computed once.
-    let delta: Vec<(f32, f32)> = c.dx.iter().zip(&c.start_x).zip(c.dy.iter().zip(&c.start_y)).map(|((x, sx), (y, sy))| (2.0 * (x - sx), 2.0 * (y - sy))).collect();
+    let delta: Vec<(f32, f32)> = c.dx.par_iter().zip(&c.start_x).zip(c.dy.par_iter().zip(&c.start_y)).map(|((x, sx), (y, sy))| (2.0 * (x - sx), 2.0 * (y - sy))).collect();
     // Fine column x samples coarse columns x0(x), x0(x) + 1 with weight tx(x).
     let cols: Vec<(usize, usize, f32)> = (0..fw)
         .map(|x| {
