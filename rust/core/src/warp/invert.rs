@@ -124,7 +124,7 @@ fn invert_row_body(dx: &[f32], dy: &[f32], w: usize, h: usize, y: usize, offset:
             ci[l] = first_cell(xs[l] - ddx[l], hi_x);
             cj[l] = first_cell(yf - ddy[l], hi_y);
         }
-        let t = try_cells(dx, dy, w, &xs, yf, &ci, &cj, hi_x, hi_y);
+        let t = try_cells::<true>(dx, dy, w, &xs, yf, &ci, &cj, hi_x, hi_y);
         // Found and unmoved texels are written branch-free; the misses are
         // taken from a bit mask (a branch per lane would mispredict on the
         // fifth of the texels that miss).
@@ -157,7 +157,7 @@ fn invert_row_body(dx: &[f32], dy: &[f32], w: usize, h: usize, y: usize, offset:
         for (l, &(x, i, j)) in group.iter().enumerate() {
             (xs[l], ci[l], cj[l]) = (x as i32 as f32, i, j);
         }
-        let t = try_cells(dx, dy, w, &xs, yf, &ci, &cj, hi_x, hi_y);
+        let t = try_cells::<false>(dx, dy, w, &xs, yf, &ci, &cj, hi_x, hi_y);
         for (l, &(x, _, _)) in group.iter().enumerate() {
             let x = x as usize;
             if t.found[l] {
@@ -206,7 +206,7 @@ struct Tried {
 /// end hold cell (0, 0) and are ignored by the caller).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn try_cells(dx: &[f32], dy: &[f32], w: usize, xs: &[f32; LANES], yf: f32, ci: &[i32; LANES], cj: &[i32; LANES], hi_x: i32, hi_y: i32) -> Tried {
+fn try_cells<const FIRST: bool>(dx: &[f32], dy: &[f32], w: usize, xs: &[f32; LANES], yf: f32, ci: &[i32; LANES], cj: &[i32; LANES], hi_x: i32, hi_y: i32) -> Tried {
     let (mut ax, mut ay, mut bx, mut by) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
     let (mut cx, mut cy, mut qx, mut qy) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
     // Cells are clamped to columns 0..=w − 2 and rows 0..=h − 2, so node
@@ -251,6 +251,14 @@ fn try_cells(dx: &[f32], dy: &[f32], w: usize, xs: &[f32; LANES], yf: f32, ci: &
         let sy = (up1 & (fa < tol1)) as i32 - (up0 & (ec < tol0)) as i32;
         t.next_ci[l] = (ci[l] + sx).clamp(0, hi_x);
         t.next_cj[l] = (cj[l] + sy).clamp(0, hi_y);
+        if FIRST {
+            // `walk`'s first step: the Newton jump, when it goes further than a neighbouring cell.
+            let (gu, gv) = if up0 { (cif + l1 + l2, cjf + l2) } else { (cif + m1, cjf + m1 + m2) };
+            let (gx, gy) = (first_cell(gu, hi_x), first_cell(gv, hi_y));
+            let jump = (up0 | up1) & (((gx - ci[l]).abs() > 1) | ((gy - cj[l]).abs() > 1));
+            t.next_ci[l] = if jump { gx } else { t.next_ci[l] };
+            t.next_cj[l] = if jump { gy } else { t.next_cj[l] };
+        }
         t.stuck[l] = (t.next_ci[l] == ci[l]) & (t.next_cj[l] == cj[l]);
     }
     t
@@ -363,8 +371,30 @@ pub(crate) fn walk(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y: usiz
             sy += (fa < tol1) as i64;
             sx -= (fc < tol1) as i64;
         }
-        let nx = (ci as i64 + sx).clamp(0, w as i64 - 2) as usize;
-        let ny = (cj as i64 + sy).clamp(0, h as i64 - 2) as usize;
+        let mut nx = (ci as i64 + sx).clamp(0, w as i64 - 2) as usize;
+        let mut ny = (cj as i64 + sy).clamp(0, h as i64 - 2) as usize;
+        if step == 1 && (area0 > 0.0 || area1 > 0.0) {
+            // The first step jumps to the cell where the missed triangle's
+            // affine map, extended, puts the centre's rest position (a Newton
+            // step): the first guess is off by about the displacement times
+            // its gradient, several cells where the warp compresses a large
+            // grid, and a walk of one cell per step would take that many.
+            let (cif, cjf) = (ci as i32 as f32, cj as i32 as f32);
+            let (gu, gv) = if area0 > 0.0 {
+                let inv = 1.0 / area0;
+                let (l1, l2) = (eb * inv, ec * inv);
+                (cif + l1 + l2, cjf + l2)
+            } else {
+                let inv = 1.0 / area1;
+                let (m1, m2) = (fc * inv, fd * inv);
+                (cif + m1, cjf + m1 + m2)
+            };
+            let (gx, gy) = (first_cell(gu, (w - 2) as i32), first_cell(gv, (h - 2) as i32));
+            // Only far jumps: next to the cell, the edge step is the better guess.
+            if (gx - ci as i32).abs() > 1 || (gy - cj as i32).abs() > 1 {
+                (nx, ny) = (gx as usize, gy as usize);
+            }
+        }
         if (nx, ny) == (ci, cj) {
             break;
         }
