@@ -639,13 +639,8 @@ fn repair_folds(lv: &mut Level) -> (usize, f32) {
             if mask[g] == 0 || i == 0 || j == 0 || i + 1 == w || j + 1 == h {
                 continue;
             }
-            let mut sx = 0.0;
-            let mut sy = 0.0;
-            for q in [g - w - 1, g - w, g - w + 1, g - 1, g + 1, g + w - 1, g + w, g + w + 1] {
-                sx += dx[q];
-                sy += dy[q];
-            }
-            moved.push((g, 0.8 * sx / 8.0, 0.8 * sy / 8.0));
+            let (x, y) = relaxed(dx, dy, w, g);
+            moved.push((g, x, y));
         }
         for &(g, x, y) in &moved {
             lv.dx[g] = x;
@@ -664,8 +659,26 @@ fn repair_folds(lv: &mut Level) -> (usize, f32) {
             return (pass, 1.0);
         }
     }
+    (32, scale_until_unfolded(lv))
+}
+
+/// The repair's new position of interior node `g`: its 8 neighbours' mean, shrunk.
+#[inline]
+fn relaxed(dx: &[f32], dy: &[f32], w: usize, g: usize) -> (f32, f32) {
+    let mut sx = 0.0;
+    let mut sy = 0.0;
+    for q in [g - w - 1, g - w, g - w + 1, g - 1, g + 1, g + w - 1, g + w, g + w + 1] {
+        sx += dx[q];
+        sy += dy[q];
+    }
+    (0.8 * sx / 8.0, 0.8 * sy / 8.0)
+}
+
+/// The repair's last resort: halves the warp until nothing folds (the
+/// identity never does); returns the scale applied.
+fn scale_until_unfolded(lv: &mut Level) -> f32 {
     let mut scale = 1.0f32;
-    while count_folds(&lv.dx, &lv.dy, w, h, 0.0) > 0 {
+    while count_folds(&lv.dx, &lv.dy, lv.w, lv.h, 0.0) > 0 {
         scale *= 0.5;
         let f = if scale < 1e-4 { 0.0 } else { 0.5 };
         lv.dx.par_iter_mut().for_each(|d| *d *= f);
@@ -675,7 +688,7 @@ fn repair_folds(lv: &mut Level) -> (usize, f32) {
             break;
         }
     }
-    (32, scale)
+    scale
 }
 
 #[cfg(test)]
@@ -708,14 +721,7 @@ fn repair_folds_whole_grid(lv: &mut Level) -> (usize, f32) {
                 if mask[g] == 0 || i == 0 || j == 0 || i + 1 == w || j + 1 == h || !bad_node(i, j) {
                     continue;
                 }
-                let mut sx = 0.0;
-                let mut sy = 0.0;
-                for q in [g - w - 1, g - w, g - w + 1, g - 1, g + 1, g + w - 1, g + w, g + w + 1] {
-                    sx += dx[q];
-                    sy += dy[q];
-                }
-                ox[i] = 0.8 * sx / 8.0;
-                oy[i] = 0.8 * sy / 8.0;
+                (ox[i], oy[i]) = relaxed(dx, dy, w, g);
             }
         });
         std::mem::swap(&mut lv.dx, &mut lv.sx);
@@ -724,18 +730,7 @@ fn repair_folds_whole_grid(lv: &mut Level) -> (usize, f32) {
             return (pass, 1.0);
         }
     }
-    let mut scale = 1.0f32;
-    while count_folds(&lv.dx, &lv.dy, w, h, 0.0) > 0 {
-        scale *= 0.5;
-        let f = if scale < 1e-4 { 0.0 } else { 0.5 };
-        lv.dx.par_iter_mut().for_each(|d| *d *= f);
-        lv.dy.par_iter_mut().for_each(|d| *d *= f);
-        if f == 0.0 {
-            scale = 0.0;
-            break;
-        }
-    }
-    (32, scale)
+    (32, scale_until_unfolded(lv))
 }
 
     /// Folded warps of three strengths: the local repair equals the

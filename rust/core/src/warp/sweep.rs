@@ -551,15 +551,9 @@ pub fn regularise_row(dx: &[f32], dy: &[f32], rig: &[u8], mask: &[u8], w: usize,
 unsafe fn regularise_row_avx2(dx: &[f32], dy: &[f32], rig: &[u8], mask: &[u8], w: usize, h: usize, y: usize, smoothing: f32, ox: &mut [f32], oy: &mut [f32]) {
     use std::arch::x86_64::*;
     let row = y * w;
-    if y == 0 || y + 1 == h || mask[row..row + w].iter().all(|&m| m == 0) {
-        ox.copy_from_slice(&dx[row..row + w]);
-        oy.copy_from_slice(&dy[row..row + w]);
+    if copy_fixed(dx, dy, mask, w, h, y, ox, oy) {
         return;
     }
-    ox[0] = dx[row];
-    oy[0] = dy[row];
-    ox[w - 1] = dx[row + w - 1];
-    oy[w - 1] = dy[row + w - 1];
     let n = w - 2;
     let full = n / 8 * 8;
     // Every load below reads columns 0..w of rows y − 1, y, y + 1 and every
@@ -613,19 +607,32 @@ unsafe fn regularise_row_avx2(dx: &[f32], dy: &[f32], rig: &[u8], mask: &[u8], w
     }
 }
 
+/// The part of row `y`'s regularisation that copies: the whole row when it
+/// is the first or last or fully masked (then returns true), else its first
+/// and last texels.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn regularise_row_body(dx: &[f32], dy: &[f32], rig: &[u8], mask: &[u8], w: usize, h: usize, y: usize, smoothing: f32, ox: &mut [f32], oy: &mut [f32]) {
+fn copy_fixed(dx: &[f32], dy: &[f32], mask: &[u8], w: usize, h: usize, y: usize, ox: &mut [f32], oy: &mut [f32]) -> bool {
     let row = y * w;
     if y == 0 || y + 1 == h || mask[row..row + w].iter().all(|&m| m == 0) {
         ox.copy_from_slice(&dx[row..row + w]);
         oy.copy_from_slice(&dy[row..row + w]);
-        return;
+        return true;
     }
     ox[0] = dx[row];
     oy[0] = dy[row];
     ox[w - 1] = dx[row + w - 1];
     oy[w - 1] = dy[row + w - 1];
+    false
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn regularise_row_body(dx: &[f32], dy: &[f32], rig: &[u8], mask: &[u8], w: usize, h: usize, y: usize, smoothing: f32, ox: &mut [f32], oy: &mut [f32]) {
+    let row = y * w;
+    if copy_fixed(dx, dy, mask, w, h, y, ox, oy) {
+        return;
+    }
     let n = w - 2;
     let (up, mid, dn) = (row - w, row, row + w);
     let rg = &rig[row + 1..row + 1 + n];
