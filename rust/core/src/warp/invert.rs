@@ -32,32 +32,67 @@ const EDGE_TOLERANCE: f32 = 1e-5;
 /// Writes the redirection (absolute UVs, interleaved `u, v`, row 0 = lowest
 /// `v`) of a `w × h` tile whose lower-left corner is at `offset`.
 ///
-/// The result is, texel for texel and bit for bit, that of [`locate`]; the
-/// texels of a row are only organised differently (see [`invert_row`]).
+/// Rows are taken in bands of [`GATHER_ROWS`], in order within a band, so
+/// that a row's walks can start where the two rows below it found their rest
+/// positions, extrapolated ([`first_cell_guess`]). The result is, texel for
+/// texel and bit for bit, that of [`invert_per_texel`]; the texels of a row
+/// are only organised differently (see [`invert_row`]).
 pub fn invert(dx: &[f32], dy: &[f32], w: usize, h: usize, offset: Vec2, out: &mut [f32]) {
     let avx2 = super::sweep::has_avx2();
     out.par_chunks_mut(2 * w * GATHER_ROWS).enumerate().for_each(|(band, chunk)| {
         let mut scratch = RowScratch::default();
         for (k, row) in chunk.chunks_mut(2 * w).enumerate() {
             invert_row(dx, dy, w, h, band * GATHER_ROWS + k, offset, row, &mut scratch, avx2);
+            scratch.next_row();
         }
     });
 }
 
-/// [`invert`] one texel at a time: the reference the lane-wise path is tested against.
+/// [`invert`] one texel at a time, each with the scalar [`walk_from`] from the
+/// same first cell: the reference the lane-wise path is tested against.
 pub fn invert_per_texel(dx: &[f32], dy: &[f32], w: usize, h: usize, offset: Vec2, out: &mut [f32]) {
     let (sw, sh) = (1.0 / w as f64, 1.0 / h as f64);
-    out.par_chunks_mut(2 * w).enumerate().for_each(|(y, row)| {
-        for x in 0..w {
-            let n = y * w + x;
-            let (u, v) = if dx[n] == 0.0 && dy[n] == 0.0 { (x as i32 as f32, y as i32 as f32) } else { locate(dx, dy, w, h, x, y) };
-            row[2 * x] = offset.x + ((u as f64 + 0.5) * sw) as f32;
-            row[2 * x + 1] = offset.y + ((v as f64 + 0.5) * sh) as f32;
+    out.par_chunks_mut(2 * w * GATHER_ROWS).enumerate().for_each(|(band, chunk)| {
+        let mut scratch = RowScratch::default();
+        for (k, row) in chunk.chunks_mut(2 * w).enumerate() {
+            let y = band * GATHER_ROWS + k;
+            scratch.u.resize(w, 0.0);
+            scratch.v.resize(w, 0.0);
+            for x in 0..w {
+                let n = y * w + x;
+                let (u, v) = if dx[n] == 0.0 && dy[n] == 0.0 {
+                    (x as i32 as f32, y as i32 as f32)
+                } else {
+                    let below = (scratch.below == 2).then_some([&scratch.pu[..], &scratch.pv[..], &scratch.ppu[..], &scratch.ppv[..]]);
+                    let start = first_cell_guess(below, x, y, dx[n], dy[n], (w - 2) as i32, (h - 2) as i32);
+                    walk_from(dx, dy, w, h, x, y, start).0
+                };
+                (scratch.u[x], scratch.v[x]) = (u, v);
+                row[2 * x] = offset.x + ((u as f64 + 0.5) * sw) as f32;
+                row[2 * x + 1] = offset.y + ((v as f64 + 0.5) * sh) as f32;
+            }
+            scratch.next_row();
         }
     });
 }
 
-const GATHER_ROWS: usize = 8;
+/// Rows per band of the inversion: the first two rows of a band start their
+/// walks from the texel's own displacement, the others from the rows below.
+const GATHER_ROWS: usize = 32;
+
+/// The first cell a texel's walk tries: where the two rows below (in the same
+/// band) found their rest positions, extrapolated linearly (on a smooth warp
+/// that is off by the change of the warp's gradient, a small fraction of a
+/// cell); without them, the rest position the texel's own node displacement
+/// points back to (off by about the displacement times its gradient, several
+/// cells where a large grid is strongly compressed).
+#[inline(always)]
+fn first_cell_guess(below: Option<[&[f32]; 4]>, x: usize, y: usize, ddx: f32, ddy: f32, hi_x: i32, hi_y: i32) -> (i32, i32) {
+    match below {
+        Some([pu, pv, ppu, ppv]) => (first_cell(2.0 * pu[x] - ppu[x], hi_x), first_cell(2.0 * pv[x] - ppv[x], hi_y)),
+        None => (first_cell(x as i32 as f32 - ddx, hi_x), first_cell(y as i32 as f32 - ddy, hi_y)),
+    }
+}
 
 /// Texels per group of the lane-wise walk.
 const LANES: usize = 8;
@@ -68,20 +103,36 @@ struct RowScratch {
     /// Rest coordinates found for the texels of the row.
     u: Vec<f32>,
     v: Vec<f32>,
-    /// Texels whose first cell missed: (column, next cell column, next cell row).
-    pending: Vec<(u32, i32, i32)>,
+    /// Those of the row below and of the one below that, when `below` says they are there.
+    pu: Vec<f32>,
+    pv: Vec<f32>,
+    ppu: Vec<f32>,
+    ppv: Vec<f32>,
+    below: usize,
+    /// Texels whose first cell missed: (column, next cell column, next cell row, first cell column, first cell row).
+    pending: Vec<(u32, i32, i32, i32, i32)>,
 }
 
-/// One output row. The walk of [`locate`] is taken two steps at a time over
-/// groups of [`LANES`] texels: every texel of a group tries the cell its own
-/// node's displacement points back to, branch-free (both triangles, the
-/// weights and the next cell of the walk computed for every lane, so that the
-/// compiler vectorises it); the texels that missed (about a fifth in the
-/// benchmark's warps) try their next cell in a second round, packed into groups
-/// again; the few left (a quarter of a percent) walk one by one with [`locate`]
-/// from the start, which takes the same first two steps. So every texel gets
-/// exactly [`locate`]'s result, without the mispredicted branches of a scalar
-/// walk (which triangle, which step).
+impl RowScratch {
+    /// The row just done becomes the row below.
+    fn next_row(&mut self) {
+        std::mem::swap(&mut self.ppu, &mut self.pu);
+        std::mem::swap(&mut self.ppv, &mut self.pv);
+        std::mem::swap(&mut self.pu, &mut self.u);
+        std::mem::swap(&mut self.pv, &mut self.v);
+        self.below = (self.below + 1).min(2);
+    }
+}
+
+/// One output row. The walk of [`walk_from`] is taken two steps at a time
+/// over groups of [`LANES`] texels: every texel of a group tries its first
+/// cell ([`first_cell_guess`]) branch-free (both triangles, the weights and the
+/// next cell of the walk computed for every lane, so that the compiler
+/// vectorises it); the texels that missed try their next cell in a second
+/// round, packed into groups again; the few left walk one by one with
+/// [`walk_from`] from the same first cell, which takes the same first two
+/// steps. So every texel gets exactly [`walk_from`]'s result, without the
+/// mispredicted branches of a scalar walk (which triangle, which step).
 #[allow(clippy::too_many_arguments)]
 fn invert_row(dx: &[f32], dy: &[f32], w: usize, h: usize, y: usize, offset: Vec2, row: &mut [f32], scratch: &mut RowScratch, avx2: bool) {
     #[cfg(target_arch = "x86_64")]
@@ -104,13 +155,15 @@ unsafe fn invert_row_avx2(dx: &[f32], dy: &[f32], w: usize, h: usize, y: usize, 
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn invert_row_body(dx: &[f32], dy: &[f32], w: usize, h: usize, y: usize, offset: Vec2, row: &mut [f32], scratch: &mut RowScratch) {
-    let RowScratch { u, v, pending } = scratch;
+    let RowScratch { u, v, pu, pv, ppu, ppv, below, pending } = scratch;
     u.resize(w, 0.0);
     v.resize(w, 0.0);
     pending.clear();
+    let below = (*below == 2).then_some([&pu[..], &pv[..], &ppu[..], &ppv[..]]);
     let yf = y as i32 as f32;
     let (hi_x, hi_y) = ((w - 2) as i32, (h - 2) as i32);
-    let mut fallback = Vec::new();
+    // Texels left to walk one by one: (column, first cell).
+    let mut fallback: Vec<(usize, (i32, i32))> = Vec::new();
     // Round 1: every texel tries its first cell.
     let groups = w / LANES;
     for g in 0..groups {
@@ -121,13 +174,12 @@ fn invert_row_body(dx: &[f32], dy: &[f32], w: usize, h: usize, y: usize, offset:
         let (mut ci, mut cj) = ([0i32; LANES], [0i32; LANES]);
         for l in 0..LANES {
             xs[l] = (x0 + l) as i32 as f32;
-            ci[l] = first_cell(xs[l] - ddx[l], hi_x);
-            cj[l] = first_cell(yf - ddy[l], hi_y);
+            (ci[l], cj[l]) = first_cell_guess(below, x0 + l, y, ddx[l], ddy[l], hi_x, hi_y);
         }
         let t = try_cells::<true>(dx, dy, w, &xs, yf, &ci, &cj, hi_x, hi_y);
         // Found and unmoved texels are written branch-free; the misses are
         // taken from a bit mask (a branch per lane would mispredict on the
-        // fifth of the texels that miss).
+        // texels that miss).
         let mut missed = 0u32;
         for l in 0..LANES {
             let x = x0 + l;
@@ -140,35 +192,36 @@ fn invert_row_body(dx: &[f32], dy: &[f32], w: usize, h: usize, y: usize, offset:
             let l = missed.trailing_zeros() as usize;
             missed &= missed - 1;
             if t.stuck[l] {
-                fallback.push(x0 + l);
+                fallback.push((x0 + l, (ci[l], cj[l])));
             } else {
-                pending.push(((x0 + l) as u32, t.next_ci[l], t.next_cj[l]));
+                pending.push(((x0 + l) as u32, t.next_ci[l], t.next_cj[l], ci[l], cj[l]));
             }
         }
     }
     for x in groups * LANES..w {
         let n = y * w + x;
-        (u[x], v[x]) = if dx[n] == 0.0 && dy[n] == 0.0 { (x as i32 as f32, yf) } else { locate(dx, dy, w, h, x, y) };
+        (u[x], v[x]) = if dx[n] == 0.0 && dy[n] == 0.0 { (x as i32 as f32, yf) } else { walk_from(dx, dy, w, h, x, y, first_cell_guess(below, x, y, dx[n], dy[n], hi_x, hi_y)).0 };
     }
     // Round 2: the texels that missed try the next cell of their walk.
     for group in pending.chunks(LANES) {
         let mut xs = [0.0f32; LANES];
         let (mut ci, mut cj) = ([0i32; LANES], [0i32; LANES]);
-        for (l, &(x, i, j)) in group.iter().enumerate() {
+        for (l, &(x, i, j, _, _)) in group.iter().enumerate() {
             (xs[l], ci[l], cj[l]) = (x as i32 as f32, i, j);
         }
         let t = try_cells::<false>(dx, dy, w, &xs, yf, &ci, &cj, hi_x, hi_y);
-        for (l, &(x, _, _)) in group.iter().enumerate() {
+        for (l, &(x, _, _, i0, j0)) in group.iter().enumerate() {
             let x = x as usize;
             if t.found[l] {
                 (u[x], v[x]) = (t.u[l], t.v[l]);
             } else {
-                fallback.push(x);
+                fallback.push((x, (i0, j0)));
             }
         }
     }
-    for x in fallback {
-        (u[x], v[x]) = locate(dx, dy, w, h, x, y);
+    // The same walk from the start: its first two steps are the rounds above.
+    for (x, start) in fallback {
+        (u[x], v[x]) = walk_from(dx, dy, w, h, x, y, start).0;
     }
     let (sw, sh) = (1.0 / w as f64, 1.0 / h as f64);
     for (x, o) in row.chunks_exact_mut(2).enumerate() {
@@ -177,7 +230,7 @@ fn invert_row_body(dx: &[f32], dy: &[f32], w: usize, h: usize, y: usize, offset:
     }
 }
 
-/// `(v as i32).clamp(0, hi)` (what [`locate`] computes: truncation is the floor
+/// `(v as i32).clamp(0, hi)` (the first cell of a walk: truncation is the floor
 /// once negatives are clamped to 0, and NaN gives 0), clamped as a float first
 /// so that the conversion needs no saturation checks and vectorises.
 #[inline(always)]
@@ -195,13 +248,13 @@ struct Tried {
     u: [f32; LANES],
     v: [f32; LANES],
     /// Where not found: the next cell of the walk, or `stuck` when the walk
-    /// would stay in this cell (then [`locate`] falls back to its search).
+    /// would stay in this cell (then [`walk_from`] falls back to its search).
     next_ci: [i32; LANES],
     next_cj: [i32; LANES],
     stuck: [bool; LANES],
 }
 
-/// One step of [`locate`]'s walk for each lane: the centre `(xs[l], yf)` in
+/// One step of [`walk_from`]'s walk for each lane: the centre `(xs[l], yf)` in
 /// cell `(ci[l], cj[l])`, with exactly its arithmetic (lanes past the group's
 /// end hold cell (0, 0) and are ignored by the caller).
 #[inline(always)]
@@ -307,29 +360,27 @@ fn rest_point(ci: usize, cj: usize, t: usize, l: [f32; 3]) -> (f32, f32) {
     }
 }
 
-/// Finds the warped triangle holding the centre of texel `(x, y)`; returns the
-/// rest coordinates there. Inside tests use unnormalised edge functions
-/// (compared with a tolerance scaled by the area), so the only division is the
-/// one of the triangle finally taken.
-#[inline]
-fn locate(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y: usize) -> (f32, f32) {
-    walk(dx, dy, w, h, x, y).0
-}
-
-/// [`locate`], and the number of cells its walk tried (`usize::MAX` when it
-/// ended in the local search).
-#[inline(always)]
+/// [`walk_from`] the first cell [`invert`] tries without rows below (the
+/// texel's own displacement, pointed back): the tests' count of walk lengths.
+#[cfg(test)]
 pub(crate) fn walk(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y: usize) -> ((f32, f32), usize) {
     let n = y * w + x;
+    walk_from(dx, dy, w, h, x, y, first_cell_guess(None, x, y, dx[n], dy[n], (w - 2) as i32, (h - 2) as i32))
+}
+
+/// The walk from cell `start` (column, row; within the grid's cells) to the
+/// warped triangle holding the centre of texel `(x, y)`; returns the rest
+/// coordinates there and the number of cells tried (`usize::MAX` when it
+/// ended in the local search). Inside tests use unnormalised edge functions
+/// (compared with a tolerance scaled by the area), so the only division is the
+/// one of the triangle finally taken.
+#[inline(always)]
+pub(crate) fn walk_from(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y: usize, start: (i32, i32)) -> ((f32, f32), usize) {
     // Grid coordinates fit in i32 (sides up to 16384), and conversions
     // between f32 and i32 are one instruction, those with usize a branchy
     // sequence (no unsigned 64-bit conversions before AVX-512).
     let (xf, yf) = (x as i32 as f32, y as i32 as f32);
-    // Truncation is the floor once negatives are clamped to 0 (and unlike
-    // `floor`, not a libm call without SSE4.1); NaN truncates to 0.
-    let clamp_cell = |v: f32, hi: usize| (v as i32).clamp(0, hi as i32) as usize;
-    // First guess: the rest position the texel's own node displacement points back to.
-    let (mut ci, mut cj) = (clamp_cell(xf - dx[n], w - 2), clamp_cell(yf - dy[n], h - 2));
+    let (mut ci, mut cj) = (start.0 as usize, start.1 as usize);
     let cross = |o: (f32, f32), u: (f32, f32), v: (f32, f32)| (u.0 - o.0) * (v.1 - o.1) - (u.1 - o.1) * (v.0 - o.0);
     for step in 1..=MAX_WALK {
         let a = cj * w + ci;
@@ -403,7 +454,7 @@ pub(crate) fn walk(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y: usiz
     (search(dx, dy, w, h, x, y, (ci, cj)), usize::MAX)
 }
 
-/// Fallback of [`locate`]: the best triangle of the cells around `around`
+/// Fallback of [`walk_from`]: the best triangle of the cells around `around`
 /// (largest smallest weight), its weights clamped into the triangle.
 #[cold]
 fn search(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y: usize, around: (usize, usize)) -> (f32, f32) {

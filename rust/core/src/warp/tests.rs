@@ -487,6 +487,8 @@ fn gathered_inversion_matches_the_rasterised_reference() {
 /// The lane-wise inversion gives every texel exactly the per-texel walk's
 /// result: on solved warps, on a swirl strong enough that many texels need the
 /// second round or the one-by-one walk, and on a width that leaves a tail.
+/// (The walk lengths counted are those from the texel's own displacement,
+/// where the first two rows of every band start.)
 #[test]
 fn lane_wise_inversion_equals_the_per_texel_walk_to_the_bit() {
     let (m, mut warp) = cylinder_warp(false);
