@@ -73,6 +73,15 @@ pub struct Collider {
     last_update: Option<UpdateReport>,
     /// Compliant vertices (seed 002 §1), if any were painted.
     compliance: Option<Compliance>,
+    /// Identifies the state of the positions and settings: see [`Collider::generation`].
+    generation: u64,
+}
+
+/// Source of [`Collider::generation`] values, unique within the process.
+static GENERATIONS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+
+fn next_generation() -> u64 {
+    GENERATIONS.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
 }
 
 /// A point on a collider's surface: where, on which triangle, and its
@@ -144,6 +153,7 @@ impl Collider {
             vertex_triangle_list,
             last_update: None,
             compliance: None,
+            generation: next_generation(),
         };
         collider.tree = BoxTree::build(&collider.swept_boxes())?;
         collider.vertex_tree = BoxTree::build(&collider.swept_vertex_boxes())?;
@@ -236,7 +246,16 @@ impl Collider {
         Ok(())
     }
 
+    /// A number that changes whenever the positions or the settings do (and
+    /// is never reused by another state within the process), so that what was
+    /// computed from this state — a [`super::clearance::Clearance`] — can tell
+    /// whether it still applies. A clone shares it until either changes.
+    pub fn generation(&self) -> u64 {
+        self.generation
+    }
+
     fn refresh(&mut self) -> Result<UpdateReport> {
+        self.generation = next_generation();
         let boxes = self.swept_boxes();
         let report = self.tree.update(&boxes)?;
         self.vertex_tree.update(&self.swept_vertex_boxes())?;

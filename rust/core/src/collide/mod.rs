@@ -5,6 +5,8 @@
 //!   edge–edge) by interval root finding with a rigorous f64 error bound.
 //! * [`bvh`]: a BVH (`obvhs`) over boxes, refitted each frame and rebuilt when
 //!   refitting has degraded it (SAH cost ratio).
+//! * [`clearance`]: per-vertex distance bounds from the colliders, measured
+//!   once per frame, that let the in-loop passes skip the skin far from them.
 //! * [`collider`]: a triangle mesh moving from last frame to this frame, with
 //!   thickness, friction and a BVH over its swept triangles.
 //! * [`geometry`]: f64 helpers (normals, distances, crossing tests).
@@ -19,6 +21,7 @@
 pub mod audit;
 pub mod bvh;
 pub mod ccd;
+pub mod clearance;
 pub mod collider;
 pub mod geometry;
 pub mod proximity;
@@ -27,6 +30,7 @@ pub mod response;
 pub use audit::{audit, AuditParams, AuditReport};
 pub use bvh::{BoxTree, Bounds, UpdateReport};
 pub use ccd::{CcdHit, CcdParams};
+pub use clearance::Clearance;
 pub use collider::{Collider, ColliderSettings, Compliance, SurfacePoint};
 pub use response::{ColliderMotion, ColliderSet, ContactStats, ResolveParams, Skin};
 

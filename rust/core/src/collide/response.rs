@@ -59,6 +59,7 @@ use rayon::prelude::*;
 use super::audit::{fan_triangles, triangle_edges};
 use super::bvh::Bounds;
 use super::ccd::{self, CcdParams};
+use super::clearance::Clearance;
 use super::collider::Collider;
 use super::geometry::{triangle_normal, unit};
 use super::proximity;
@@ -332,19 +333,28 @@ impl<'a> ColliderSet<'a> {
         let query = Bounds::of_points(&[s, e]);
         let (s64, e64) = (d(s), d(e));
         let mut hits: Vec<VertexHit> = Vec::new();
+        let mut candidates = Vec::new();
         for (c, col) in self.colliders.iter().enumerate() {
             let params = self.ccd_params(col.settings().thickness as f64);
-            col.tree().query(&query, |t| {
+            self.candidate_triangles(c, &query, &mut candidates);
+            if self.slab_apart(c, &candidates, None, &[s64], &[e64], motion, params.min_separation) {
+                continue;
+            }
+            for &t in &candidates {
+                let t = t as usize;
                 let ([a0, b0, c0], [a1, b1, c1]) = self.triangle_ends(c, t, motion);
-                if proximity::vertex_triangle_apart(s64, [a0, b0, c0], e64, [a1, b1, c1], params.min_separation) {
-                    return true;
-                }
                 // A still or rigidly translating triangle has a closed-form
-                // first contact; its deviation from a translation is added to
-                // the separation so the answer stays conservative.
+                // first contact, cheaper than sampling distances to prove
+                // the pair apart; its deviation from a translation is added
+                // to the separation so the answer stays conservative.
                 let shift = a1 - a0;
                 let deviation = (b1 - b0 - shift).length().max((c1 - c0 - shift).length());
-                let found = if deviation <= params.tolerance {
+                let translating = deviation <= params.tolerance;
+                let apart = if translating { proximity::vertex_triangle_apart_by_plane } else { proximity::vertex_triangle_apart };
+                if apart(s64, [a0, b0, c0], e64, [a1, b1, c1], params.min_separation) {
+                    continue;
+                }
+                let found = if translating {
                     let separation = params.min_separation + params.tolerance + deviation;
                     ccd::vertex_triangle_translating(s64, e64, [a0, b0, c0], shift, separation, params.t_max)
                 } else {
@@ -355,11 +365,63 @@ impl<'a> ColliderSet<'a> {
                 if let Some(hit) = found {
                     hits.push(VertexHit { collider: c, triangle: t, hit });
                 }
-                true
-            });
+            }
         }
         hits.sort_by(|a, b| a.hit.toi.total_cmp(&b.hit.toi));
         hits
+    }
+
+    /// Collider `c`'s triangles whose swept boxes (grown by the thickness)
+    /// meet `query`, into `out`: the only ones a skin element inside `query`
+    /// can reach.
+    fn candidate_triangles(&self, c: usize, query: &Bounds, out: &mut Vec<u32>) {
+        out.clear();
+        self.colliders[c].tree().query(query, |t| {
+            out.push(t as u32);
+            true
+        });
+    }
+
+    /// Whether a skin element (corners `start → end`) provably stays farther
+    /// than `separation` from all of collider `c`'s `triangles` (and so from
+    /// their edges and vertices) over the step, by one slab
+    /// ([`proximity::separated_along`]) instead of a proof per pair. The
+    /// direction is `normal` if given, else the normal of the triangle
+    /// nearest to the element's end; the frame translates with that
+    /// triangle's first corner. A resting contact on a locally convex
+    /// collider passes; anything else falls through to the pairwise tests.
+    #[allow(clippy::too_many_arguments)]
+    fn slab_apart(&self, c: usize, triangles: &[u32], normal: Option<DVec3>, start: &[DVec3], end: &[DVec3], motion: ColliderMotion, separation: f64) -> bool {
+        if triangles.is_empty() {
+            return true;
+        }
+        let col = self.colliders[c];
+        let (tris, previous, current) = (col.triangles(), col.previous(), col.current());
+        let centre = end.iter().copied().sum::<DVec3>() / end.len() as f64;
+        let mut anchor = (f64::INFINITY, triangles[0]);
+        for &t in triangles {
+            let gap = (d(current[tris[t as usize][0] as usize]) - centre).length_squared();
+            if gap < anchor.0 {
+                anchor = (gap, t);
+            }
+        }
+        let motion = self.motions[c].unwrap_or(motion);
+        let (tri0, tri1) = self.triangle_ends(c, anchor.1 as usize, motion);
+        let Some(n) = normal.or_else(|| triangle_normal(tri1[0], tri1[1], tri1[2])) else { return false };
+        let corners = triangles.iter().flat_map(|&t| tris[t as usize]);
+        match motion {
+            ColliderMotion::AtCurrent => {
+                let still = corners.map(|v| {
+                    let p = d(current[v as usize]);
+                    (p, p)
+                });
+                proximity::separated_along(n, DVec3::ZERO, start, end, still, separation)
+            }
+            ColliderMotion::Swept => {
+                let moving = corners.map(|v| (d(previous[v as usize]), d(current[v as usize])));
+                proximity::separated_along(n, tri1[0] - tri0[0], start, end, moving, separation)
+            }
+        }
     }
 
     /// The projected end of the first contact of `s → e` that needs one.
@@ -425,10 +487,16 @@ impl<'a> ColliderSet<'a> {
         let query = Bounds::of_points(&[start[ia], start[ib], end[ia], end[ib]]);
         let mut hits: Vec<(usize, usize, ccd::CcdHit)> = Vec::new();
         let mut seen: Vec<u32> = Vec::new();
+        let mut candidates = Vec::new();
         for (c, col) in self.colliders.iter().enumerate() {
             let ccd_params = self.ccd_params(col.settings().thickness as f64);
+            self.candidate_triangles(c, &query, &mut candidates);
+            if self.slab_apart(c, &candidates, None, &[sa, sb], &[ea, eb], params.motion, ccd_params.min_separation) {
+                continue;
+            }
             seen.clear();
-            col.tree().query(&query, |t| {
+            for &t in &candidates {
+                let t = t as usize;
                 let (tri0, tri1) = self.triangle_ends(c, t, params.motion);
                 if proximity::beyond_triangle_plane(tri0, tri1, &[sa, sb], &[ea, eb], ccd_params.min_separation) {
                     // Apart from the triangle's plane, so from its three edges.
@@ -437,7 +505,7 @@ impl<'a> ColliderSet<'a> {
                             seen.push(e);
                         }
                     }
-                    return true;
+                    continue;
                 }
                 for &e in &col.triangle_edges()[t] {
                     if seen.contains(&e) {
@@ -459,8 +527,7 @@ impl<'a> ColliderSet<'a> {
                         hits.push((c, e as usize, hit));
                     }
                 }
-                true
-            });
+            }
         }
         hits.sort_by(|a, b| a.2.toi.total_cmp(&b.2.toi));
         hits.into_iter().find_map(|(c, e, hit)| self.edge_contact_correction(sa, sb, ea, eb, c, e, hit, masses, params))
@@ -556,12 +623,30 @@ impl<'a> ColliderSet<'a> {
         let (e0, e1, e2) = (d(end[i0]), d(end[i1]), d(end[i2]));
         let query = Bounds::of_points(&[start[i0], start[i1], start[i2], end[i0], end[i1], end[i2]]);
         let mut hits: Vec<(usize, usize, ccd::CcdHit)> = Vec::new();
+        let mut candidates: Vec<u32> = Vec::new();
+        // A skin triangle resting on a collider faces it: its own normal is
+        // the direction of a slab that proves all nearby collider vertices apart at once.
+        let normal = triangle_normal(e0, e1, e2).or_else(|| triangle_normal(s0, s1, s2));
         for (c, col) in self.colliders.iter().enumerate() {
             let ccd_params = self.ccd_params(col.settings().thickness as f64);
+            candidates.clear();
             col.vertex_tree().query(&query, |v| {
+                candidates.push(v as u32);
+                true
+            });
+            let Some(&first) = candidates.first() else { continue };
+            if let Some(n) = normal {
+                let (r0, r1) = self.vertex_ends(c, first as usize, params.motion);
+                let corners = candidates.iter().map(|&v| self.vertex_ends(c, v as usize, params.motion));
+                if proximity::separated_along(n, r1 - r0, &[s0, s1, s2], &[e0, e1, e2], corners, ccd_params.min_separation) {
+                    continue;
+                }
+            }
+            for &v in &candidates {
+                let v = v as usize;
                 let (r0, r1) = self.vertex_ends(c, v, params.motion);
                 if proximity::vertex_triangle_apart(r0, [s0, s1, s2], r1, [e0, e1, e2], ccd_params.min_separation) {
-                    return true;
+                    continue;
                 }
                 let advanced = proximity::vertex_triangle_advance(r0, [s0, s1, s2], r1, [e0, e1, e2], ccd_params.min_separation, ccd_params.tolerance, ccd_params.t_max);
                 let found = match advanced {
@@ -571,8 +656,7 @@ impl<'a> ColliderSet<'a> {
                 if let Some(hit) = found {
                     hits.push((c, v, hit));
                 }
-                true
-            });
+            }
         }
         hits.sort_by(|a, b| a.2.toi.total_cmp(&b.2.toi));
         let ends = ([s0, s1, s2], [e0, e1, e2]);
@@ -704,12 +788,21 @@ impl<'a> ColliderSet<'a> {
 
     /// Makes the motion `start → end` collision-free against the colliders by
     /// changing `end` (see the module documentation).
-    pub fn resolve_path(
+    pub fn resolve_path(&self, start: &[Vec3], end: &mut [Vec3], skin: &Skin, params: &ResolveParams) -> Result<ContactStats> {
+        self.resolve_path_with(start, end, skin, params, None)
+    }
+
+    /// [`resolve_path`](Self::resolve_path), skipping the skin elements that
+    /// `clearance` proves apart from the colliders (if it was measured
+    /// against them in their present state; otherwise it is not used).
+    /// The in-loop passes of a frame share one clearance.
+    pub fn resolve_path_with(
         &self,
         start: &[Vec3],
         end: &mut [Vec3],
         skin: &Skin,
         params: &ResolveParams,
+        clearance: Option<&Clearance>,
     ) -> Result<ContactStats> {
         let n = start.len();
         if end.len() != n || skin.vertex_count != n {
@@ -727,10 +820,15 @@ impl<'a> ColliderSet<'a> {
         }
         let requested: Vec<Vec3> = end.to_vec();
         let mut moved = vec![false; n];
+        // Elements the clearance proves apart are left out from the start.
+        let clear = clearance.filter(|c| c.is_valid_for(&self.colliders, n)).map(|c| c.clear(skin, start, end));
+        let kept = |k: usize, proven: Option<&Vec<bool>>| !proven.is_some_and(|p| p[k]);
         // Vertices with inverse mass 0 move as imposed: never corrected.
-        let mut active: Vec<u32> = (0..n as u32).filter(|&i| skin.inverse_mass(i) > 0.0).collect();
-        let mut active_edges: Vec<u32> = (0..skin.edges.len() as u32).collect();
-        let mut active_triangles: Vec<u32> = (0..skin.triangles.len() as u32).collect();
+        let mut active: Vec<u32> =
+            (0..n as u32).filter(|&i| skin.inverse_mass(i) > 0.0 && kept(i as usize, clear.as_ref().map(|c| &c.vertex))).collect();
+        let mut active_edges: Vec<u32> = (0..skin.edges.len() as u32).filter(|&k| kept(k as usize, clear.as_ref().map(|c| &c.edge))).collect();
+        let mut active_triangles: Vec<u32> =
+            (0..skin.triangles.len() as u32).filter(|&k| kept(k as usize, clear.as_ref().map(|c| &c.triangle))).collect();
         let mut converged = false;
         for _ in 0..params.max_rounds.max(1) {
             stats.rounds += 1;

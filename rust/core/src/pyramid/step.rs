@@ -37,7 +37,7 @@ use super::compliance::{compliant_skin, contact_targets, recede_from};
 use super::deformer::{Closeness, PyramidDeformer};
 use super::dynamics::{kinetic_energy, Dynamics, MAX_SUBSTEPS};
 use crate::collide::audit::is_inside;
-use crate::collide::{Collider, ColliderSet, ContactStats, ResolveParams, Skin};
+use crate::collide::{Clearance, Collider, ColliderSet, ContactStats, ResolveParams, Skin};
 use crate::mesh::validate_positions;
 use crate::solve::{Targets, IterationHook};
 use crate::strain::{EdgeLimits, MaxStretch};
@@ -342,11 +342,19 @@ impl PyramidDeformer {
         let unified = limits.filter(|(_, mode)| *mode == StrainMode::Unified).map(|(l, _)| l);
         let any_colliders = !colliders.is_empty();
         let last_iteration = options.iterations.saturating_sub(1);
+        // Where the skin is, at the start of the in-loop passes, relative to
+        // the colliders: the passes skip what cannot have reached them since.
+        // Receding compliant colliders change every pass, so they get none.
+        let mut clearance: Option<Clearance> = None;
+        let measure_clearance = any_colliders && compliant.is_empty();
         let mut in_loop = |iteration: usize, before: &[Vec3], after: &mut [Vec3]| -> Result<()> {
             if any_colliders {
                 // Compliant colliders stand still here; they recede below.
                 let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
-                let stats = ColliderSet::new(refs).resolve_path(before, after, skin, &ResolveParams::in_loop())?;
+                if measure_clearance && clearance.is_none() {
+                    clearance = Some(Clearance::new(&refs, skin, before, clearance_radius(&refs, skin, before))?);
+                }
+                let stats = ColliderSet::new(refs).resolve_path_with(before, after, skin, &ResolveParams::in_loop(), clearance.as_ref())?;
                 report.in_loop_contacts += stats.vertex_contacts + stats.edge_contacts + stats.collider_vertex_contacts;
                 report.max_in_loop_correction = report.max_in_loop_correction.max(stats.max_correction);
                 suspects.extend_from_slice(&stats.pinched);
@@ -354,7 +362,7 @@ impl PyramidDeformer {
             }
             if let Some(limits) = unified {
                 let rounds = if iteration >= last_iteration { STRAIN_ROUNDS } else { STRAIN_ROUNDS_EARLY };
-                let pinched = limit_strain_with_contacts(limits, colliders, after, skin, &inverse_mass, rounds)?;
+                let pinched = limit_strain_with_contacts(limits, colliders, after, skin, &inverse_mass, rounds, clearance.as_ref())?;
                 suspects.extend_from_slice(&pinched);
                 last_pinched.extend(pinched);
             }
@@ -461,6 +469,7 @@ fn limit_strain_with_contacts(
     skin: &Skin,
     inverse_mass: &[f32],
     rounds: usize,
+    clearance: Option<&Clearance>,
 ) -> Result<Vec<u32>> {
     let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
     let set = ColliderSet::new(refs);
@@ -472,11 +481,22 @@ fn limit_strain_with_contacts(
         let mut shortened = x.to_vec();
         limits.project(&mut shortened, inverse_mass, STRAIN_SWEEPS, STRAIN_TOLERANCE);
         if !set.colliders().is_empty() {
-            pinched = set.resolve_path(x, &mut shortened, skin, &ResolveParams::in_loop())?.pinched;
+            pinched = set.resolve_path_with(x, &mut shortened, skin, &ResolveParams::in_loop(), clearance)?.pinched;
         }
         x.copy_from_slice(&shortened);
     }
     Ok(pinched)
+}
+
+/// How far around each skin vertex a [`Clearance`] looks: four collider
+/// thicknesses and two mean skin edges, enough for what a vertex near a
+/// collider moves over one frame's iterations, small enough that the search
+/// stays cheap (a vertex that moves farther is looked up again).
+fn clearance_radius(colliders: &[&Collider], skin: &Skin, x: &[Vec3]) -> f32 {
+    let thickness = colliders.iter().map(|c| c.settings().thickness).fold(0.0, f32::max);
+    let total: f64 = skin.edges().iter().map(|&[a, b]| x[a as usize].distance(x[b as usize]) as f64).sum();
+    let mean = (total / skin.edges().len().max(1) as f64) as f32;
+    4.0 * thickness + 2.0 * mean
 }
 
 fn lerp(a: &[Vec3], b: &[Vec3], t: f32) -> Vec<Vec3> {

@@ -1,0 +1,297 @@
+//! Clearances of the skin from the colliders, measured once and reused by
+//! every in-loop pass of a frame.
+//!
+//! Most of a skin is nowhere near a collider, yet each pass used to look
+//! every vertex, edge and triangle up in the colliders' BVHs. A [`Clearance`]
+//! records, for every skin vertex at reference positions `x` (the start of
+//! the in-loop passes), a lower bound `D` on its distance to the colliders'
+//! BVH leaf boxes (each a triangle's box over the whole frame, grown by the
+//! thickness, so a point outside every box is farther than the thickness from
+//! every collider triangle at every time of the frame). A later pass then
+//! proves an element apart without a lookup by the ball argument:
+//!
+//! - a vertex moving from `s` to `e` stays within `r = max(|s − x|, |e − x|)`
+//!   of `x` (a ball is convex), so it is clear when `r < D`;
+//! - a point `(1−u)·a(t) + u·b(t)` of a moving edge is within
+//!   `max(r_a, r_b)` of the point `(1−u)·x_a + u·x_b` of the reference edge,
+//!   whose distance to the boxes is at least `max((D_a + D_b − L)/2, max(D_a, D_b) − L)`
+//!   (distance is 1-Lipschitz; `L` the reference edge's length);
+//! - a point of a triangle is within its longest edge `L` of each corner, so
+//!   the reference triangle keeps `max_k D_k − L`, and a moving triangle is
+//!   clear when `max_k r_k` is less.
+//!
+//! The clearance belongs to the colliders' state it was measured against:
+//! every change of a collider's positions or settings gives it a new
+//! [`Collider::generation`], and a stale clearance is not used.
+
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
+
+use super::bvh::Bounds;
+use super::collider::Collider;
+use super::response::Skin;
+use crate::mesh::validate_positions;
+use crate::{Error, Result};
+
+/// Distance bounds of a skin's vertices, edges and triangles at reference
+/// positions from a set of colliders.
+#[derive(Debug, Clone)]
+pub struct Clearance {
+    reference: Vec<Vec3>,
+    /// Per vertex: a lower bound on the distance from `reference[i]` to every
+    /// leaf box, less a rounding margin, capped at the radius searched.
+    vertex: Vec<f32>,
+    /// Per skin edge and triangle: the same for every point of the element
+    /// at the reference positions (0 when nothing can be said).
+    edge: Vec<f32>,
+    triangle: Vec<f32>,
+    /// [`Collider::generation`] of each collider measured against.
+    generations: Vec<u64>,
+}
+
+impl Clearance {
+    /// Measures the clearance of `skin` at `positions` from `colliders`,
+    /// searching up to `radius` (larger clearances are recorded as `radius`:
+    /// a vertex that moves farther than that since `positions` is looked up
+    /// again).
+    pub fn new(colliders: &[&Collider], skin: &Skin, positions: &[Vec3], radius: f32) -> Result<Self> {
+        validate_positions("reference positions", positions)?;
+        if positions.len() != skin.vertex_count() {
+            return Err(Error::invalid(format!("{} reference positions given for a skin of {} vertices", positions.len(), skin.vertex_count())));
+        }
+        if !(radius.is_finite() && radius >= 0.0) {
+            return Err(Error::invalid(format!("clearance radius is {radius}; it must be finite and ≥ 0")));
+        }
+        // Boxes are f32, grown by the thickness in f32: allow for their rounding.
+        let scale = colliders
+            .iter()
+            .flat_map(|c| c.current().iter().chain(c.previous()))
+            .chain(positions)
+            .map(|p| p.abs().max_element())
+            .fold(1e-3f32, f32::max);
+        let margin = 4e-6 * scale as f64;
+        let vertex: Vec<f64> = positions
+            .par_iter()
+            .map(|&p| {
+                let query = Bounds { min: p - Vec3::splat(radius), max: p + Vec3::splat(radius) };
+                let mut nearest = radius as f64;
+                for c in colliders {
+                    let tree = c.tree();
+                    tree.query(&query, |t| {
+                        nearest = nearest.min(box_distance(p, &tree.primitive_bounds(t)));
+                        nearest > 0.0
+                    });
+                }
+                (nearest - margin).max(0.0)
+            })
+            .collect();
+        let at = |v: u32| positions[v as usize].as_dvec3();
+        let edge = skin
+            .edges()
+            .par_iter()
+            .map(|&[a, b]| {
+                let (da, db) = (vertex[a as usize], vertex[b as usize]);
+                let length = (at(a) - at(b)).length();
+                (0.5 * (da + db - length)).max(da.max(db) - length)
+            })
+            .map(round_down)
+            .collect();
+        let triangle = skin
+            .triangles()
+            .par_iter()
+            .map(|&corners| {
+                let x = corners.map(at);
+                let longest = (x[0] - x[1]).length().max((x[1] - x[2]).length()).max((x[2] - x[0]).length());
+                corners.iter().map(|&v| vertex[v as usize]).fold(0.0, f64::max) - longest
+            })
+            .map(round_down)
+            .collect();
+        Ok(Clearance {
+            reference: positions.to_vec(),
+            vertex: vertex.into_iter().map(round_down).collect(),
+            edge,
+            triangle,
+            generations: colliders.iter().map(|c| c.generation()).collect(),
+        })
+    }
+
+    /// Whether this clearance was measured against exactly these colliders in
+    /// their present state, for a skin of `vertex_count` vertices.
+    pub fn is_valid_for(&self, colliders: &[&Collider], vertex_count: usize) -> bool {
+        self.reference.len() == vertex_count
+            && self.generations.len() == colliders.len()
+            && self.generations.iter().zip(colliders).all(|(&g, c)| g == c.generation())
+    }
+
+    /// For a step `start → end` of the skin, which vertices, edges and
+    /// triangles (by index) are proven to stay out of every leaf box.
+    pub fn clear(&self, skin: &Skin, start: &[Vec3], end: &[Vec3]) -> Clear {
+        // How far each vertex gets from its reference position (its path lies
+        // in the ball of that radius), rounded up to f32.
+        let reach: Vec<f32> = (0..self.reference.len())
+            .into_par_iter()
+            .map(|i| {
+                let x = self.reference[i].as_dvec3();
+                let r = (start[i].as_dvec3() - x).length().max((end[i].as_dvec3() - x).length());
+                round_up(r)
+            })
+            .collect();
+        let vertex = reach.par_iter().zip(&self.vertex).map(|(&r, &d)| r < d).collect();
+        let edge = skin.edges().par_iter().zip(&self.edge).map(|(&[a, b], &d)| reach[a as usize].max(reach[b as usize]) < d).collect();
+        let triangle = skin
+            .triangles()
+            .par_iter()
+            .zip(&self.triangle)
+            .map(|(&[a, b, c], &d)| reach[a as usize].max(reach[b as usize]).max(reach[c as usize]) < d)
+            .collect();
+        Clear { vertex, edge, triangle }
+    }
+}
+
+/// What [`Clearance::clear`] proved for one step.
+pub struct Clear {
+    pub vertex: Vec<bool>,
+    pub edge: Vec<bool>,
+    pub triangle: Vec<bool>,
+}
+
+/// The largest f32 not above `x` (0 for negative or NaN `x`: nothing proven).
+fn round_down(x: f64) -> f32 {
+    if !(x > 0.0) {
+        return 0.0;
+    }
+    let f = x as f32;
+    if f as f64 > x { f32::from_bits(f.to_bits() - 1) } else { f }
+}
+
+/// The smallest f32 not below `x` (infinite for NaN: nothing proven).
+fn round_up(x: f64) -> f32 {
+    if x.is_nan() {
+        return f32::INFINITY;
+    }
+    let f = x as f32;
+    if (f as f64) < x { f32::from_bits(f.to_bits() + 1) } else { f }
+}
+
+/// Euclidean distance from `p` to box `b` (0 inside), in f64.
+fn box_distance(p: Vec3, b: &Bounds) -> f64 {
+    let (p, lo, hi) = (p.as_dvec3(), b.min.as_dvec3(), b.max.as_dvec3());
+    (lo - p).max(p - hi).max(DVec3::ZERO).length()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::collide::collider::ColliderSettings;
+    use crate::collide::geometry::point_triangle_distance_squared;
+    use crate::mesh::shapes::grid;
+    use proptest::prelude::*;
+
+    /// A small collider: two triangles moving over the frame.
+    fn collider(shift: Vec3, thickness: f32) -> Collider {
+        let rest = [Vec3::new(-0.3, -0.3, 0.0), Vec3::new(0.4, -0.2, 0.1), Vec3::new(0.1, 0.5, -0.1), Vec3::new(-0.2, 0.3, 0.3)];
+        let tris = [[0, 1, 2], [0, 2, 3]];
+        let mut c = Collider::new(&rest, &tris, ColliderSettings::new(thickness, 0.0)).unwrap();
+        c.update(&rest.map(|p| p + shift)).unwrap();
+        c
+    }
+
+    /// The smallest distance between a moving skin point and the collider's
+    /// triangles at any time of the frame (sampled, both sampled densely).
+    fn sampled_distance(c: &Collider, points: impl Fn(f64) -> Vec<DVec3>) -> f64 {
+        let mut min = f64::INFINITY;
+        for i in 0..=40 {
+            let t = i as f64 / 40.0;
+            // The collider anywhere in its sweep, the skin anywhere on its step.
+            for j in 0..=8 {
+                let s = j as f64 / 8.0;
+                let at = |v: u32| c.previous()[v as usize].as_dvec3().lerp(c.current()[v as usize].as_dvec3(), s);
+                for tri in c.triangles() {
+                    for p in points(t) {
+                        min = min.min(point_triangle_distance_squared(p, at(tri[0]), at(tri[1]), at(tri[2])).sqrt());
+                    }
+                }
+            }
+        }
+        min
+    }
+
+    fn small(range: f32) -> impl Strategy<Value = Vec3> {
+        (-range..range, -range..range, -range..range).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+        /// Whatever the clearance proves clear stays farther than the
+        /// thickness from the collider over the whole frame.
+        #[test]
+        fn what_is_clear_stays_apart(offset in small(0.6), shift in small(0.1), wobble in prop::collection::vec(small(0.08), 2 * 64),
+                                     thickness in 0.0f32..0.05, radius in 0.05f32..0.5) {
+            let mesh = grid(6, 6, 0.6);
+            assert!(mesh.positions.len() <= 64);
+            let skin = Skin::from_mesh(mesh.input()).unwrap();
+            let c = collider(shift, thickness);
+            let reference: Vec<Vec3> = mesh.positions.iter().map(|&p| p + offset).collect();
+            let clearance = Clearance::new(&[&c], &skin, &reference, radius).unwrap();
+            prop_assert!(clearance.is_valid_for(&[&c], reference.len()));
+            let start: Vec<Vec3> = reference.iter().zip(&wobble[..64]).map(|(&p, &w)| p + w).collect();
+            let end: Vec<Vec3> = reference.iter().zip(&wobble[64..]).map(|(&p, &w)| p + w).collect();
+            let clear = clearance.clear(&skin, &start, &end);
+            let path = |v: u32, t: f64| start[v as usize].as_dvec3().lerp(end[v as usize].as_dvec3(), t);
+            let sep = thickness as f64;
+            for (i, _) in clear.vertex.iter().enumerate().filter(|(_, &c)| c) {
+                let d = sampled_distance(&c, |t| vec![path(i as u32, t)]);
+                prop_assert!(d > sep, "vertex {i} clear but reaches {d} <= {sep}");
+            }
+            for (k, _) in clear.edge.iter().enumerate().filter(|(_, &c)| c) {
+                let [a, b] = skin.edges()[k];
+                let d = sampled_distance(&c, |t| (0..=6).map(|j| path(a, t).lerp(path(b, t), j as f64 / 6.0)).collect());
+                prop_assert!(d > sep, "edge {k} clear but reaches {d} <= {sep}");
+            }
+            for (k, _) in clear.triangle.iter().enumerate().filter(|(_, &c)| c) {
+                let [a, b, cc] = skin.triangles()[k];
+                let d = sampled_distance(&c, |t| {
+                    let (pa, pb, pc) = (path(a, t), path(b, t), path(cc, t));
+                    [(1.0, 0.0), (0.0, 1.0), (0.0, 0.0), (1.0 / 3.0, 1.0 / 3.0), (0.5, 0.5), (0.5, 0.0), (0.0, 0.5)]
+                        .iter()
+                        .map(|&(u, v)| pa * (1.0 - u - v) + pb * u + pc * v)
+                        .collect()
+                });
+                prop_assert!(d > sep, "triangle {k} clear but reaches {d} <= {sep}");
+            }
+        }
+    }
+
+    #[test]
+    fn far_skin_is_clear_and_touching_skin_is_not() {
+        let mesh = grid(6, 6, 1.2);
+        let skin = Skin::from_mesh(mesh.input()).unwrap();
+        let c = collider(Vec3::ZERO, 0.01);
+        for (lift, expect) in [(2.0, true), (0.0, false)] {
+            let x: Vec<Vec3> = mesh.positions.iter().map(|&p| p + Vec3::new(0.0, 0.0, lift)).collect();
+            let clearance = Clearance::new(&[&c], &skin, &x, 0.5).unwrap();
+            let clear = clearance.clear(&skin, &x, &x);
+            assert_eq!(clear.vertex.iter().all(|&c| c), expect, "lift {lift}");
+            assert_eq!(clear.edge.iter().all(|&c| c), expect, "lift {lift}");
+            assert_eq!(clear.triangle.iter().all(|&c| c), expect, "lift {lift}");
+        }
+    }
+
+    #[test]
+    fn a_moved_collider_makes_the_clearance_stale() {
+        let mesh = grid(3, 3, 1.0);
+        let skin = Skin::from_mesh(mesh.input()).unwrap();
+        let mut c = collider(Vec3::ZERO, 0.01);
+        let clearance = Clearance::new(&[&c], &skin, &mesh.positions, 0.2).unwrap();
+        assert!(clearance.is_valid_for(&[&c], mesh.positions.len()));
+        assert!(!clearance.is_valid_for(&[&c], mesh.positions.len() + 1));
+        let copy = c.clone();
+        assert!(clearance.is_valid_for(&[&copy], mesh.positions.len()), "a clone is the same state");
+        c.update(copy.current()).unwrap();
+        assert!(!clearance.is_valid_for(&[&c], mesh.positions.len()), "a new frame is a new state");
+        assert!(!clearance.is_valid_for(&[&copy, &copy], mesh.positions.len()));
+        assert!(Clearance::new(&[&c], &skin, &mesh.positions[1..], 0.2).is_err());
+        assert!(Clearance::new(&[&c], &skin, &mesh.positions, f32::NAN).is_err());
+    }
+}
