@@ -235,6 +235,12 @@ fn incidence<'e>(n: usize, elements: impl Iterator<Item = &'e [u32]> + Clone) ->
     (offsets, list)
 }
 
+/// Parts of the step that get a slab each when one slab for the whole step
+/// does not prove a skin edge apart from a moving collider (a contact sliding
+/// over a curved collider). Against a still collider such a failure is
+/// nearly always a real contact, and slicing would only add work.
+const SLICES: usize = 8;
+
 /// The colliders one skin collides with, borrowed for a step.
 pub struct ColliderSet<'a> {
     colliders: Vec<&'a Collider>,
@@ -337,7 +343,7 @@ impl<'a> ColliderSet<'a> {
         for (c, col) in self.colliders.iter().enumerate() {
             let params = self.ccd_params(col.settings().thickness as f64);
             self.candidate_triangles(c, &query, &mut candidates);
-            if self.slab_apart(c, &candidates, None, &[s64], &[e64], motion, params.min_separation) {
+            if self.slab_apart(c, &candidates, &[s64], &[e64], motion, params.min_separation, 1) {
                 continue;
             }
             for &t in &candidates {
@@ -382,46 +388,70 @@ impl<'a> ColliderSet<'a> {
         });
     }
 
-    /// Whether a skin element (corners `start → end`) provably stays farther
-    /// than `separation` from all of collider `c`'s `triangles` (and so from
-    /// their edges and vertices) over the step, by one slab
-    /// ([`proximity::separated_along`]) instead of a proof per pair. The
-    /// direction is `normal` if given, else the normal of the triangle
-    /// nearest to the element's end; the frame translates with that
-    /// triangle's first corner. A resting contact on a locally convex
-    /// collider passes; anything else falls through to the pairwise tests.
+    /// Whether a skin element (corners `start → end`, at most 3) provably
+    /// stays farther than `separation` from all of collider `c`'s `triangles`
+    /// (and so from their edges and vertices) over the step, by slabs
+    /// ([`proximity::separated_along`]) instead of a proof per pair: one slab
+    /// for each of `slices` equal parts of the step (a contact that slides or
+    /// passes a curved collider needs several directions). A slab's
+    /// direction is the normal of the triangle nearest to the element at
+    /// the end of its part; its frame translates with that triangle's first
+    /// corner. Resting contacts on a locally convex collider pass; anything
+    /// else falls through to the pairwise tests.
     #[allow(clippy::too_many_arguments)]
-    fn slab_apart(&self, c: usize, triangles: &[u32], normal: Option<DVec3>, start: &[DVec3], end: &[DVec3], motion: ColliderMotion, separation: f64) -> bool {
+    fn slab_apart(&self, c: usize, triangles: &[u32], start: &[DVec3], end: &[DVec3], motion: ColliderMotion, separation: f64, slices: usize) -> bool {
         if triangles.is_empty() {
             return true;
         }
+        let motion = self.motions[c].unwrap_or(motion);
+        (0..slices).all(|k| {
+            let (t0, t1) = (k as f64 / slices as f64, (k + 1) as f64 / slices as f64);
+            self.slab_apart_over(c, triangles, start, end, motion, separation, t0, t1)
+        })
+    }
+
+    /// One slab of [`Self::slab_apart`], over the part `t0..t1` of the step.
+    #[allow(clippy::too_many_arguments)]
+    fn slab_apart_over(&self, c: usize, triangles: &[u32], start: &[DVec3], end: &[DVec3], motion: ColliderMotion, separation: f64, t0: f64, t1: f64) -> bool {
+        let count = start.len().min(3);
+        let (mut from, mut to) = ([DVec3::ZERO; 3], [DVec3::ZERO; 3]);
+        for k in 0..count {
+            from[k] = start[k] + t0 * (end[k] - start[k]);
+            to[k] = start[k] + t1 * (end[k] - start[k]);
+        }
+        let (from, to) = (&from[..count], &to[..count]);
         let col = self.colliders[c];
         let (tris, previous, current) = (col.triangles(), col.previous(), col.current());
-        let centre = end.iter().copied().sum::<DVec3>() / end.len() as f64;
+        let at = |v: u32, t: f64| {
+            let p = d(current[v as usize]);
+            match motion {
+                ColliderMotion::AtCurrent => p,
+                ColliderMotion::Swept if t == 1.0 => p,
+                ColliderMotion::Swept => {
+                    let q = d(previous[v as usize]);
+                    q + t * (p - q)
+                }
+            }
+        };
+        let centre = to.iter().copied().sum::<DVec3>() / count as f64;
         let mut anchor = (f64::INFINITY, triangles[0]);
         for &t in triangles {
-            let gap = (d(current[tris[t as usize][0] as usize]) - centre).length_squared();
+            let gap = (at(tris[t as usize][0], t1) - centre).length_squared();
             if gap < anchor.0 {
                 anchor = (gap, t);
             }
         }
-        let motion = self.motions[c].unwrap_or(motion);
-        let (tri0, tri1) = self.triangle_ends(c, anchor.1 as usize, motion);
-        let Some(n) = normal.or_else(|| triangle_normal(tri1[0], tri1[1], tri1[2])) else { return false };
-        let corners = triangles.iter().flat_map(|&t| tris[t as usize]);
-        match motion {
+        let [a, b, cc] = tris[anchor.1 as usize];
+        let Some(n) = triangle_normal(at(a, t1), at(b, t1), at(cc, t1)) else { return false };
+        let shift = at(a, t1) - at(a, t0);
+        let corners = triangles.iter().flat_map(|&t| tris[t as usize]).map(|v| match motion {
             ColliderMotion::AtCurrent => {
-                let still = corners.map(|v| {
-                    let p = d(current[v as usize]);
-                    (p, p)
-                });
-                proximity::separated_along(n, DVec3::ZERO, start, end, still, separation)
+                let p = d(current[v as usize]);
+                (p, p)
             }
-            ColliderMotion::Swept => {
-                let moving = corners.map(|v| (d(previous[v as usize]), d(current[v as usize])));
-                proximity::separated_along(n, tri1[0] - tri0[0], start, end, moving, separation)
-            }
-        }
+            ColliderMotion::Swept => (at(v, t0), at(v, t1)),
+        });
+        proximity::separated_along(n, shift, from, to, corners, separation)
     }
 
     /// The projected end of the first contact of `s → e` that needs one.
@@ -491,7 +521,10 @@ impl<'a> ColliderSet<'a> {
         for (c, col) in self.colliders.iter().enumerate() {
             let ccd_params = self.ccd_params(col.settings().thickness as f64);
             self.candidate_triangles(c, &query, &mut candidates);
-            if self.slab_apart(c, &candidates, None, &[sa, sb], &[ea, eb], params.motion, ccd_params.min_separation) {
+            if self.slab_apart(c, &candidates, &[sa, sb], &[ea, eb], params.motion, ccd_params.min_separation, 1)
+                || (self.motions[c].unwrap_or(params.motion) == ColliderMotion::Swept
+                    && self.slab_apart(c, &candidates, &[sa, sb], &[ea, eb], params.motion, ccd_params.min_separation, SLICES))
+            {
                 continue;
             }
             seen.clear();
