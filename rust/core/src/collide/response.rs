@@ -41,11 +41,13 @@
 //! // pass 1: from last frame's collision-free output towards this frame's input
 //! let mut x = input.clone();
 //! let stats = set.resolve_path(&last_output, &mut x, &skin, &ResolveParams::first_pass())?;
-//! // pass 2: inside the solver loop
+//! // pass 2: inside the solver loop; the clearance lets every pass skip the
+//! // skin that cannot have reached a collider since it was measured
+//! let clearance = Clearance::new(set.colliders(), &skin, &x, radius)?;
 //! for _ in 0..iterations {
 //!     let before = x.clone();
 //!     solver.iterate(&mut x);                         // global + local step
-//!     let s = set.resolve_path(&before, &mut x, &skin, &ResolveParams::in_loop())?;
+//!     let s = set.resolve_path_with(&before, &mut x, &skin, &ResolveParams::in_loop(), Some(&clearance))?;
 //!     // s.pinched → soft constraints / report
 //! }
 //! ```
