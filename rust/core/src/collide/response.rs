@@ -55,6 +55,9 @@
 //! The start positions must be collision-free (they are the output of the
 //! previous call); the result then is too, up to pinched vertices.
 
+use std::cell::RefCell;
+use std::thread::LocalKey;
+
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
@@ -243,6 +246,51 @@ fn incidence<'e>(n: usize, elements: impl Iterator<Item = &'e [u32]> + Clone) ->
 /// nearly always a real contact, and slicing would only add work.
 const SLICES: usize = 8;
 
+thread_local! {
+    /// Per-thread lists of an element's candidate triangles (or collider
+    /// vertices) and of the collider edges already tested, reused from one
+    /// skin element to the next: allocating and growing them per element
+    /// took about a tenth of an in-loop pass.
+    static CANDIDATES: RefCell<Vec<u32>> = const { RefCell::new(Vec::new()) };
+    static SEEN: RefCell<Vec<u32>> = const { RefCell::new(Vec::new()) };
+}
+
+/// A thread's buffer, lent empty for one element's tests and handed back
+/// when dropped. (Taken out of its cell rather than borrowed in place, so a
+/// nested use on the same thread just gets a fresh list.)
+struct Scratch {
+    list: Vec<u32>,
+    home: &'static LocalKey<RefCell<Vec<u32>>>,
+}
+
+impl Scratch {
+    fn lend(home: &'static LocalKey<RefCell<Vec<u32>>>) -> Self {
+        let mut list = home.with(|cell| std::mem::take(&mut *cell.borrow_mut()));
+        list.clear();
+        Scratch { list, home }
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let list = std::mem::take(&mut self.list);
+        let _ = self.home.try_with(|cell| *cell.borrow_mut() = list);
+    }
+}
+
+impl std::ops::Deref for Scratch {
+    type Target = Vec<u32>;
+    fn deref(&self) -> &Vec<u32> {
+        &self.list
+    }
+}
+
+impl std::ops::DerefMut for Scratch {
+    fn deref_mut(&mut self) -> &mut Vec<u32> {
+        &mut self.list
+    }
+}
+
 /// The colliders one skin collides with, borrowed for a step.
 pub struct ColliderSet<'a> {
     colliders: Vec<&'a Collider>,
@@ -341,14 +389,14 @@ impl<'a> ColliderSet<'a> {
         let query = Bounds::of_points(&[s, e]);
         let (s64, e64) = (d(s), d(e));
         let mut hits: Vec<VertexHit> = Vec::new();
-        let mut candidates = Vec::new();
+        let mut candidates = Scratch::lend(&CANDIDATES);
         for (c, col) in self.colliders.iter().enumerate() {
             let params = self.ccd_params(col.settings().thickness as f64);
             self.candidate_triangles(c, &query, &mut candidates);
             if self.slab_apart(c, &candidates, &[s64], &[e64], motion, params.min_separation, 1) {
                 continue;
             }
-            for &t in &candidates {
+            for &t in candidates.iter() {
                 let t = t as usize;
                 let ([a0, b0, c0], [a1, b1, c1]) = self.triangle_ends(c, t, motion);
                 // A still or rigidly translating triangle has a closed-form
@@ -518,8 +566,8 @@ impl<'a> ColliderSet<'a> {
         let (sa, sb, ea, eb) = (d(start[ia]), d(start[ib]), d(end[ia]), d(end[ib]));
         let query = Bounds::of_points(&[start[ia], start[ib], end[ia], end[ib]]);
         let mut hits: Vec<(usize, usize, ccd::CcdHit)> = Vec::new();
-        let mut seen: Vec<u32> = Vec::new();
-        let mut candidates = Vec::new();
+        let mut seen = Scratch::lend(&SEEN);
+        let mut candidates = Scratch::lend(&CANDIDATES);
         for (c, col) in self.colliders.iter().enumerate() {
             let ccd_params = self.ccd_params(col.settings().thickness as f64);
             self.candidate_triangles(c, &query, &mut candidates);
@@ -530,7 +578,7 @@ impl<'a> ColliderSet<'a> {
                 continue;
             }
             seen.clear();
-            for &t in &candidates {
+            for &t in candidates.iter() {
                 let t = t as usize;
                 let (tri0, tri1) = self.triangle_ends(c, t, params.motion);
                 if proximity::beyond_triangle_plane(tri0, tri1, &[sa, sb], &[ea, eb], ccd_params.min_separation) {
@@ -658,7 +706,7 @@ impl<'a> ColliderSet<'a> {
         let (e0, e1, e2) = (d(end[i0]), d(end[i1]), d(end[i2]));
         let query = Bounds::of_points(&[start[i0], start[i1], start[i2], end[i0], end[i1], end[i2]]);
         let mut hits: Vec<(usize, usize, ccd::CcdHit)> = Vec::new();
-        let mut candidates: Vec<u32> = Vec::new();
+        let mut candidates = Scratch::lend(&CANDIDATES);
         // A skin triangle resting on a collider faces it: its own normal is
         // the direction of a slab that proves all nearby collider vertices apart at once.
         let normal = triangle_normal(e0, e1, e2).or_else(|| triangle_normal(s0, s1, s2));
@@ -677,7 +725,7 @@ impl<'a> ColliderSet<'a> {
                     continue;
                 }
             }
-            for &v in &candidates {
+            for &v in candidates.iter() {
                 let v = v as usize;
                 let (r0, r1) = self.vertex_ends(c, v, params.motion);
                 if proximity::vertex_triangle_apart(r0, [s0, s1, s2], r1, [e0, e1, e2], ccd_params.min_separation) {
