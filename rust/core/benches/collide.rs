@@ -42,14 +42,6 @@ struct Scene {
     output: Vec<Vec3>,
 }
 
-/// Radius of the clearance search, as the deformer chooses it: four
-/// thicknesses and two mean skin edges.
-fn clearance_radius(scene: &Scene, x: &[Vec3]) -> f32 {
-    let edges = scene.topology.edges();
-    let total: f64 = edges.iter().map(|&[a, b]| x[a as usize].distance(x[b as usize]) as f64).sum();
-    4.0 * scene.collider.settings().thickness + 2.0 * (total / edges.len() as f64) as f32
-}
-
 /// One frame of collision work, as `PyramidDeformer::step` does it (the
 /// clearance measured once, at the start of the in-loop passes). The solver
 /// iteration is a stand-in: it pulls the skin halfway back to the flat input.
@@ -61,7 +53,8 @@ fn frame(scene: &mut Scene, k: usize) -> (usize, usize) {
     let first = set.resolve_path(&scene.output, &mut x, &scene.topology, &ResolveParams::first_pass()).unwrap();
     let mut pinched = first.pinched.len();
     let mut before = x.clone();
-    let clearance = Clearance::new(&[&scene.collider], &scene.topology, &x, clearance_radius(scene, &x)).unwrap();
+    let colliders = [&scene.collider];
+    let clearance = Clearance::new(&colliders, &scene.topology, &x, Clearance::default_radius(&colliders, &scene.topology, &x)).unwrap();
     for _ in 0..ITERATIONS {
         before.copy_from_slice(&x);
         for (p, q) in x.iter_mut().zip(input) {
@@ -190,7 +183,7 @@ fn main() {
         report.add(&case, "pass 1 (swept collider)", pass1, "ms", threads, "");
         let before = x.clone();
         let pulled: Vec<Vec3> = before.iter().zip(&scene.skin.positions).map(|(p, q)| *p + 0.5 * (*q - *p)).collect();
-        let radius = clearance_radius(&scene, &before);
+        let radius = Clearance::default_radius(&[&scene.collider], &scene.topology, &before);
         let mut clearance = None;
         let measure = with_threads(threads, || {
             median_ms(3, || clearance = Some(Clearance::new(&[&scene.collider], &scene.topology, &before, radius).unwrap()))

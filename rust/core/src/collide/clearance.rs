@@ -115,6 +115,17 @@ impl Clearance {
         })
     }
 
+    /// How far around each skin vertex to look: four collider thicknesses and
+    /// two mean skin edges (at `positions`). That covers what a vertex near a
+    /// collider moves over one frame's iterations and keeps the search cheap;
+    /// a vertex that moves farther is simply looked up again.
+    pub fn default_radius(colliders: &[&Collider], skin: &Skin, positions: &[Vec3]) -> f32 {
+        let thickness = colliders.iter().map(|c| c.settings().thickness).fold(0.0, f32::max);
+        let edges = skin.edges();
+        let total: f64 = edges.iter().map(|&[a, b]| positions[a as usize].distance(positions[b as usize]) as f64).sum();
+        4.0 * thickness + 2.0 * (total / edges.len().max(1) as f64) as f32
+    }
+
     /// Whether this clearance was measured against exactly these colliders in
     /// their present state, for a skin of `vertex_count` vertices.
     pub fn is_valid_for(&self, colliders: &[&Collider], vertex_count: usize) -> bool {

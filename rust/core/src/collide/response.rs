@@ -43,6 +43,7 @@
 //! let stats = set.resolve_path(&last_output, &mut x, &skin, &ResolveParams::first_pass())?;
 //! // pass 2: inside the solver loop; the clearance lets every pass skip the
 //! // skin that cannot have reached a collider since it was measured
+//! let radius = Clearance::default_radius(set.colliders(), &skin, &x);
 //! let clearance = Clearance::new(set.colliders(), &skin, &x, radius)?;
 //! for _ in 0..iterations {
 //!     let before = x.clone();

@@ -352,7 +352,7 @@ impl PyramidDeformer {
                 // Compliant colliders stand still here; they recede below.
                 let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
                 if measure_clearance && clearance.is_none() {
-                    clearance = Some(Clearance::new(&refs, skin, before, clearance_radius(&refs, skin, before))?);
+                    clearance = Some(Clearance::new(&refs, skin, before, Clearance::default_radius(&refs, skin, before))?);
                 }
                 let stats = ColliderSet::new(refs).resolve_path_with(before, after, skin, &ResolveParams::in_loop(), clearance.as_ref())?;
                 report.in_loop_contacts += stats.vertex_contacts + stats.edge_contacts + stats.collider_vertex_contacts;
@@ -486,17 +486,6 @@ fn limit_strain_with_contacts(
         x.copy_from_slice(&shortened);
     }
     Ok(pinched)
-}
-
-/// How far around each skin vertex a [`Clearance`] looks: four collider
-/// thicknesses and two mean skin edges, enough for what a vertex near a
-/// collider moves over one frame's iterations, small enough that the search
-/// stays cheap (a vertex that moves farther is looked up again).
-fn clearance_radius(colliders: &[&Collider], skin: &Skin, x: &[Vec3]) -> f32 {
-    let thickness = colliders.iter().map(|c| c.settings().thickness).fold(0.0, f32::max);
-    let total: f64 = skin.edges().iter().map(|&[a, b]| x[a as usize].distance(x[b as usize]) as f64).sum();
-    let mean = (total / skin.edges().len().max(1) as f64) as f32;
-    4.0 * thickness + 2.0 * mean
 }
 
 fn lerp(a: &[Vec3], b: &[Vec3], t: f32) -> Vec<Vec3> {
