@@ -100,8 +100,17 @@ pub fn reduce_min(src: &[u8], w: usize, h: usize) -> Vec<u8> {
 /// 2×2 average of metrics looked up through `ids` (or directly when `ids` is
 /// `None`), ignoring texels with no surface (zero metric).
 pub fn reduce_metric(table: &[[f32; 3]], ids: Option<&[u32]>, w: usize, h: usize) -> Vec<[f32; 3]> {
+    let mut out = Vec::new();
+    reduce_metric_into(table, ids, w, h, &mut out);
+    out
+}
+
+/// [`reduce_metric`] into `out`, whose allocation is reused (the solver
+/// reduces the deformed metric every frame).
+pub fn reduce_metric_into(table: &[[f32; 3]], ids: Option<&[u32]>, w: usize, h: usize, out: &mut Vec<[f32; 3]>) {
     let (cw, ch) = (w / 2, h / 2);
-    let mut out = vec![[0.0f32; 3]; cw * ch];
+    out.clear();
+    out.resize(cw * ch, [0.0f32; 3]);
     let get = |i: usize| match ids {
         Some(ids) => table[ids[i] as usize],
         None => table[i],
@@ -125,7 +134,6 @@ pub fn reduce_metric(table: &[[f32; 3]], ids: Option<&[u32]>, w: usize, h: usize
             }
         }
     });
-    out
 }
 
 #[cfg(test)]

@@ -72,6 +72,11 @@ pub struct Level {
     sy: Vec<f32>,
     start_x: Vec<f32>,
     start_y: Vec<f32>,
+    /// Levels below the coarsest: the next coarser level's change,
+    /// interpolated along x to this level's width (see [`prolong`]); kept
+    /// between frames so that no frame pays for fresh pages.
+    along_x: Vec<f32>,
+    along_y: Vec<f32>,
 }
 
 impl Level {
@@ -92,6 +97,8 @@ impl Level {
             sy: vec![0.0; n],
             start_x: Vec::new(),
             start_y: Vec::new(),
+            along_x: Vec::new(),
+            along_y: Vec::new(),
         }
     }
 }
@@ -391,6 +398,9 @@ pub struct Solver {
     /// Wall time of the per-frame preparation (restriction to the coarse
     /// levels, metric records) in the last solve (ms).
     pub last_prepare_ms: f64,
+    /// The finest level's per-triangle records of the last solve (kept for
+    /// their allocation).
+    records: Vec<TriRecord>,
     /// Run the reference kernels (tests compare them with the fast ones).
     pub(crate) reference: bool,
 }
@@ -415,7 +425,7 @@ impl Solver {
             level.start_y = vec![0.0; lw * lh];
             levels.push(level);
         }
-        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, reference: false }
+        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, records: Vec::new(), reference: false }
     }
 
     /// Back to the identity warp.
@@ -459,12 +469,16 @@ impl Solver {
             let (fine, coarse) = self.levels.split_at_mut(l);
             let f = &fine[l - 1];
             let c = &mut coarse[0];
-            c.gd = if l == 1 { maps::reduce_metric(gd_tri, Some(ids), f.w, f.h) } else { maps::reduce_metric(&f.gd, None, f.w, f.h) };
-            restrict(&f.dx, f.w, &c.mask, c.w, &mut c.dx, &mut c.start_x);
-            restrict(&f.dy, f.w, &c.mask, c.w, &mut c.dy, &mut c.start_y);
+            if l == 1 {
+                maps::reduce_metric_into(gd_tri, Some(ids), f.w, f.h, &mut c.gd);
+            } else {
+                maps::reduce_metric_into(&f.gd, None, f.w, f.h, &mut c.gd);
+            }
+            restrict(f, c);
         }
         // One record per triangle (deformed metric, rest lengths) for the finest level's sweeps.
-        let records: Vec<TriRecord> = self.go_tri.par_iter().zip(gd_tri).map(|(&o, &d)| sweep::tri_record(o, d)).collect();
+        let mut records = std::mem::take(&mut self.records);
+        self.go_tri.par_iter().zip(gd_tri).map(|(&o, &d)| sweep::tri_record(o, d)).collect_into_vec(&mut records);
         let avx2 = sweep::has_avx2();
         self.last_iterations = vec![0; self.levels.len()];
         self.last_level_ms = vec![0.0; self.levels.len() + 1];
@@ -505,6 +519,7 @@ impl Solver {
             }
             self.last_level_ms[l] = started.elapsed().as_secs_f64() * 1e3;
         }
+        self.records = records;
         let started = std::time::Instant::now();
         self.last_repair = repair_folds(&mut self.levels[0]);
         self.last_level_ms[self.levels.len()] = started.elapsed().as_secs_f64() * 1e3;
@@ -513,62 +528,88 @@ impl Solver {
 
 /// Fine → coarse: 2×2 mean of displacements, halved (coarse texels are twice
 /// as big), 0 where the coarse mask fixes the node; written to the coarse
-/// level and to its starting state.
-fn restrict(f: &[f32], fw: usize, mask: &[u8], cw: usize, c: &mut [f32], start: &mut [f32]) {
-    c.par_chunks_mut(cw).zip(start.par_chunks_mut(cw)).enumerate().for_each(|(y, (row, start))| {
-        let m = &mask[y * cw..(y + 1) * cw];
+/// level and to its starting state. Both channels in one pass.
+fn restrict(f: &Level, c: &mut Level) {
+    let (fw, cw) = (f.w, c.w);
+    let rows = c.dx.par_chunks_mut(cw).zip(c.dy.par_chunks_mut(cw)).zip(c.start_x.par_chunks_mut(cw).zip(c.start_y.par_chunks_mut(cw)));
+    rows.enumerate().for_each(|(y, ((cx, cy), (sx, sy)))| {
+        let m = &c.mask[y * cw..(y + 1) * cw];
+        let (fx0, fx1) = (&f.dx[2 * y * fw..(2 * y + 1) * fw], &f.dx[(2 * y + 1) * fw..(2 * y + 2) * fw]);
+        let (fy0, fy1) = (&f.dy[2 * y * fw..(2 * y + 1) * fw], &f.dy[(2 * y + 1) * fw..(2 * y + 2) * fw]);
         for x in 0..cw {
-            let i = 2 * y * fw + 2 * x;
-            let v = 0.125 * (f[i] + f[i + 1] + f[i + fw] + f[i + fw + 1]);
-            row[x] = if m[x] == 0 { 0.0 } else { v };
-            start[x] = row[x];
+            let keep = m[x] != 0;
+            let vx = 0.125 * (fx0[2 * x] + fx0[2 * x + 1] + fx1[2 * x] + fx1[2 * x + 1]);
+            let vy = 0.125 * (fy0[2 * x] + fy0[2 * x + 1] + fy1[2 * x] + fy1[2 * x + 1]);
+            (cx[x], cy[x]) = (if keep { vx } else { 0.0 }, if keep { vy } else { 0.0 });
+            (sx[x], sy[x]) = (cx[x], cy[x]);
         }
     });
 }
 
 /// Adds the change of the coarse level since its start, bilinearly
 /// interpolated and doubled, to the finer level (times the finer mask).
+///
+/// Two passes, both over contiguous rows: each coarse row's change is first
+/// interpolated along x to the fine width (half as many values as fine
+/// texels, each used by four fine rows), then each fine row blends its two
+/// coarse rows along y. The arithmetic is the bilinear formula's, in its order.
 fn prolong(c: &Level, f: &mut Level) {
     let (cw, ch, fw) = (c.w, c.h, f.w);
-    // The coarse change, doubled (fine texels are half as big), computed once.
-    let delta: Vec<(f32, f32)> = c.dx.par_iter().zip(&c.start_x).zip(c.dy.par_iter().zip(&c.start_y)).map(|((x, sx), (y, sy))| (2.0 * (x - sx), 2.0 * (y - sy))).collect();
-    // Fine column x samples coarse columns x0(x), x0(x) + 1 with weight tx(x).
-    let cols: Vec<(usize, usize, f32)> = (0..fw)
-        .map(|x| {
-            let u = ((x as f32 + 0.5) * 0.5 - 0.5).max(0.0);
-            let x0 = (u as usize).min(cw - 1);
-            (x0, (x0 + 1).min(cw - 1), u - x0 as f32)
-        })
-        .collect();
-    let mask = &f.mask;
-    let row = |(y, (rx, ry)): (usize, (&mut [f32], &mut [f32]))| {
-        let fm = &mask[y * fw..(y + 1) * fw];
-        if fm.iter().all(|&m| m == 0) {
-            return;
+    let parallel = fw * f.h >= PARALLEL_TEXELS;
+    // The coarse change, doubled (fine texels are half as big), along x.
+    let (mut hx, mut hy) = (std::mem::take(&mut f.along_x), std::mem::take(&mut f.along_y));
+    hx.resize(ch * fw, 0.0);
+    hy.resize(ch * fw, 0.0);
+    // Fine column x samples coarse column u = (x + 0.5)/2 − 0.5 (clamped at
+    // 0): column 2k + 1 blends coarse k and k + 1 by ¼, column 2k + 2 by ¾,
+    // column 0 takes coarse 0, and the last column (2·cw − 1) coarse cw − 1
+    // twice. These weights are exact, so this is `a·(1 − t) + b·t` as written.
+    debug_assert!(fw == 2 * cw && cw >= 2, "prolong: fine width {fw} is not twice the coarse width {cw}");
+    let along_x = |(y, (ox, oy)): (usize, (&mut [f32], &mut [f32]))| {
+        let r = y * cw..(y + 1) * cw;
+        for (o, (c, s)) in [(ox, (&c.dx[r.clone()], &c.start_x[r.clone()])), (oy, (&c.dy[r.clone()], &c.start_y[r.clone()]))] {
+            let d = |k: usize| 2.0 * (c[k] - s[k]);
+            o[0] = d(0) * 1.0 + d(1) * 0.0;
+            for k in 0..cw - 1 {
+                let (a, b) = (d(k), d(k + 1));
+                o[2 * k + 1] = a * 0.75 + b * 0.25;
+                o[2 * k + 2] = a * 0.25 + b * 0.75;
+            }
+            let a = d(cw - 1);
+            o[fw - 1] = a * 0.75 + a * 0.25;
         }
+    };
+    if parallel {
+        hx.par_chunks_mut(fw).zip(hy.par_chunks_mut(fw)).enumerate().for_each(along_x);
+    } else {
+        hx.chunks_mut(fw).zip(hy.chunks_mut(fw)).enumerate().for_each(along_x);
+    }
+    let mask = &f.mask;
+    let along_y = |(y, (rx, ry)): (usize, (&mut [f32], &mut [f32]))| {
+        let fm = &mask[y * fw..(y + 1) * fw];
         let v = ((y as f32 + 0.5) * 0.5 - 0.5).max(0.0);
         let y0 = (v as usize).min(ch - 1);
         let y1 = (y0 + 1).min(ch - 1);
         let ty = v - y0 as f32;
-        let (r0, r1) = (&delta[y0 * cw..(y0 + 1) * cw], &delta[y1 * cw..(y1 + 1) * cw]);
-        for (x, &(x0, x1, tx)) in cols.iter().enumerate() {
-            let m = fm[x];
-            if m == 0 {
-                continue;
-            }
-            let (a, b, cc, d) = (r0[x0], r0[x1], r1[x0], r1[x1]);
-            let ix = (a.0 * (1.0 - tx) + b.0 * tx) * (1.0 - ty) + (cc.0 * (1.0 - tx) + d.0 * tx) * ty;
-            let iy = (a.1 * (1.0 - tx) + b.1 * tx) * (1.0 - ty) + (cc.1 * (1.0 - tx) + d.1 * tx) * ty;
+        let (x0, x1) = (&hx[y0 * fw..(y0 + 1) * fw], &hx[y1 * fw..(y1 + 1) * fw]);
+        let (y0r, y1r) = (&hy[y0 * fw..(y0 + 1) * fw], &hy[y1 * fw..(y1 + 1) * fw]);
+        let (rx, ry) = (&mut rx[..fw], &mut ry[..fw]);
+        for ((((((ox, oy), &m), &a), &b), &c), &d) in rx.iter_mut().zip(ry.iter_mut()).zip(fm).zip(x0).zip(x1).zip(y0r).zip(y1r) {
             let mf = m as f32 * (1.0 / 255.0);
-            rx[x] += ix * mf;
-            ry[x] += iy * mf;
+            let ix = a * (1.0 - ty) + b * ty;
+            let iy = c * (1.0 - ty) + d * ty;
+            // Fixed texels keep their value exactly (not `+ 0·ix`, which
+            // would turn −0 into +0).
+            *ox = if m == 0 { *ox } else { *ox + ix * mf };
+            *oy = if m == 0 { *oy } else { *oy + iy * mf };
         }
     };
-    if fw * f.h >= PARALLEL_TEXELS {
-        f.dx.par_chunks_mut(fw).zip(f.dy.par_chunks_mut(fw)).enumerate().for_each(row);
+    if parallel {
+        f.dx.par_chunks_mut(fw).zip(f.dy.par_chunks_mut(fw)).enumerate().for_each(along_y);
     } else {
-        f.dx.chunks_mut(fw).zip(f.dy.chunks_mut(fw)).enumerate().for_each(row);
+        f.dx.chunks_mut(fw).zip(f.dy.chunks_mut(fw)).enumerate().for_each(along_y);
     }
+    (f.along_x, f.along_y) = (hx, hy);
 }
 
 /// Doubled signed areas of the two triangles of cell `(i, j)` — split along
@@ -694,6 +735,55 @@ fn scale_until_unfolded(lv: &mut Level) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Restriction and prolongation, rewritten as row passes, still compute
+    /// the formulas as first written, bit for bit (a coarse level of 8 × 8
+    /// under a 16 × 16 one, random displacements, a partial mask).
+    #[test]
+    fn row_pass_restriction_and_prolongation_equal_the_formulas() {
+        let (fw, cw) = (16usize, 8usize);
+        let mut next = 0x9e37_79b9u32;
+        let mut rand = move || {
+            next ^= next << 13;
+            next ^= next >> 17;
+            next ^= next << 5;
+            (next % 2001) as f32 / 1000.0 - 1.0
+        };
+        let fmask: Vec<u8> = (0..fw * fw).map(|i| [0, 128, 255, 255][i % 4]).collect();
+        let cmask: Vec<u8> = (0..cw * cw).map(|i| if i % 5 == 0 { 0 } else { 255 }).collect();
+        let mut f = Level::new(fw, fw, vec![0; fw * fw], fmask.clone());
+        let mut c = Level::new(cw, cw, vec![0; cw * cw], cmask.clone());
+        (c.start_x, c.start_y) = (vec![0.0; cw * cw], vec![0.0; cw * cw]);
+        f.dx.iter_mut().chain(f.dy.iter_mut()).for_each(|v| *v = rand());
+        restrict(&f, &mut c);
+        for y in 0..cw {
+            for x in 0..cw {
+                let i = 2 * y * fw + 2 * x;
+                for (fv, cv, sv) in [(&f.dx, &c.dx, &c.start_x), (&f.dy, &c.dy, &c.start_y)] {
+                    let v = 0.125 * (fv[i] + fv[i + 1] + fv[i + fw] + fv[i + fw + 1]);
+                    let want = if cmask[y * cw + x] == 0 { 0.0 } else { v };
+                    assert_eq!((cv[y * cw + x].to_bits(), sv[y * cw + x].to_bits()), (want.to_bits(), want.to_bits()));
+                }
+            }
+        }
+        c.dx.iter_mut().chain(c.dy.iter_mut()).for_each(|v| *v += rand());
+        let (before_x, before_y) = (f.dx.clone(), f.dy.clone());
+        prolong(&c, &mut f);
+        for y in 0..fw {
+            for x in 0..fw {
+                let (u, v) = (((x as f32 + 0.5) * 0.5 - 0.5).max(0.0), ((y as f32 + 0.5) * 0.5 - 0.5).max(0.0));
+                let (x0, y0) = ((u as usize).min(cw - 1), (v as usize).min(cw - 1));
+                let (x1, y1, tx, ty) = ((x0 + 1).min(cw - 1), (y0 + 1).min(cw - 1), u - x0 as f32, v - y0 as f32);
+                for (cv, sv, before, after) in [(&c.dx, &c.start_x, &before_x, &f.dx), (&c.dy, &c.start_y, &before_y, &f.dy)] {
+                    let d = |xx: usize, yy: usize| 2.0 * (cv[yy * cw + xx] - sv[yy * cw + xx]);
+                    let i = (d(x0, y0) * (1.0 - tx) + d(x1, y0) * tx) * (1.0 - ty) + (d(x0, y1) * (1.0 - tx) + d(x1, y1) * tx) * ty;
+                    let m = fmask[y * fw + x];
+                    let want = if m == 0 { before[y * fw + x] } else { before[y * fw + x] + i * (m as f32 * (1.0 / 255.0)) };
+                    assert_eq!(after[y * fw + x].to_bits(), want.to_bits(), "texel ({x}, {y})");
+                }
+            }
+        }
+    }
 
     /// The repair as it was first written: every pass over the whole grid.
     /// The local repair must give the same result, bit for bit.
