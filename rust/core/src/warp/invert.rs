@@ -22,8 +22,9 @@ use super::raster::Prepared;
 
 const BAND: usize = 64;
 
-/// Walk steps before the local search takes over (never needed on fold-free
-/// warps of the test fixtures; a safety net for pathological ones).
+/// Walk steps before [`walk_from`] gives up its first walk and walks again
+/// cell by cell from the same first cell (then the local search is the
+/// safety net for pathological warps).
 const MAX_WALK: usize = 48;
 /// A centre this far outside a triangle (in barycentric units) still counts as
 /// inside: it lies on the shared edge, where both sides interpolate the same.
@@ -374,15 +375,47 @@ pub(crate) fn walk(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y: usiz
 /// ended in the local search). Inside tests use unnormalised edge functions
 /// (compared with a tolerance scaled by the area), so the only division is the
 /// one of the triangle finally taken.
+///
+/// The first step may jump by the missed triangle's extended affine map (see
+/// [`walk_cells`]). Where the warp's compression changes quickly that jump
+/// can overshoot by more than the walk has steps (at 4096², a cell squeezed
+/// to a fifth of its area sent 30 texels 60 rows past their cell); such a
+/// walk is taken again from the same first cell, one cell per step.
 #[inline(always)]
 pub(crate) fn walk_from(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y: usize, start: (i32, i32)) -> ((f32, f32), usize) {
+    match walk_cells(dx, dy, w, h, x, y, start, true, MAX_WALK) {
+        Ok(found) => found,
+        Err(_) => retry_walk(dx, dy, w, h, x, y, start),
+    }
+}
+
+/// [`walk_from`]'s second walk, cell by cell (no jump), with room to cross
+/// the grid; the local search around where it stops if that fails too.
+#[cold]
+#[inline(never)]
+fn retry_walk(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y: usize, start: (i32, i32)) -> ((f32, f32), usize) {
+    match walk_cells(dx, dy, w, h, x, y, start, false, w + h) {
+        Ok((found, steps)) => (found, MAX_WALK + steps),
+        Err(last) => (search(dx, dy, w, h, x, y, last), usize::MAX),
+    }
+}
+
+/// At most `max_steps` cells of the walk from `start`, stepping across the
+/// cell edges the centre lies beyond; with `newton`, the first step instead
+/// jumps to where the missed triangle's affine map, extended, puts the
+/// centre's rest position, when that is further than a neighbour. The rest
+/// coordinates and the cells tried, or the last cell when the walk did not
+/// arrive.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn walk_cells(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y: usize, start: (i32, i32), newton: bool, max_steps: usize) -> Result<((f32, f32), usize), (usize, usize)> {
     // Grid coordinates fit in i32 (sides up to 16384), and conversions
     // between f32 and i32 are one instruction, those with usize a branchy
     // sequence (no unsigned 64-bit conversions before AVX-512).
     let (xf, yf) = (x as i32 as f32, y as i32 as f32);
     let (mut ci, mut cj) = (start.0 as usize, start.1 as usize);
     let cross = |o: (f32, f32), u: (f32, f32), v: (f32, f32)| (u.0 - o.0) * (v.1 - o.1) - (u.1 - o.1) * (v.0 - o.0);
-    for step in 1..=MAX_WALK {
+    for step in 1..=max_steps {
         let a = cj * w + ci;
         let (b, c, d) = (a + 1, a + w + 1, a + w);
         // Relative to the cell's rest corner, so that everything is O(1) and f32 is exact enough at 16384².
@@ -398,7 +431,7 @@ pub(crate) fn walk_from(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y:
         let tol0 = -EDGE_TOLERANCE * area0;
         if area0 > 0.0 && ea >= tol0 && eb >= tol0 && ec >= tol0 {
             let inv = 1.0 / area0;
-            return (rest_point(ci, cj, 0, [ea * inv, eb * inv, ec * inv]), step);
+            return Ok((rest_point(ci, cj, 0, [ea * inv, eb * inv, ec * inv]), step));
         }
         // Upper-left triangle (a, c, d).
         let area1 = cross(pa, pc, pd);
@@ -407,7 +440,7 @@ pub(crate) fn walk_from(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y:
         let tol1 = -EDGE_TOLERANCE * area1;
         if area1 > 0.0 && fa >= tol1 && fc >= tol1 && fd >= tol1 {
             let inv = 1.0 / area1;
-            return (rest_point(ci, cj, 1, [fa * inv, fc * inv, fd * inv]), step);
+            return Ok((rest_point(ci, cj, 1, [fa * inv, fc * inv, fd * inv]), step));
         }
         // Step across the cell edges the centre lies beyond: in (a, b, c) the
         // weight of a is the side of the right edge b–c and that of c the
@@ -424,7 +457,7 @@ pub(crate) fn walk_from(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y:
         }
         let mut nx = (ci as i64 + sx).clamp(0, w as i64 - 2) as usize;
         let mut ny = (cj as i64 + sy).clamp(0, h as i64 - 2) as usize;
-        if step == 1 && (area0 > 0.0 || area1 > 0.0) {
+        if newton && step == 1 && (area0 > 0.0 || area1 > 0.0) {
             // The first step jumps to the cell where the missed triangle's
             // affine map, extended, puts the centre's rest position (a Newton
             // step): the first guess is off by about the displacement times
@@ -451,7 +484,7 @@ pub(crate) fn walk_from(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y:
         }
         (ci, cj) = (nx, ny);
     }
-    (search(dx, dy, w, h, x, y, (ci, cj)), usize::MAX)
+    Err((ci, cj))
 }
 
 /// Fallback of [`walk_from`]: the best triangle of the cells around `around`
@@ -544,3 +577,4 @@ pub fn invert_scatter(dx: &[f32], dy: &[f32], w: usize, h: usize, offset: Vec2, 
         }
     });
 }
+
