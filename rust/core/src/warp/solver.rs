@@ -72,11 +72,11 @@ pub struct Level {
     sy: Vec<f32>,
     start_x: Vec<f32>,
     start_y: Vec<f32>,
-    /// Levels below the coarsest: the next coarser level's change,
-    /// interpolated along x to this level's width (see [`prolong`]); kept
-    /// between frames so that no frame pays for fresh pages.
-    along_x: Vec<f32>,
-    along_y: Vec<f32>,
+    /// Levels below the coarsest: the next coarser level's change of `dx`
+    /// and `dy`, interpolated along x to this level's width (see
+    /// [`prolong`]); kept between frames so that no frame pays for fresh pages.
+    prolong_dx: Vec<f32>,
+    prolong_dy: Vec<f32>,
 }
 
 impl Level {
@@ -97,8 +97,8 @@ impl Level {
             sy: vec![0.0; n],
             start_x: Vec::new(),
             start_y: Vec::new(),
-            along_x: Vec::new(),
-            along_y: Vec::new(),
+            prolong_dx: Vec::new(),
+            prolong_dy: Vec::new(),
         }
     }
 }
@@ -557,7 +557,7 @@ fn prolong(c: &Level, f: &mut Level) {
     let (cw, ch, fw) = (c.w, c.h, f.w);
     let parallel = fw * f.h >= PARALLEL_TEXELS;
     // The coarse change, doubled (fine texels are half as big), along x.
-    let (mut hx, mut hy) = (std::mem::take(&mut f.along_x), std::mem::take(&mut f.along_y));
+    let (mut hx, mut hy) = (std::mem::take(&mut f.prolong_dx), std::mem::take(&mut f.prolong_dy));
     hx.resize(ch * fw, 0.0);
     hy.resize(ch * fw, 0.0);
     // Fine column x samples coarse column u = (x + 0.5)/2 − 0.5 (clamped at
@@ -591,10 +591,11 @@ fn prolong(c: &Level, f: &mut Level) {
         let y0 = (v as usize).min(ch - 1);
         let y1 = (y0 + 1).min(ch - 1);
         let ty = v - y0 as f32;
-        let (x0, x1) = (&hx[y0 * fw..(y0 + 1) * fw], &hx[y1 * fw..(y1 + 1) * fw]);
-        let (y0r, y1r) = (&hy[y0 * fw..(y0 + 1) * fw], &hy[y1 * fw..(y1 + 1) * fw]);
+        // The coarse rows below and above, interpolated along x: x and y channel.
+        let (below_x, above_x) = (&hx[y0 * fw..(y0 + 1) * fw], &hx[y1 * fw..(y1 + 1) * fw]);
+        let (below_y, above_y) = (&hy[y0 * fw..(y0 + 1) * fw], &hy[y1 * fw..(y1 + 1) * fw]);
         let (rx, ry) = (&mut rx[..fw], &mut ry[..fw]);
-        for ((((((ox, oy), &m), &a), &b), &c), &d) in rx.iter_mut().zip(ry.iter_mut()).zip(fm).zip(x0).zip(x1).zip(y0r).zip(y1r) {
+        for ((((((ox, oy), &m), &a), &b), &c), &d) in rx.iter_mut().zip(ry.iter_mut()).zip(fm).zip(below_x).zip(above_x).zip(below_y).zip(above_y) {
             let mf = m as f32 * (1.0 / 255.0);
             let ix = a * (1.0 - ty) + b * ty;
             let iy = c * (1.0 - ty) + d * ty;
@@ -609,7 +610,7 @@ fn prolong(c: &Level, f: &mut Level) {
     } else {
         f.dx.chunks_mut(fw).zip(f.dy.chunks_mut(fw)).enumerate().for_each(along_y);
     }
-    (f.along_x, f.along_y) = (hx, hy);
+    (f.prolong_dx, f.prolong_dy) = (hx, hy);
 }
 
 /// Doubled signed areas of the two triangles of cell `(i, j)` — split along
