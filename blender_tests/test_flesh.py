@@ -166,7 +166,20 @@ def test_a_compliant_collider_recedes_and_both_meshes_show_the_gap(tmp_path):
     recession = np.linalg.norm(arm_now - animated, axis=1)
     top = np.array([v.co.z > 0.05 for v in arm.data.vertices])
     assert recession.max() > 0.1 and recession[top].max() < 1e-5
-    assert settings.max_recession == np.float32(recession.max()) or abs(settings.max_recession - recession.max()) < 1e-4
+    # The bake reports the largest recession of any frame: measured the same way from what plays
+    # back. (Compared with the last frame's alone, an earlier frame's slightly larger value made
+    # this fail now and then.)
+    def largest_recession(frame: int) -> float:
+        receded = played_back(arm, frame)
+        arm.modifiers["Tegument Compliance"].show_viewport = False
+        goal = played_back(arm, frame)
+        arm.modifiers["Tegument Compliance"].show_viewport = True
+        return float(np.linalg.norm(receded - goal, axis=1).max())
+
+    over_the_bake = max(largest_recession(k) for k in range(1, frames + 1))
+    assert over_the_bake >= recession.max()
+    assert abs(settings.max_recession - over_the_bake) < 1e-5, (settings.max_recession, over_the_bake)
+    bpy.context.scene.frame_set(frames)
     # A gap: the arm's lowest point stays above the skin, which the torso holds up.
     skin_top = cache[-1][np.linalg.norm(cache[-1][:, :2], axis=1) < 0.05, 2].max()
     assert arm_now[:, 2].min() > skin_top
