@@ -107,13 +107,30 @@ def collider_objects(obj) -> list:
 
 
 def _world_triangles(collider, depsgraph) -> tuple[np.ndarray, np.ndarray]:
-    """``(positions (N, 3) world, triangles (T, 3))`` of the evaluated collider."""
+    """``(positions (N, 3) world, triangles (T, 3))`` of the evaluated collider, the triangles
+    in a canonical order (:func:`canonical_triangles`)."""
     evaluated = collider.evaluated_get(depsgraph)
     mesh = evaluated.data
     positions = to_world(mesh_arrays.positions(mesh), evaluated.matrix_world)
     triangles = np.empty(len(mesh.loop_triangles) * 3, dtype=np.int32)
     mesh.loop_triangles.foreach_get("vertices", triangles)
-    return np.ascontiguousarray(positions, dtype=np.float32), triangles.reshape(-1, 3)
+    return np.ascontiguousarray(positions, dtype=np.float32), canonical_triangles(triangles.reshape(-1, 3))
+
+
+def canonical_triangles(triangles: np.ndarray) -> np.ndarray:
+    """``triangles`` (T, 3) in an order that depends only on which triangles there are: each
+    starts at its lowest vertex (its winding kept), and they are sorted by their vertices.
+
+    The order of a mesh's faces and corners can differ where its vertices and triangles do not
+    (two UV spheres made by the same operator call listed their faces differently), and the order
+    of the triangles decides ties in the collision response: without this, two bakes of the same
+    scene differed in the fifth digit.
+    """
+    first = np.argmin(triangles, axis=1)
+    turn = (first[:, None] + np.arange(3)) % 3
+    triangles = np.take_along_axis(triangles, turn, axis=1)
+    order = np.lexsort((triangles[:, 2], triangles[:, 1], triangles[:, 0]))
+    return np.ascontiguousarray(triangles[order], dtype=np.int32)
 
 
 class ColliderRig:
