@@ -43,7 +43,7 @@ struct Scene {
 }
 
 /// One frame of collision work, as `PyramidDeformer::step` does it (the
-/// clearance measured once, at the start of the in-loop passes). The solver
+/// clearance and planes measured once, at the start of the in-loop passes). The solver
 /// iteration is a stand-in: it pulls the skin halfway back to the flat input.
 fn frame(scene: &mut Scene, k: usize) -> (usize, usize) {
     scene.collider.update(&at(&scene.sphere_rest, centre(k))).unwrap();
@@ -54,7 +54,7 @@ fn frame(scene: &mut Scene, k: usize) -> (usize, usize) {
     let mut pinched = first.pinched.len();
     let mut before = x.clone();
     let colliders = [&scene.collider];
-    let clearance = Clearance::new(&colliders, &scene.topology, &x, Clearance::default_radius(&colliders, &scene.topology, &x)).unwrap();
+    let clearance = Clearance::new(&colliders, &scene.topology, &x, Clearance::default_radius(&colliders, &scene.topology, &x)).unwrap().with_planes(&colliders).unwrap();
     for _ in 0..ITERATIONS {
         before.copy_from_slice(&x);
         for (p, q) in x.iter_mut().zip(input) {
@@ -186,9 +186,10 @@ fn main() {
         let radius = Clearance::default_radius(&[&scene.collider], &scene.topology, &before);
         let mut clearance = None;
         let measure = with_threads(threads, || {
-            median_ms(3, || clearance = Some(Clearance::new(&[&scene.collider], &scene.topology, &before, radius).unwrap()))
+            median_ms(3, || clearance = Some(Clearance::new(&[&scene.collider], &scene.topology, &before, radius).unwrap().with_planes(&[&scene.collider]).unwrap()))
         });
-        report.add(&case, "clearance (once per frame)", measure, "ms", threads, &format!("radius {radius:.4}"));
+        let planes = clearance.as_ref().and_then(|c| c.planes()).map_or(0, |p| p.vertex_count());
+        report.add(&case, "clearance and planes (once per frame)", measure, "ms", threads, &format!("radius {radius:.4}, planes around {planes} vertices"));
         let mut y = pulled.clone();
         let in_loop = with_threads(threads, || {
             median_ms(3, || {
@@ -196,14 +197,14 @@ fn main() {
                 set.resolve_path_with(&before, &mut y, &scene.topology, &ResolveParams::in_loop(), clearance.as_ref()).unwrap();
             })
         });
-        report.add(&case, "one in-loop pass", in_loop, "ms", threads, "with the clearance");
+        report.add(&case, "one in-loop pass", in_loop, "ms", threads, "with the clearance and planes");
         let in_loop_alone = with_threads(threads, || {
             median_ms(3, || {
                 y.copy_from_slice(&pulled);
                 set.resolve_path(&before, &mut y, &scene.topology, &ResolveParams::in_loop()).unwrap();
             })
         });
-        report.add(&case, "one in-loop pass without a clearance", in_loop_alone, "ms", threads, "");
+        report.add(&case, "one in-loop pass without a clearance", in_loop_alone, "ms", threads, "every element looked up");
         let audit_ms = with_threads(threads, || {
             median_ms(3, || {
                 audit(output_mesh.input(), &[&scene.collider], &AuditParams::default()).unwrap();

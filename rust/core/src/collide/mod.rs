@@ -10,6 +10,9 @@
 //! * [`collider`]: a triangle mesh moving from last frame to this frame, with
 //!   thickness, friction and a BVH over its swept triangles.
 //! * [`geometry`]: f64 helpers (normals, distances, crossing tests).
+//! * [`planes`]: supporting planes of the still colliders around the skin in
+//!   contact, measured with the clearance, that prove resting contacts apart
+//!   and lift the vertices the solver pulls back in, without a lookup.
 //! * [`proximity`]: cheap exact-distance proofs that a pair stays apart,
 //!   which spare resting contacts the interval CCD.
 //! * [`response`]: [`ColliderSet::resolve_path`], the building block of both
@@ -24,6 +27,7 @@ pub mod ccd;
 pub mod clearance;
 pub mod collider;
 pub mod geometry;
+pub mod planes;
 pub mod proximity;
 pub mod response;
 

@@ -343,7 +343,8 @@ impl PyramidDeformer {
         let any_colliders = !colliders.is_empty();
         let last_iteration = options.iterations.saturating_sub(1);
         // Where the skin is, at the start of the in-loop passes, relative to
-        // the colliders: the passes skip what cannot have reached them since.
+        // the colliders: the passes skip what cannot have reached them since,
+        // and lift what the solve pulls back in along the colliders' planes.
         // Receding compliant colliders change every pass, so they get none.
         let mut clearance: Option<Clearance> = None;
         let measure_clearance = any_colliders && compliant.is_empty();
@@ -352,7 +353,7 @@ impl PyramidDeformer {
                 // Compliant colliders stand still here; they recede below.
                 let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
                 if measure_clearance && clearance.is_none() {
-                    clearance = Some(Clearance::new(&refs, skin, before, Clearance::default_radius(&refs, skin, before))?);
+                    clearance = Some(Clearance::new(&refs, skin, before, Clearance::default_radius(&refs, skin, before))?.with_planes(&refs)?);
                 }
                 let stats = ColliderSet::new(refs).resolve_path_with(before, after, skin, &ResolveParams::in_loop(), clearance.as_ref())?;
                 report.in_loop_contacts += stats.vertex_contacts + stats.edge_contacts + stats.collider_vertex_contacts;

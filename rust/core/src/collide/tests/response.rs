@@ -302,3 +302,53 @@ fn a_clearance_changes_nothing_but_the_work() {
     let report = audit(PolyMesh { positions: with, ..skin.clone() }.input(), &[&c], &AuditParams::default()).unwrap();
     assert!(report.vertices_inside.is_empty() && report.edges_crossing.is_empty() && report.collider_edges_crossing.is_empty());
 }
+
+#[test]
+fn planes_lift_the_skin_pulled_back_in_without_a_lookup_and_keep_it_out() {
+    // The scene of the test above, with the colliders' supporting planes
+    // measured with the clearance: the vertices each pass pulls back into the
+    // sphere are lifted along a plane instead of their first contact's
+    // triangle, so positions differ a little, but nothing gets in.
+    let skin = grid(40, 40, 3.0);
+    let thickness = 0.02;
+    let c = collider_of(&quad_sphere(12, 0.6), Vec3::ZERO, ColliderSettings::new(thickness, 0.3));
+    let topo = Skin::from_mesh(skin.input()).unwrap();
+    let set = ColliderSet::new([&c]);
+    let target: Vec<Vec3> = skin.positions.iter().map(|&p| p + Vec3::new(0.1, 0.0, 0.3)).collect();
+    let mut start: Vec<Vec3> = skin.positions.iter().map(|&p| p + Vec3::new(0.0, 0.0, 0.8)).collect();
+    let mut first = target.clone();
+    set.resolve_path(&start, &mut first, &topo, &ResolveParams::first_pass()).unwrap();
+    start = first;
+    let clearance = Clearance::new(&[&c], &topo, &start, 0.2).unwrap().with_planes(&[&c]).unwrap();
+    assert!(clearance.planes().unwrap().vertex_count() > 100);
+    let (mut with, mut without) = (start.clone(), start.clone());
+    let (mut lifted, mut contacts) = (0, 0);
+    for _ in 0..6 {
+        let step = |x: &mut Vec<Vec3>| {
+            let before = x.clone();
+            for (p, q) in x.iter_mut().zip(&target) {
+                *p += 0.5 * (*q - *p);
+            }
+            before
+        };
+        let (b1, b2) = (step(&mut with), step(&mut without));
+        let s1 = set.resolve_path_with(&b1, &mut with, &topo, &ResolveParams::in_loop(), Some(&clearance)).unwrap();
+        let s2 = set.resolve_path(&b2, &mut without, &topo, &ResolveParams::in_loop()).unwrap();
+        assert!(s1.pinched.is_empty() && s2.pinched.is_empty());
+        lifted += s1.plane_lifts;
+        contacts += s1.vertex_contacts;
+        assert_eq!(s2.plane_lifts, 0, "no planes, no lifts");
+        let report = audit(PolyMesh { positions: with.clone(), ..skin.clone() }.input(), &[&c], &AuditParams::default()).unwrap();
+        assert!(report.vertices_inside.is_empty() && report.edges_crossing.is_empty() && report.collider_edges_crossing.is_empty());
+    }
+    assert!(lifted > contacts / 2, "the planes should resolve most contacts: {lifted} of {contacts}");
+    // Resting skin is as close to the sphere either way: the planes of a
+    // locally convex collider are its triangles' own.
+    let gap = |x: &[Vec3]| {
+        let gaps: Vec<f32> = x.iter().map(|p| p.length() - 0.6).filter(|&g| g < 3.0 * thickness).collect();
+        (gaps.iter().sum::<f32>() / gaps.len() as f32, gaps.len())
+    };
+    let ((gap_with, n_with), (gap_without, n_without)) = (gap(&with), gap(&without));
+    assert!(n_with.abs_diff(n_without) <= n_without / 20, "resting vertices: {n_with} with planes, {n_without} without");
+    assert!((gap_with - gap_without).abs() < 0.1 * thickness, "mean gap {gap_with} with planes, {gap_without} without");
+}

@@ -1,0 +1,396 @@
+//! Supporting planes of the colliders around the skin in contact, measured
+//! once per frame and used by every in-loop pass.
+//!
+//! Through a frame's in-loop passes the colliders stand still, yet every pass
+//! pulls the thousands of skin vertices resting on them back in (the solver
+//! does not know about contacts) and every pass looked each of them, its
+//! edges and its triangles up in the BVH again, proved the resting ones apart
+//! and found the first contact of the others: about 30 ms a pass on the
+//! benchmark's sliding contact. [`LocalPlanes`] does that lookup once.
+//!
+//! For a skin vertex near a collider, at reference positions `x` (the start
+//! of the in-loop passes), take the box `B = x ± R` and every collider
+//! triangle whose BVH leaf box (its box over the frame, grown by the
+//! thickness) meets `B`. A triangle that is not among them keeps every point
+//! of `B` farther than its thickness. For a unit direction `n`, let
+//! `level = max(n·q + thickness)` over the corners `q` of those triangles:
+//! every point `y` of `B` with `n·y ≥ level` is farther than the thickness
+//! from every triangle that is (all of a triangle lies below its corners'
+//! highest level). So a skin element whose corners, at both ends of a step,
+//! lie in `B` and on or above the level — a convex set, so its whole swept
+//! volume does — cannot touch a still collider during the step: vertex–face,
+//! edge–edge and collider vertex–skin face contacts alike.
+//!
+//! Each vertex keeps up to [`PLANES_PER_VERTEX`] such planes, the normals of
+//! the collider triangles nearest to it (outward on closed colliders, towards
+//! the vertex on open ones), and only those it is itself above: on a locally
+//! convex collider they are the triangles' own planes lifted by the
+//! thickness. In a crease or where two colliders meet no plane qualifies and
+//! the passes fall back to the pairwise tests.
+//!
+//! The planes also resolve: a vertex whose step starts above a plane and
+//! ends below it, inside its box, is lifted back along that plane's normal
+//! (the plane needing the smallest lift), with the same position-based
+//! friction as a contact with a triangle ([`super::response`]). Its new step
+//! is then proven clear by the same plane, so no second lookup is needed.
+
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
+
+use super::bvh::Bounds;
+use super::collider::Collider;
+use super::geometry::triangle_normal;
+
+/// Planes kept per skin vertex: the normals of the nearest collider
+/// triangles. More cover a vertex sliding farther within a frame; each costs
+/// a few dot products per test.
+pub const PLANES_PER_VERTEX: usize = 4;
+
+/// A half-space `normal·y ≥ level` clear of the colliders within a vertex's box.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Plane {
+    normal: DVec3,
+    level: f64,
+    /// The collider whose triangle gave the normal: its friction applies to
+    /// contacts resolved against this plane.
+    collider: u32,
+}
+
+/// What the planes say about one vertex's step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum VertexStep {
+    /// Proven to keep its distance from every collider.
+    Clear,
+    /// Lifted to this end position, whose step is proven clear.
+    Lifted(Vec3),
+    /// Nothing proven: the pairwise tests decide.
+    Unknown,
+}
+
+/// How a lifted vertex is pushed out and rubs along the plane.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Lift {
+    /// Distance added above the level (per collider, from its thickness).
+    pub slack: f64,
+    pub static_friction: f64,
+    pub kinetic_friction: f64,
+}
+
+/// Supporting planes of the still colliders around each skin vertex near
+/// them (see the module documentation).
+#[derive(Debug, Clone, Default)]
+pub struct LocalPlanes {
+    /// Per vertex, its box `reference ± radius` (meaningful where it has planes).
+    boxes: Vec<Bounds>,
+    /// CSR offsets into `planes`, one more than the vertices.
+    offsets: Vec<u32>,
+    planes: Vec<Plane>,
+}
+
+impl LocalPlanes {
+    /// Measures the planes of the vertices `near` (the others get none) at
+    /// `positions`, within `radius`, against `colliders` at their current
+    /// positions. `outward` is each collider's winding sign (0 for open
+    /// colliders); `margin` absorbs the f32 rounding of the BVH's boxes and
+    /// of the dot products.
+    pub fn new(colliders: &[&Collider], outward: &[f64], positions: &[Vec3], near: &[bool], radius: f32, margin: f64) -> LocalPlanes {
+        let per_vertex: Vec<(Bounds, Vec<Plane>)> = positions
+            .par_iter()
+            .zip(near)
+            .map(|(&p, &near)| {
+                let area = Bounds { min: p - Vec3::splat(radius), max: p + Vec3::splat(radius) };
+                if !near {
+                    return (area, Vec::new());
+                }
+                (area, vertex_planes(colliders, outward, p, &area, margin))
+            })
+            .collect();
+        let mut offsets = Vec::with_capacity(positions.len() + 1);
+        let mut planes = Vec::new();
+        let mut boxes = Vec::with_capacity(positions.len());
+        offsets.push(0);
+        for (area, own) in per_vertex {
+            boxes.push(area);
+            planes.extend(own);
+            offsets.push(planes.len() as u32);
+        }
+        LocalPlanes { boxes, offsets, planes }
+    }
+
+    /// Vertices with at least one plane.
+    pub fn vertex_count(&self) -> usize {
+        self.offsets.windows(2).filter(|w| w[1] > w[0]).count()
+    }
+
+    fn of(&self, v: u32) -> &[Plane] {
+        let v = v as usize;
+        match self.offsets.get(v..v + 2) {
+            Some(&[a, b]) => &self.planes[a as usize..b as usize],
+            _ => &[],
+        }
+    }
+
+    /// Whether a skin element (its vertices `corners`, moving `start → end`)
+    /// is proven apart from the still colliders by a plane of one of its
+    /// vertices.
+    pub fn clears(&self, corners: &[u32], start: &[Vec3], end: &[Vec3]) -> bool {
+        corners.iter().any(|&v| {
+            let area = &self.boxes[v as usize];
+            self.of(v).iter().any(|plane| {
+                corners.iter().all(|&w| {
+                    let (s, e) = (start[w as usize], end[w as usize]);
+                    area.contains(s) && area.contains(e) && above(plane, s) && above(plane, e)
+                })
+            })
+        })
+    }
+
+    /// Vertex `v`'s step `s → e` against its planes: clear, lifted out along
+    /// the plane that needs the smallest lift, or unknown. `lift(collider)`
+    /// gives the slack and friction of a collider.
+    pub fn vertex_step(&self, v: u32, s: Vec3, e: Vec3, lift: impl Fn(usize) -> Lift) -> VertexStep {
+        let planes = self.of(v);
+        let area = &self.boxes[v as usize];
+        if planes.is_empty() || !area.contains(s) || !area.contains(e) {
+            return VertexStep::Unknown;
+        }
+        let (s64, e64) = (s.as_dvec3(), e.as_dvec3());
+        let mut best: Option<(f64, &Plane)> = None;
+        for plane in planes {
+            let (hs, he) = (plane.normal.dot(s64), plane.normal.dot(e64));
+            if hs < plane.level {
+                continue;
+            }
+            if he >= plane.level {
+                return VertexStep::Clear;
+            }
+            let lift = plane.level - he;
+            if best.is_none_or(|(b, _)| lift < b) {
+                best = Some((lift, plane));
+            }
+        }
+        let Some((_, plane)) = best else { return VertexStep::Unknown };
+        let n = plane.normal;
+        let Lift { slack, static_friction, kinetic_friction } = lift(plane.collider as usize);
+        let (hs, he) = (n.dot(s64), n.dot(e64));
+        // Where the step crossed the level: the contact, which friction holds.
+        let contact = s64 + (e64 - s64) * ((hs - plane.level) / (hs - he));
+        let depth = plane.level + slack - he;
+        let mut out = e64 + depth * n;
+        if static_friction > 0.0 || kinetic_friction > 0.0 {
+            let slip = out - contact;
+            let tangential = slip - slip.dot(n) * n;
+            let len = tangential.length();
+            if len > 0.0 {
+                if len < static_friction * depth {
+                    out -= tangential;
+                } else {
+                    out -= tangential * (kinetic_friction * depth / len).min(1.0);
+                }
+            }
+        }
+        let out = out.as_vec3();
+        // Rounded to f32, the new end must still be in the box and above.
+        if out.is_finite() && area.contains(out) && above(plane, out) {
+            VertexStep::Lifted(out)
+        } else {
+            VertexStep::Unknown
+        }
+    }
+}
+
+fn above(plane: &Plane, p: Vec3) -> bool {
+    plane.normal.dot(p.as_dvec3()) >= plane.level
+}
+
+/// The planes of one vertex at `p` with box `area` (see the module documentation).
+fn vertex_planes(colliders: &[&Collider], outward: &[f64], p: Vec3, area: &Bounds, margin: f64) -> Vec<Plane> {
+    // Leaf boxes are grown by the thickness in f32; the query is grown a
+    // little more so that rounding cannot drop a triangle that reaches the box.
+    let query = area.inflated(margin as f32);
+    let p64 = p.as_dvec3();
+    // (collider, triangle, squared distance from p to its centroid)
+    let mut found: Vec<(u32, u32, f64)> = Vec::new();
+    for (c, col) in colliders.iter().enumerate() {
+        let (tris, current) = (col.triangles(), col.current());
+        col.tree().query(&query, |t| {
+            let centroid = tris[t].iter().map(|&v| current[v as usize].as_dvec3()).sum::<DVec3>() / 3.0;
+            found.push((c as u32, t as u32, (centroid - p64).length_squared()));
+            true
+        });
+    }
+    if found.is_empty() {
+        // Nothing reaches the box: it alone keeps whatever stays in it clear.
+        return vec![Plane { normal: DVec3::Z, level: f64::NEG_INFINITY, collider: 0 }];
+    }
+    let nearest = PLANES_PER_VERTEX.min(found.len());
+    found.select_nth_unstable_by(nearest - 1, |a, b| a.2.total_cmp(&b.2));
+    let mut normals: Vec<(DVec3, u32)> = Vec::with_capacity(nearest);
+    for &(c, t, _) in &found[..nearest] {
+        let col = colliders[c as usize];
+        let [a, b, cc] = col.triangles()[t as usize].map(|v| col.current()[v as usize].as_dvec3());
+        let Some(n) = triangle_normal(a, b, cc) else { continue };
+        let n = match outward[c as usize] {
+            o if o != 0.0 => n * o,
+            _ if n.dot(p64 - a) < 0.0 => -n,
+            _ => n,
+        };
+        normals.push((n, c));
+    }
+    normals
+        .into_iter()
+        .filter_map(|(normal, collider)| {
+            let mut level = f64::NEG_INFINITY;
+            for &(c, t, _) in &found {
+                let col = colliders[c as usize];
+                let thickness = col.settings().thickness as f64;
+                for &v in &col.triangles()[t as usize] {
+                    level = level.max(normal.dot(col.current()[v as usize].as_dvec3()) + thickness);
+                }
+            }
+            let plane = Plane { normal, level: level + margin, collider };
+            above(&plane, p).then_some(plane)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::collide::audit::fan_triangles;
+    use crate::collide::clearance::Clearance;
+    use crate::collide::collider::ColliderSettings;
+    use crate::collide::geometry::point_triangle_distance_squared;
+    use crate::collide::response::Skin;
+    use crate::mesh::shapes::{grid, quad_sphere};
+    use proptest::prelude::*;
+
+    /// A still collider and the height of its top near the origin: a coarse
+    /// sphere (closed and convex) or an open V-shaped valley along y (a
+    /// crease, where no plane may let the skin through).
+    fn collider(valley: bool, thickness: f32) -> (Collider, f32) {
+        let settings = ColliderSettings::new(thickness, 0.3);
+        if valley {
+            let p = [
+                Vec3::new(-0.5, -0.5, 0.2),
+                Vec3::new(0.0, -0.5, 0.0),
+                Vec3::new(0.0, 0.5, 0.0),
+                Vec3::new(-0.5, 0.5, 0.2),
+                Vec3::new(0.5, -0.5, 0.2),
+                Vec3::new(0.5, 0.5, 0.2),
+            ];
+            let tris = [[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]];
+            (Collider::new(&p, &tris, settings).unwrap(), 0.0)
+        } else {
+            let sphere = quad_sphere(4, 0.5);
+            let offsets: Vec<u32> = std::iter::once(0).chain(sphere.polygon_sizes.iter().scan(0u32, |a, &s| { *a += s as u32; Some(*a) })).collect();
+            let tris = fan_triangles(&sphere.corner_verts, &offsets);
+            (Collider::new(&sphere.positions, &tris, settings).unwrap(), 0.5)
+        }
+    }
+
+    /// The smallest distance between points sampled on a moving skin element
+    /// and the (still) collider's triangles.
+    fn sampled_distance(c: &Collider, points: impl Fn(f64) -> Vec<DVec3>) -> f64 {
+        let at = |v: u32| c.current()[v as usize].as_dvec3();
+        let mut min = f64::INFINITY;
+        for i in 0..=40 {
+            for p in points(i as f64 / 40.0) {
+                for tri in c.triangles() {
+                    min = min.min(point_triangle_distance_squared(p, at(tri[0]), at(tri[1]), at(tri[2])).sqrt());
+                }
+            }
+        }
+        min
+    }
+
+    fn small(range: f32) -> impl Strategy<Value = Vec3> {
+        (-range..range, -range..range, -range..range).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+    }
+
+    fn lift(_: usize) -> Lift {
+        Lift { slack: 1e-3, static_friction: 0.3, kinetic_friction: 0.2 }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+
+        /// A skin resting on (or just above, or pushed into) a still collider
+        /// wobbles: whatever the planes clear stays farther than the
+        /// thickness over its step, and a lifted vertex's new step does too.
+        #[test]
+        fn what_the_planes_clear_or_lift_stays_apart(valley in any::<bool>(), offset in small(0.04), wobble in prop::collection::vec(small(0.02), 2 * 36),
+                                                   thickness in 0.0f32..0.03) {
+            let (c, top) = collider(valley, thickness);
+            let mesh = grid(5, 5, 0.3);
+            let skin = Skin::from_mesh(mesh.input()).unwrap();
+            let reference: Vec<Vec3> = mesh.positions.iter().map(|&p| p + Vec3::new(0.0, 0.0, top + thickness + 0.004) + offset).collect();
+            let clearance = Clearance::new(&[&c], &skin, &reference, 0.2).unwrap().with_planes(&[&c]).unwrap();
+            let planes = clearance.planes().unwrap();
+            let start: Vec<Vec3> = reference.iter().zip(&wobble[..36]).map(|(&p, &w)| p + w).collect();
+            let end: Vec<Vec3> = reference.iter().zip(&wobble[36..]).map(|(&p, &w)| p + w).collect();
+            let sep = thickness as f64;
+            let segment = |a: Vec3, b: Vec3| move |t: f64| vec![a.as_dvec3().lerp(b.as_dvec3(), t)];
+            for v in 0..36u32 {
+                let (s, e) = (start[v as usize], end[v as usize]);
+                match planes.vertex_step(v, s, e, lift) {
+                    VertexStep::Clear => {
+                        let d = sampled_distance(&c, segment(s, e));
+                        prop_assert!(d > sep, "vertex {v} cleared but reaches {d} <= {sep}");
+                    }
+                    VertexStep::Lifted(lifted) => {
+                        let d = sampled_distance(&c, segment(s, lifted));
+                        prop_assert!(d > sep, "vertex {v} lifted to {lifted:?} but its step reaches {d} <= {sep}");
+                    }
+                    VertexStep::Unknown => {}
+                }
+            }
+            let path = |v: u32, t: f64| start[v as usize].as_dvec3().lerp(end[v as usize].as_dvec3(), t);
+            for edge in skin.edges() {
+                if planes.clears(edge, &start, &end) {
+                    let d = sampled_distance(&c, |t| (0..=6).map(|j| path(edge[0], t).lerp(path(edge[1], t), j as f64 / 6.0)).collect());
+                    prop_assert!(d > sep, "edge {edge:?} cleared but reaches {d} <= {sep}");
+                }
+            }
+            for tri in skin.triangles() {
+                if planes.clears(tri, &start, &end) {
+                    let d = sampled_distance(&c, |t| {
+                        let [a, b, cc] = tri.map(|v| path(v, t));
+                        [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0 / 3.0, 1.0 / 3.0), (0.5, 0.5), (0.5, 0.0), (0.0, 0.5)]
+                            .iter()
+                            .map(|&(u, w)| a * (1.0 - u - w) + b * u + cc * w)
+                            .collect()
+                    });
+                    prop_assert!(d > sep, "triangle {tri:?} cleared but reaches {d} <= {sep}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_vertex_resting_on_a_convex_collider_is_lifted_without_a_lookup_and_one_in_a_crease_is_not() {
+        for (valley, expect_planes) in [(false, true), (true, false)] {
+            let thickness = 0.01;
+            let (c, top) = collider(valley, thickness);
+            // One vertex resting just above the top (at the crease for the valley).
+            let rest = Vec3::new(0.0, 0.0, top + thickness + 2e-3);
+            let skin = Skin::vertices_only(1);
+            let clearance = Clearance::new(&[&c], &skin, &[rest], 0.1).unwrap().with_planes(&[&c]).unwrap();
+            let planes = clearance.planes().unwrap();
+            // The solver pulls it 5 mm in and 3 mm sideways.
+            let pulled = rest + Vec3::new(0.003, 0.0, -0.005);
+            match (planes.vertex_step(0, rest, pulled, lift), expect_planes) {
+                (VertexStep::Lifted(p), true) => {
+                    assert!(p.z > top + thickness && p.distance(pulled) < 0.01, "lifted to {p:?}");
+                    // Friction holds it nearer to where it touched than a frictionless lift.
+                    let frictionless = |_: usize| Lift { static_friction: 0.0, kinetic_friction: 0.0, ..lift(0) };
+                    let VertexStep::Lifted(free) = planes.vertex_step(0, rest, pulled, frictionless) else { panic!("no frictionless lift") };
+                    assert!(p.distance(rest) < free.distance(rest), "with friction {p:?}, without {free:?}");
+                }
+                (VertexStep::Unknown, false) => {}
+                (other, _) => panic!("valley {valley}: {other:?}"),
+            }
+            assert_eq!(planes.vertex_count(), usize::from(expect_planes), "valley {valley}");
+        }
+    }
+}
