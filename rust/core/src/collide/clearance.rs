@@ -53,6 +53,9 @@ pub struct Clearance {
     /// at the reference positions (0 when nothing can be said).
     edge: Vec<f32>,
     triangle: Vec<f32>,
+    /// Per vertex: the least of its own bound and those of its edges and
+    /// triangles. A vertex that stays within it keeps all of them proven.
+    guard: Vec<f32>,
     /// [`Collider::generation`] of each collider measured against.
     generations: Vec<u64>,
     /// The radius searched and the rounding margin of the measurement.
@@ -107,7 +110,7 @@ impl Clearance {
             })
             .unzip();
         let at = |v: u32| positions[v as usize].as_dvec3();
-        let edge = skin
+        let edge: Vec<f32> = skin
             .edges()
             .par_iter()
             .map(|&[a, b]| {
@@ -117,7 +120,7 @@ impl Clearance {
             })
             .map(round_down)
             .collect();
-        let triangle = skin
+        let triangle: Vec<f32> = skin
             .triangles()
             .par_iter()
             .map(|&corners| {
@@ -127,13 +130,23 @@ impl Clearance {
             })
             .map(round_down)
             .collect();
+        let vertex: Vec<f32> = vertex.into_iter().map(round_down).collect();
+        let guard = (0..positions.len() as u32)
+            .into_par_iter()
+            .map(|v| {
+                let edges = skin.edges_of(v).iter().map(|&k| edge[k as usize]);
+                let triangles = skin.triangles_of(v).iter().map(|&k| triangle[k as usize]);
+                edges.chain(triangles).fold(vertex[v as usize], f32::min)
+            })
+            .collect();
         Ok(Clearance {
             reference: positions.to_vec(),
+            guard,
             radius,
             margin,
             near,
             planes: None,
-            vertex: vertex.into_iter().map(round_down).collect(),
+            vertex,
             edge,
             triangle,
             generations: colliders.iter().map(|c| c.generation()).collect(),
@@ -177,19 +190,51 @@ impl Clearance {
             && self.generations.iter().zip(colliders).all(|(&g, c)| g == c.generation())
     }
 
+    /// For a step `start → end` of the skin, the vertices, edges and
+    /// triangles [`Self::clear`] does not prove apart: what a pass must test.
+    /// (The same proof, listing the rest: a pass runs it over the whole skin
+    /// every iteration, so it goes straight to the short lists.)
+    pub fn unproven(&self, skin: &Skin, start: &[Vec3], end: &[Vec3]) -> Unproven {
+        let reach = self.reach(start, end);
+        // An edge or triangle all of whose vertices stayed within their guard
+        // is proven; only those around the others need the test.
+        let loud: Vec<u32> = (0..reach.len() as u32).into_par_iter().with_min_len(4096).filter(|&i| reach[i as usize] >= self.guard[i as usize]).collect();
+        let vertices = loud.iter().copied().filter(|&i| reach[i as usize] >= self.vertex[i as usize]).collect();
+        let edge_unproven = |k: u32| {
+            let [a, b] = skin.edges()[k as usize];
+            reach[a as usize].max(reach[b as usize]) >= self.edge[k as usize]
+        };
+        let triangle_unproven = |k: u32| {
+            let [a, b, c] = skin.triangles()[k as usize];
+            reach[a as usize].max(reach[b as usize]).max(reach[c as usize]) >= self.triangle[k as usize]
+        };
+        let finish = |mut found: Vec<u32>| {
+            found.sort_unstable();
+            found.dedup();
+            found
+        };
+        let edges = finish(loud.iter().flat_map(|&v| skin.edges_of(v).iter().copied()).filter(|&k| edge_unproven(k)).collect());
+        let triangles = finish(loud.iter().flat_map(|&v| skin.triangles_of(v).iter().copied()).filter(|&k| triangle_unproven(k)).collect());
+        Unproven { vertices, edges, triangles }
+    }
+
+    /// How far each vertex gets from its reference position over `start →
+    /// end` (its path lies in the ball of that radius), rounded up to f32.
+    fn reach(&self, start: &[Vec3], end: &[Vec3]) -> Vec<f32> {
+        (0..self.reference.len())
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|i| {
+                let x = self.reference[i].as_dvec3();
+                round_up((start[i].as_dvec3() - x).length_squared().max((end[i].as_dvec3() - x).length_squared()).sqrt())
+            })
+            .collect()
+    }
+
     /// For a step `start → end` of the skin, which vertices, edges and
     /// triangles (by index) are proven to stay out of every leaf box.
     pub fn clear(&self, skin: &Skin, start: &[Vec3], end: &[Vec3]) -> Clear {
-        // How far each vertex gets from its reference position (its path lies
-        // in the ball of that radius), rounded up to f32.
-        let reach: Vec<f32> = (0..self.reference.len())
-            .into_par_iter()
-            .map(|i| {
-                let x = self.reference[i].as_dvec3();
-                let r = (start[i].as_dvec3() - x).length().max((end[i].as_dvec3() - x).length());
-                round_up(r)
-            })
-            .collect();
+        let reach = self.reach(start, end);
         let vertex = reach.par_iter().zip(&self.vertex).map(|(&r, &d)| r < d).collect();
         let edge = skin.edges().par_iter().zip(&self.edge).map(|(&[a, b], &d)| reach[a as usize].max(reach[b as usize]) < d).collect();
         let triangle = skin
@@ -200,6 +245,14 @@ impl Clearance {
             .collect();
         Clear { vertex, edge, triangle }
     }
+}
+
+/// The elements [`Clearance::unproven`] leaves to the pairwise tests, by
+/// index, ascending.
+pub struct Unproven {
+    pub vertices: Vec<u32>,
+    pub edges: Vec<u32>,
+    pub triangles: Vec<u32>,
 }
 
 /// What [`Clearance::clear`] proved for one step.
@@ -292,6 +345,12 @@ mod tests {
             let start: Vec<Vec3> = reference.iter().zip(&wobble[..64]).map(|(&p, &w)| p + w).collect();
             let end: Vec<Vec3> = reference.iter().zip(&wobble[64..]).map(|(&p, &w)| p + w).collect();
             let clear = clearance.clear(&skin, &start, &end);
+            // The short lists a pass uses hold exactly what is not proven.
+            let unproven = clearance.unproven(&skin, &start, &end);
+            let rest = |proven: &[bool]| proven.iter().enumerate().filter(|(_, &p)| !p).map(|(k, _)| k as u32).collect::<Vec<u32>>();
+            prop_assert_eq!(&unproven.vertices, &rest(&clear.vertex));
+            prop_assert_eq!(&unproven.edges, &rest(&clear.edge));
+            prop_assert_eq!(&unproven.triangles, &rest(&clear.triangle));
             let path = |v: u32, t: f64| start[v as usize].as_dvec3().lerp(end[v as usize].as_dvec3(), t);
             let sep = thickness as f64;
             for (i, _) in clear.vertex.iter().enumerate().filter(|(_, &c)| c) {

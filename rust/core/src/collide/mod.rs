@@ -34,7 +34,7 @@ pub mod response;
 pub use audit::{audit, AuditParams, AuditReport};
 pub use bvh::{BoxTree, Bounds, UpdateReport};
 pub use ccd::{CcdHit, CcdParams};
-pub use clearance::Clearance;
+pub use clearance::{Clearance, Unproven};
 pub use collider::{Collider, ColliderSettings, Compliance, SurfacePoint};
 pub use response::{ColliderMotion, ColliderSet, ContactStats, ResolveParams, Skin};
 

@@ -210,6 +210,18 @@ impl Skin {
         &self.triangles
     }
 
+    /// The edges around vertex `v`.
+    pub(super) fn edges_of(&self, v: u32) -> &[u32] {
+        let (offsets, list) = &self.vertex_edges;
+        &list[offsets[v as usize] as usize..offsets[v as usize + 1] as usize]
+    }
+
+    /// The triangles around vertex `v`.
+    pub(super) fn triangles_of(&self, v: u32) -> &[u32] {
+        let (offsets, list) = &self.vertex_triangles;
+        &list[offsets[v as usize] as usize..offsets[v as usize + 1] as usize]
+    }
+
     /// Edges and triangles touching any of `vertices`, each once, ascending.
     fn touching(&self, vertices: &[u32]) -> (Vec<u32>, Vec<u32>) {
         let gather = |(offsets, list): &(Vec<u32>, Vec<u32>)| {
@@ -938,11 +950,11 @@ impl<'a> ColliderSet<'a> {
         if self.colliders.is_empty() || n == 0 {
             return Ok(stats);
         }
-        let requested: Vec<Vec3> = end.to_vec();
+        // Where the vertices the pass moves were asked to go, recorded when
+        // first moved (most of a skin is not).
+        let mut requested: Vec<(u32, Vec3)> = Vec::new();
         let mut moved = vec![false; n];
-        // Elements the clearance proves apart are left out from the start.
         let clearance = clearance.filter(|c| c.is_valid_for(&self.colliders, n));
-        let clear = clearance.map(|c| c.clear(skin, start, end));
         // The planes hold for colliders standing still.
         let still = (0..self.colliders.len()).all(|c| self.motions[c].unwrap_or(params.motion) == ColliderMotion::AtCurrent);
         let planes = clearance.filter(|_| still).and_then(|c| c.planes());
@@ -955,35 +967,38 @@ impl<'a> ColliderSet<'a> {
                 kinetic_friction: friction(settings.kinetic_friction),
             }
         };
-        let kept = |k: usize, proven: Option<&Vec<bool>>| !proven.is_some_and(|p| p[k]);
-        // Elements whose step stays out of every collider's whole box are
-        // left out too: most of a skin, in a pass without a clearance.
-        let roots: Vec<Bounds> = self.colliders.iter().map(|c| c.tree().bounds()).collect();
-        let reaches = |corners: &[u32]| {
-            let mut step = Bounds::EMPTY;
-            for &v in corners {
-                step = step.union(Bounds::of_points(&[start[v as usize], end[v as usize]]));
+        let (mut active, mut active_edges, mut active_triangles) = match clearance {
+            // Elements the clearance proves apart are left out from the start.
+            Some(clearance) => {
+                let unproven = clearance.unproven(skin, start, end);
+                (unproven.vertices, unproven.edges, unproven.triangles)
             }
-            roots.iter().any(|r| r.overlaps(&step))
+            // Without one, those whose step misses every collider's whole box.
+            None => {
+                let roots: Vec<Bounds> = self.colliders.iter().map(|c| c.tree().bounds()).collect();
+                let reaches = |corners: &[u32]| {
+                    let mut step = Bounds::EMPTY;
+                    for &v in corners {
+                        step = step.union(Bounds::of_points(&[start[v as usize], end[v as usize]]));
+                    }
+                    roots.iter().any(|r| r.overlaps(&step))
+                };
+                let reaching = |elements: &[u32], count: usize| -> Vec<u32> {
+                    let size = elements.len() / count.max(1);
+                    (0..count as u32).into_par_iter().with_min_len(4096).filter(|&k| reaches(&elements[k as usize * size..(k as usize + 1) * size])).collect()
+                };
+                let all: Vec<u32> = (0..n as u32).collect();
+                (reaching(&all, n), reaching(skin.edges.as_flattened(), skin.edges.len()), reaching(skin.triangles.as_flattened(), skin.triangles.len()))
+            }
         };
         // Vertices with inverse mass 0 move as imposed: never corrected.
-        let mut active: Vec<u32> = (0..n as u32)
-            .into_par_iter()
-            .filter(|&i| skin.inverse_mass(i) > 0.0 && kept(i as usize, clear.as_ref().map(|c| &c.vertex)) && reaches(&[i]))
-            .collect();
-        let mut active_edges: Vec<u32> = (0..skin.edges.len() as u32)
-            .into_par_iter()
-            .filter(|&k| kept(k as usize, clear.as_ref().map(|c| &c.edge)) && reaches(&skin.edges[k as usize]))
-            .collect();
-        let mut active_triangles: Vec<u32> = (0..skin.triangles.len() as u32)
-            .into_par_iter()
-            .filter(|&k| kept(k as usize, clear.as_ref().map(|c| &c.triangle)) && reaches(&skin.triangles[k as usize]))
-            .collect();
+        if skin.inverse_mass.is_some() {
+            active.retain(|&i| skin.inverse_mass(i) > 0.0);
+        }
         let lifted = AtomicUsize::new(0);
         let mut converged = false;
         for _ in 0..params.max_rounds.max(1) {
             stats.rounds += 1;
-            let mut changed = vec![false; n];
             // Skin vertices against collider triangles.
             let updates: Vec<(u32, Vec3)> = active
                 .par_iter()
@@ -1001,9 +1016,17 @@ impl<'a> ColliderSet<'a> {
                 .collect();
             stats.vertex_contacts += updates.len();
             stats.plane_lifts += lifted.swap(0, Ordering::Relaxed);
-            for (i, p) in updates {
+            let mut next: Vec<u32> = Vec::with_capacity(updates.len());
+            let mut apply = |i: u32, p: Vec3, end: &mut [Vec3]| {
+                if !moved[i as usize] {
+                    moved[i as usize] = true;
+                    requested.push((i, end[i as usize]));
+                }
                 end[i as usize] = p;
-                changed[i as usize] = true;
+                next.push(i);
+            };
+            for (i, p) in updates {
+                apply(i, p, end);
             }
             // Skin edges against collider edges, skin triangles against
             // collider vertices.
@@ -1011,13 +1034,11 @@ impl<'a> ColliderSet<'a> {
             stats.edge_contacts += ee;
             stats.collider_vertex_contacts += fv;
             for (i, p) in shared {
-                end[i as usize] = p;
-                changed[i as usize] = true;
+                apply(i, p, end);
             }
-            let next: Vec<u32> = (0..n as u32).filter(|&i| changed[i as usize] && skin.inverse_mass(i) > 0.0).collect();
-            for &i in &next {
-                moved[i as usize] = true;
-            }
+            next.sort_unstable();
+            next.dedup();
+            next.retain(|&i| skin.inverse_mass(i) > 0.0);
             if next.is_empty() {
                 converged = true;
                 break;
@@ -1047,21 +1068,22 @@ impl<'a> ColliderSet<'a> {
             // requested end than the step length plus twice the largest thickness.
             let max_thickness =
                 self.colliders.iter().map(|c| c.settings().thickness as f64).fold(0.0, f64::max);
+            requested.sort_unstable_by_key(|&(i, _)| i);
             for &i in &pinched {
-                let i = i as usize;
-                let limit = (d(requested[i]) - d(start[i])).length() + 2.0 * max_thickness + self.slack(max_thickness);
-                let offset = d(end[i]) - d(requested[i]);
+                let Ok(k) = requested.binary_search_by_key(&i, |&(j, _)| j) else { continue };
+                let (i, asked) = (i as usize, d(requested[k].1));
+                let limit = (asked - d(start[i])).length() + 2.0 * max_thickness + self.slack(max_thickness);
+                let offset = d(end[i]) - asked;
                 if offset.length() > limit {
-                    end[i] = (d(requested[i]) + offset * (limit / offset.length())).as_vec3();
+                    end[i] = (asked + offset * (limit / offset.length())).as_vec3();
                 }
             }
             stats.pinched = pinched;
         }
-        for i in 0..n {
-            if moved[i] {
-                stats.moved.push(i as u32);
-                stats.max_correction = stats.max_correction.max((end[i] - requested[i]).length());
-            }
+        requested.sort_unstable_by_key(|&(i, _)| i);
+        for (i, asked) in requested {
+            stats.moved.push(i);
+            stats.max_correction = stats.max_correction.max((end[i as usize] - asked).length());
         }
         Ok(stats)
     }
