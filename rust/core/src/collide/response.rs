@@ -403,49 +403,78 @@ impl<'a> ColliderSet<'a> {
         (start, end)
     }
 
-    /// Vertex–triangle contacts of the path `s → e`, earliest first. All
-    /// of them, not just the earliest: a contact reported within the
-    /// tolerance may need no correction, and the next one then decides.
-    fn vertex_hits(&self, s: Vec3, e: Vec3, motion: ColliderMotion) -> Vec<VertexHit> {
+    /// The projected end of the first vertex–triangle contact of `s → e`
+    /// that needs one. Not simply the earliest contact: one reported within
+    /// the tolerance may need no correction, and the next one then decides.
+    ///
+    /// Candidates are tried in the order the path enters their leaf boxes
+    /// (their boxes over the frame, grown by the thickness and here by the
+    /// CCD's tolerance, so no contact of a triangle is reported before its
+    /// entry): once a contact that needs a correction is found, a candidate
+    /// entered later cannot come before it. A path that misses a leaf box
+    /// cannot touch its triangle at all. A vertex pulled deep into a collider
+    /// has a column of candidates but meets the nearest first.
+    fn vertex_correction(&self, s: Vec3, e: Vec3, params: &ResolveParams) -> Option<Vec3> {
+        let motion = params.motion;
         let query = Bounds::of_points(&[s, e]);
         let (s64, e64) = (d(s), d(e));
-        let mut hits: Vec<VertexHit> = Vec::new();
         let mut candidates = Scratch::lend(&CANDIDATES);
+        let mut order: Vec<(f64, u32, u32)> = Vec::new();
         for (c, col) in self.colliders.iter().enumerate() {
-            let params = self.ccd_params(col.settings().thickness as f64);
+            let ccd = self.ccd_params(col.settings().thickness as f64);
             self.candidate_triangles(c, &query, &mut candidates);
-            if self.slab_apart(c, &candidates, &[s64], &[e64], motion, params.min_separation, 1) {
+            if self.slab_apart(c, &candidates, &[s64], &[e64], motion, ccd.min_separation, 1) {
                 continue;
             }
+            let grow = 4.0 * ccd.tolerance + 1e-6 * self.scale;
             for &t in candidates.iter() {
-                let t = t as usize;
-                let ([a0, b0, c0], [a1, b1, c1]) = self.triangle_ends(c, t, motion);
-                // A still or rigidly translating triangle has a closed-form
-                // first contact, cheaper than sampling distances to prove
-                // the pair apart; its deviation from a translation is added
-                // to the separation so the answer stays conservative.
-                let shift = a1 - a0;
-                let deviation = (b1 - b0 - shift).length().max((c1 - c0 - shift).length());
-                let translating = deviation <= params.tolerance;
-                let apart = if translating { proximity::vertex_triangle_apart_by_plane } else { proximity::vertex_triangle_apart };
-                if apart(s64, [a0, b0, c0], e64, [a1, b1, c1], params.min_separation) {
-                    continue;
-                }
-                let found = if translating {
-                    let separation = params.min_separation + params.tolerance + deviation;
-                    ccd::vertex_triangle_translating(s64, e64, [a0, b0, c0], shift, separation, params.t_max)
-                } else {
-                    proximity::vertex_triangle_advance(s64, [a0, b0, c0], e64, [a1, b1, c1], params.min_separation, params.tolerance, params.t_max)
-                        .filter(|hit| hit.converged)
-                        .or_else(|| ccd::vertex_triangle(s64, a0, b0, c0, e64, a1, b1, c1, &params))
-                };
-                if let Some(hit) = found {
-                    hits.push(VertexHit { collider: c, triangle: t, hit });
+                if let Some(entry) = entry_time(s64, e64, &col.tree().primitive_bounds(t as usize), grow) {
+                    order.push((entry, c as u32, t));
                 }
             }
         }
-        hits.sort_by(|a, b| a.hit.toi.total_cmp(&b.hit.toi));
-        hits
+        order.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut best: Option<(f64, Vec3)> = None;
+        for (entry, c, t) in order {
+            if best.is_some_and(|(toi, _)| entry > toi) {
+                break;
+            }
+            let (c, t) = (c as usize, t as usize);
+            let Some(hit) = self.vertex_triangle_hit(s64, e64, c, t, motion) else { continue };
+            if best.is_some_and(|(toi, _)| hit.toi >= toi) {
+                continue;
+            }
+            if let Some(p) = self.project_vertex(s, e, &VertexHit { collider: c, triangle: t, hit }, params) {
+                best = Some((hit.toi, p));
+            }
+        }
+        best.map(|(_, p)| p)
+    }
+
+    /// The first contact of the path `s64 → e64` with triangle `t` of
+    /// collider `c`, if any.
+    fn vertex_triangle_hit(&self, s64: DVec3, e64: DVec3, c: usize, t: usize, motion: ColliderMotion) -> Option<ccd::CcdHit> {
+        let params = self.ccd_params(self.colliders[c].settings().thickness as f64);
+        let ([a0, b0, c0], [a1, b1, c1]) = self.triangle_ends(c, t, motion);
+        // A still or rigidly translating triangle has a closed-form
+        // first contact, cheaper than sampling distances to prove
+        // the pair apart; its deviation from a translation is added
+        // to the separation so the answer stays conservative.
+        let shift = a1 - a0;
+        let deviation = (b1 - b0 - shift).length().max((c1 - c0 - shift).length());
+        let translating = deviation <= params.tolerance;
+        let apart = if translating { proximity::vertex_triangle_apart_by_plane } else { proximity::vertex_triangle_apart };
+        if apart(s64, [a0, b0, c0], e64, [a1, b1, c1], params.min_separation) {
+            return None;
+        }
+        if translating {
+            let separation = params.min_separation + params.tolerance + deviation;
+            ccd::vertex_triangle_translating(s64, e64, [a0, b0, c0], shift, separation, params.t_max)
+        } else {
+            proximity::vertex_triangle_advance(s64, [a0, b0, c0], e64, [a1, b1, c1], params.min_separation, params.tolerance, params.t_max)
+                .filter(|hit| hit.converged)
+                .or_else(|| ccd::vertex_triangle(s64, a0, b0, c0, e64, a1, b1, c1, &params))
+        }
     }
 
     /// Collider `c`'s triangles whose swept boxes (grown by the thickness)
@@ -529,11 +558,6 @@ impl<'a> ColliderSet<'a> {
             ColliderMotion::Swept => (at(v, t0), at(v, t1)),
         });
         proximity::separated_along(n, shift, from, to, corners, separation)
-    }
-
-    /// The projected end of the first contact of `s → e` that needs one.
-    fn vertex_correction(&self, s: Vec3, e: Vec3, params: &ResolveParams) -> Option<Vec3> {
-        self.vertex_hits(s, e, params.motion).iter().find_map(|h| self.project_vertex(s, e, h, params))
     }
 
     /// The projected end position for a vertex–triangle contact, or `None`
@@ -1089,6 +1113,28 @@ impl<'a> ColliderSet<'a> {
     }
 }
 
+/// When the path `s → e` (parameter 0..1) first enters `bounds` grown by
+/// `grow`, or `None` if it misses it.
+fn entry_time(s: DVec3, e: DVec3, bounds: &Bounds, grow: f64) -> Option<f64> {
+    let (lo, hi) = (bounds.min.as_dvec3() - DVec3::splat(grow), bounds.max.as_dvec3() + DVec3::splat(grow));
+    let direction = e - s;
+    let (mut enter, mut leave) = (0.0f64, 1.0f64);
+    for k in 0..3 {
+        if direction[k] == 0.0 {
+            if s[k] < lo[k] || s[k] > hi[k] {
+                return None;
+            }
+            continue;
+        }
+        let (a, b) = ((lo[k] - s[k]) / direction[k], (hi[k] - s[k]) / direction[k]);
+        enter = enter.max(a.min(b));
+        leave = leave.min(a.max(b));
+    }
+    // Rounding of the divisions: a path grazing a face may come out just
+    // outside; the growth is far larger than that, so the order still holds.
+    (enter <= leave).then_some(enter)
+}
+
 /// +1 if a closed collider's triangles wind outward (positive volume), −1 if
 /// inward, 0 for open colliders (sides are then decided per contact).
 pub(super) fn outward_sign(c: &Collider) -> f64 {
@@ -1144,5 +1190,45 @@ fn open_side_generic(at_contact: f64, at_start: f64, relative_motion: f64, sep: 
         -relative_motion.signum()
     } else {
         1.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn point() -> impl Strategy<Value = DVec3> {
+        (-2.0f64..2.0, -2.0f64..2.0, -2.0f64..2.0).prop_map(|(x, y, z)| DVec3::new(x, y, z))
+    }
+
+    proptest! {
+        /// No point of the path before its entry time lies in the (grown)
+        /// box, and a path said to miss it has no point in it at all.
+        #[test]
+        fn a_path_is_never_in_a_box_before_it_enters_it(s in point(), e in point(), a in point(), b in point(), axis_aligned in any::<bool>()) {
+            let e = if axis_aligned { DVec3::new(s.x, s.y, e.z) } else { e };
+            let bounds = Bounds::of_points(&[a.as_vec3(), b.as_vec3()]);
+            let grow = 0.01;
+            let (lo, hi) = (bounds.min.as_dvec3() - grow, bounds.max.as_dvec3() + grow);
+            let inside = |p: DVec3| p.cmpge(lo).all() && p.cmple(hi).all();
+            let entry = entry_time(s, e, &bounds, grow);
+            for k in 0..=400 {
+                let t = k as f64 / 400.0;
+                if inside(s.lerp(e, t)) {
+                    prop_assert!(entry.is_some_and(|entry| entry <= t + 1e-12), "in the box at {t}, entry {entry:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn entry_times_of_simple_paths() {
+        let unit = Bounds { min: Vec3::ZERO, max: Vec3::ONE };
+        let at = |s: [f64; 3], e: [f64; 3]| entry_time(DVec3::from(s), DVec3::from(e), &unit, 0.0);
+        assert_eq!(at([-1.0, 0.5, 0.5], [3.0, 0.5, 0.5]), Some(0.25));
+        assert_eq!(at([0.5, 0.5, 0.5], [3.0, 0.5, 0.5]), Some(0.0), "starting inside");
+        assert_eq!(at([-1.0, 2.0, 0.5], [3.0, 2.0, 0.5]), None, "passing beside");
+        assert_eq!(at([-3.0, 0.5, 0.5], [-2.0, 0.5, 0.5]), None, "stopping short");
     }
 }
