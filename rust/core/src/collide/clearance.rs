@@ -208,13 +208,8 @@ impl Clearance {
             let [a, b, c] = skin.triangles()[k as usize];
             reach[a as usize].max(reach[b as usize]).max(reach[c as usize]) >= self.triangle[k as usize]
         };
-        let finish = |mut found: Vec<u32>| {
-            found.sort_unstable();
-            found.dedup();
-            found
-        };
-        let edges = finish(loud.iter().flat_map(|&v| skin.edges_of(v).iter().copied()).filter(|&k| edge_unproven(k)).collect());
-        let triangles = finish(loud.iter().flat_map(|&v| skin.triangles_of(v).iter().copied()).filter(|&k| triangle_unproven(k)).collect());
+        let edges = ascending_unique(loud.iter().flat_map(|&v| skin.edges_of(v).iter().copied()).filter(|&k| edge_unproven(k)), skin.edges().len());
+        let triangles = ascending_unique(loud.iter().flat_map(|&v| skin.triangles_of(v).iter().copied()).filter(|&k| triangle_unproven(k)), skin.triangles().len());
         Unproven { vertices, edges, triangles }
     }
 
@@ -267,6 +262,24 @@ pub struct Clear {
     pub vertex: Vec<bool>,
     pub edge: Vec<bool>,
     pub triangle: Vec<bool>,
+}
+
+/// `indices` (each below `count`) ascending, each once: a bit per index
+/// instead of sorting the tens of thousands an element list gathers.
+pub(super) fn ascending_unique(indices: impl Iterator<Item = u32>, count: usize) -> Vec<u32> {
+    let mut bits = vec![0u64; count.div_ceil(64)];
+    for k in indices {
+        bits[k as usize / 64] |= 1 << (k % 64);
+    }
+    let mut out = Vec::with_capacity(bits.iter().map(|w| w.count_ones() as usize).sum());
+    for (w, &word) in bits.iter().enumerate() {
+        let mut word = word;
+        while word != 0 {
+            out.push((w * 64) as u32 + word.trailing_zeros());
+            word &= word - 1;
+        }
+    }
+    out
 }
 
 /// The largest f32 not above `x` (0 for negative or NaN `x`: nothing proven).

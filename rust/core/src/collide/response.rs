@@ -67,7 +67,7 @@ use rayon::prelude::*;
 use super::audit::{fan_triangles, triangle_edges};
 use super::bvh::Bounds;
 use super::ccd::{self, CcdParams};
-use super::clearance::Clearance;
+use super::clearance::{ascending_unique, Clearance};
 use super::collider::Collider;
 use super::geometry::{triangle_normal, unit};
 use super::planes::{Lift, LocalPlanes, VertexStep};
@@ -224,16 +224,10 @@ impl Skin {
 
     /// Edges and triangles touching any of `vertices`, each once, ascending.
     fn touching(&self, vertices: &[u32]) -> (Vec<u32>, Vec<u32>) {
-        let gather = |(offsets, list): &(Vec<u32>, Vec<u32>)| {
-            let mut out: Vec<u32> = vertices
-                .iter()
-                .flat_map(|&v| list[offsets[v as usize] as usize..offsets[v as usize + 1] as usize].iter().copied())
-                .collect();
-            out.sort_unstable();
-            out.dedup();
-            out
-        };
-        (gather(&self.vertex_edges), gather(&self.vertex_triangles))
+        (
+            ascending_unique(vertices.iter().flat_map(|&v| self.edges_of(v).iter().copied()), self.edges.len()),
+            ascending_unique(vertices.iter().flat_map(|&v| self.triangles_of(v).iter().copied()), self.triangles.len()),
+        )
     }
 }
 
