@@ -30,7 +30,7 @@ use rayon::prelude::*;
 use super::bvh::Bounds;
 use super::collider::Collider;
 use super::planes::LocalPlanes;
-use super::response::{outward_sign, Skin};
+use super::response::Skin;
 use crate::mesh::validate_positions;
 use crate::{Error, Result};
 
@@ -172,7 +172,7 @@ impl Clearance {
         if !self.is_valid_for(colliders, self.reference.len()) {
             return Err(Error::invalid("the planes must be measured against the colliders of the clearance, unchanged".to_string()));
         }
-        let outward: Vec<f64> = colliders.iter().map(|c| outward_sign(c)).collect();
+        let outward: Vec<f64> = colliders.iter().map(|c| c.outward_sign()).collect();
         self.planes = Some(LocalPlanes::new(colliders, &outward, &self.reference, &self.near, PLANE_REACH * self.radius, self.margin));
         Ok(self)
     }

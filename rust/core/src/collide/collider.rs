@@ -75,6 +75,7 @@ pub struct Collider {
     compliance: Option<Compliance>,
     /// Identifies the state of the positions and settings: see [`Collider::generation`].
     generation: u64,
+    shape: Shape,
 }
 
 /// Source of [`Collider::generation`] values, unique within the process.
@@ -99,6 +100,13 @@ pub struct SurfacePoint {
 /// not depend on substeps), without momentum. On contact they recede. The
 /// collider's `current` positions are then the solved ones, which is what
 /// the next frame starts from.
+/// Whole-collider figures the contact passes need, kept with the positions.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Shape {
+    outward: f64,
+    extent: f32,
+}
+
 #[derive(Debug, Clone)]
 pub struct Compliance {
     /// Per vertex; 0 = kinematic (follows its goal exactly).
@@ -154,7 +162,9 @@ impl Collider {
             last_update: None,
             compliance: None,
             generation: next_generation(),
+            shape: Shape::default(),
         };
+        collider.shape = collider.measure_shape();
         collider.tree = BoxTree::build(&collider.swept_boxes())?;
         collider.vertex_tree = BoxTree::build(&collider.swept_vertex_boxes())?;
         Ok(collider)
@@ -256,6 +266,7 @@ impl Collider {
 
     fn refresh(&mut self) -> Result<UpdateReport> {
         self.generation = next_generation();
+        self.shape = self.measure_shape();
         let boxes = self.swept_boxes();
         let report = self.tree.update(&boxes)?;
         self.vertex_tree.update(&self.swept_vertex_boxes())?;
@@ -319,6 +330,44 @@ impl Collider {
         self.settings
     }
     /// Whether every edge has exactly two triangles (a closed surface).
+    /// +1 if a closed collider's triangles wind outward (positive volume at
+    /// the current positions), −1 if inward, 0 for open colliders.
+    pub fn outward_sign(&self) -> f64 {
+        self.shape.outward
+    }
+
+    /// The largest absolute coordinate of the previous and current
+    /// positions: the scale of rounding-aware tolerances.
+    pub fn extent(&self) -> f32 {
+        self.shape.extent
+    }
+
+    /// What every contact pass reads from the whole collider, once per state.
+    fn measure_shape(&self) -> Shape {
+        use rayon::prelude::*;
+        let extent = self.current.par_iter().chain(self.previous.par_iter()).map(|p| p.abs().max_element()).reduce(|| 0.0, f32::max);
+        if !self.closed {
+            return Shape { outward: 0.0, extent };
+        }
+        let p = &self.current;
+        let volume: f64 = self
+            .triangles
+            .par_iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|v| p[v as usize].as_dvec3());
+                a.dot(b.cross(c))
+            })
+            .sum();
+        let outward = if volume > 0.0 {
+            1.0
+        } else if volume < 0.0 {
+            -1.0
+        } else {
+            0.0
+        };
+        Shape { outward, extent }
+    }
+
     pub fn is_closed(&self) -> bool {
         self.closed
     }

@@ -334,12 +334,8 @@ fn d(v: Vec3) -> DVec3 {
 impl<'a> ColliderSet<'a> {
     pub fn new(colliders: impl IntoIterator<Item = &'a Collider>) -> Self {
         let colliders: Vec<&Collider> = colliders.into_iter().collect();
-        let outward = colliders.iter().map(|c| outward_sign(c)).collect();
-        let scale = colliders
-            .iter()
-            .flat_map(|c| c.current().iter().chain(c.previous()))
-            .map(|p| p.abs().max_element() as f64)
-            .fold(1e-3, f64::max);
+        let outward = colliders.iter().map(|c| c.outward_sign()).collect();
+        let scale = colliders.iter().map(|c| c.extent() as f64).fold(1e-3, f64::max);
         let motions = vec![None; colliders.len()];
         ColliderSet { colliders, motions, outward, scale }
     }
@@ -1129,29 +1125,6 @@ fn entry_time(s: DVec3, e: DVec3, bounds: &Bounds, grow: f64) -> Option<f64> {
     (enter <= leave).then_some(enter)
 }
 
-/// +1 if a closed collider's triangles wind outward (positive volume), −1 if
-/// inward, 0 for open colliders (sides are then decided per contact).
-pub(super) fn outward_sign(c: &Collider) -> f64 {
-    if !c.is_closed() {
-        return 0.0;
-    }
-    let p = c.current();
-    let volume: f64 = c
-        .triangles()
-        .iter()
-        .map(|t| {
-            let [a, b, cc] = t.map(|v| d(p[v as usize]));
-            a.dot(b.cross(cc))
-        })
-        .sum();
-    if volume > 0.0 {
-        1.0
-    } else if volume < 0.0 {
-        -1.0
-    } else {
-        0.0
-    }
-}
 
 /// Side (+1/−1 along the triangle normal) an open collider's contact is
 /// resolved to: where the vertex was just before contact, else at the start,
