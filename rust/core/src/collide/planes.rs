@@ -10,9 +10,10 @@
 //!
 //! For a skin vertex near a collider, at reference positions `x` (the start
 //! of the in-loop passes), take the box `B = x ± R` and every collider
-//! triangle whose BVH leaf box (its box over the frame, grown by the
-//! thickness) meets `B`. A triangle that is not among them keeps every point
-//! of `B` farther than its thickness. For a unit direction `n`, let
+//! triangle whose box at its current position, grown by the thickness, meets
+//! `B` (found through the BVH, whose leaf boxes cover the whole frame). A
+//! triangle that is not among them keeps every point of `B` farther than its
+//! thickness. For a unit direction `n`, let
 //! `level = max(n·q + thickness)` over the corners `q` of those triangles:
 //! every point `y` of `B` with `n·y ≥ level` is farther than the thickness
 //! from every triangle that is (all of a triangle lies below its corners'
@@ -209,13 +210,22 @@ fn vertex_planes(colliders: &[&Collider], outward: &[f64], p: Vec3, area: &Bound
     // little more so that rounding cannot drop a triangle that reaches the box.
     let query = area.inflated(margin as f32);
     let p64 = p.as_dvec3();
+    let (lo, hi) = (area.min.as_dvec3(), area.max.as_dvec3());
     // (collider, triangle, squared distance from p to its centroid)
     let mut found: Vec<(u32, u32, f64)> = Vec::new();
     for (c, col) in colliders.iter().enumerate() {
         let (tris, current) = (col.triangles(), col.current());
+        let reach = col.settings().thickness as f64 + margin;
         col.tree().query(&query, |t| {
-            let centroid = tris[t].iter().map(|&v| current[v as usize].as_dvec3()).sum::<DVec3>() / 3.0;
-            found.push((c as u32, t as u32, (centroid - p64).length_squared()));
+            // The tree's boxes cover the collider's whole sweep over the
+            // frame; the planes serve passes in which it stands still, so a
+            // triangle counts only if it reaches the box where it is now.
+            let corners = tris[t].map(|v| current[v as usize].as_dvec3());
+            let (min, max) = (corners[0].min(corners[1]).min(corners[2]) - reach, corners[0].max(corners[1]).max(corners[2]) + reach);
+            if min.cmple(hi).all() && lo.cmple(max).all() {
+                let centroid = (corners[0] + corners[1] + corners[2]) / 3.0;
+                found.push((c as u32, t as u32, (centroid - p64).length_squared()));
+            }
             true
         });
     }
@@ -264,6 +274,17 @@ mod tests {
     use crate::collide::response::Skin;
     use crate::mesh::shapes::{grid, quad_sphere};
     use proptest::prelude::*;
+
+    /// A collider that came from `came_from` away during the frame and now
+    /// stands still (the planes serve the passes after its sweep), and the
+    /// height of its top near the origin.
+    fn arrived(valley: bool, thickness: f32, came_from: Vec3) -> (Collider, f32) {
+        let (still, top) = collider(valley, thickness);
+        let start: Vec<Vec3> = still.current().iter().map(|&p| p + came_from).collect();
+        let mut c = Collider::new(&start, still.triangles(), still.settings()).unwrap();
+        c.update(still.current()).unwrap();
+        (c, top)
+    }
 
     /// A still collider and the height of its top near the origin: a coarse
     /// sphere (closed and convex) or an open V-shaped valley along y (a
@@ -320,8 +341,8 @@ mod tests {
         /// thickness over its step, and a lifted vertex's new step does too.
         #[test]
         fn what_the_planes_clear_or_lift_stays_apart(valley in any::<bool>(), offset in small(0.04), wobble in prop::collection::vec(small(0.02), 2 * 36),
-                                                   thickness in 0.0f32..0.03) {
-            let (c, top) = collider(valley, thickness);
+                                                   thickness in 0.0f32..0.03, came_from in small(0.1)) {
+            let (c, top) = arrived(valley, thickness, came_from);
             let mesh = grid(5, 5, 0.3);
             let skin = Skin::from_mesh(mesh.input()).unwrap();
             let reference: Vec<Vec3> = mesh.positions.iter().map(|&p| p + Vec3::new(0.0, 0.0, top + thickness + 0.004) + offset).collect();
