@@ -10,36 +10,8 @@
 //! (`GRID=` skin subdivisions, `FRAMES=` frames; defaults 316 and 8)
 use glam::Vec3;
 use tegument_core::collide::{audit, AuditParams, Collider, ColliderSettings};
-use tegument_core::mesh::shapes::grid;
+use tegument_core::mesh::shapes::{grid, uv_sphere_triangles};
 use tegument_core::pyramid::{Closeness, DeformerOptions, PyramidDeformer, StepOptions};
-
-/// Blender's UV sphere: poles, `segments` around, `rings` bands.
-fn uv_sphere(segments: usize, rings: usize, radius: f32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
-    let mut points = vec![Vec3::new(0.0, 0.0, radius)];
-    for i in 1..rings {
-        let theta = std::f32::consts::PI * i as f32 / rings as f32;
-        for j in 0..segments {
-            let phi = 2.0 * std::f32::consts::PI * j as f32 / segments as f32;
-            points.push(radius * Vec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos()));
-        }
-    }
-    points.push(Vec3::new(0.0, 0.0, -radius));
-    let (top, bottom) = (0u32, points.len() as u32 - 1);
-    let ring = |i: usize, j: usize| (1 + (i - 1) * segments + j % segments) as u32;
-    let mut tris = Vec::new();
-    for j in 0..segments {
-        tris.push([top, ring(1, j), ring(1, j + 1)]);
-        tris.push([bottom, ring(rings - 1, j + 1), ring(rings - 1, j)]);
-    }
-    for i in 1..rings - 1 {
-        for j in 0..segments {
-            let (a, b, c, d) = (ring(i, j), ring(i, j + 1), ring(i + 1, j + 1), ring(i + 1, j));
-            tris.push([a, d, c]);
-            tris.push([a, c, b]);
-        }
-    }
-    (points, tris)
-}
 
 /// The sphere's centre at `frame` (1-based), as in `bench/blender_bench.py`.
 fn centre(frame: usize) -> Vec3 {
@@ -51,7 +23,7 @@ fn main() {
     let n: usize = std::env::var("GRID").ok().and_then(|s| s.parse().ok()).unwrap_or(316);
     let frames: usize = std::env::var("FRAMES").ok().and_then(|s| s.parse().ok()).unwrap_or(8);
     let skin = grid(n, n, 2.0);
-    let (sphere, tris) = uv_sphere(128, 80, 0.3);
+    let (sphere, tris) = uv_sphere_triangles(128, 80, 0.3);
     let at = |f: usize| sphere.iter().map(|&p| p + centre(f)).collect::<Vec<_>>();
     let settings = ColliderSettings { thickness: 0.005, static_friction: 0.3, kinetic_friction: 0.2 };
     let mut collider = Collider::new(&at(1), &tris, settings).unwrap();

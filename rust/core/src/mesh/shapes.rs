@@ -41,6 +41,36 @@ pub fn cube() -> PolyMesh {
     mesh
 }
 
+/// Blender's UV sphere (`primitive_uv_sphere_add`), already triangulated:
+/// a pole at ±z, `segments` vertices around each of `rings − 1` rings,
+/// outward-wound triangles. Returns the positions and the triangles.
+pub fn uv_sphere_triangles(segments: usize, rings: usize, radius: f32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let mut points = vec![Vec3::new(0.0, 0.0, radius)];
+    for i in 1..rings {
+        let theta = std::f32::consts::PI * i as f32 / rings as f32;
+        for j in 0..segments {
+            let phi = 2.0 * std::f32::consts::PI * j as f32 / segments as f32;
+            points.push(radius * Vec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos()));
+        }
+    }
+    points.push(Vec3::new(0.0, 0.0, -radius));
+    let (top, bottom) = (0u32, points.len() as u32 - 1);
+    let ring = |i: usize, j: usize| (1 + (i - 1) * segments + j % segments) as u32;
+    let mut tris = Vec::new();
+    for j in 0..segments {
+        tris.push([top, ring(1, j), ring(1, j + 1)]);
+        tris.push([bottom, ring(rings - 1, j + 1), ring(rings - 1, j)]);
+    }
+    for i in 1..rings - 1 {
+        for j in 0..segments {
+            let (a, b, c, d) = (ring(i, j), ring(i, j + 1), ring(i + 1, j + 1), ring(i + 1, j));
+            tris.push([a, d, c]);
+            tris.push([a, c, b]);
+        }
+    }
+    (points, tris)
+}
+
 /// A flat grid of `nx` × `ny` quads in the XY plane, facing +Z, of size `size`.
 pub fn grid(nx: usize, ny: usize, size: f32) -> PolyMesh {
     let mut mesh = PolyMesh::default();

@@ -701,42 +701,14 @@ mod uv_sphere_tests {
 
     use super::*;
     use crate::collide::{audit, AuditParams, ColliderSettings};
-    use crate::mesh::shapes::grid;
+    use crate::mesh::shapes::{grid, uv_sphere_triangles};
     use crate::pyramid::DeformerOptions;
-
-    /// Blender's UV sphere: poles, `segments` around, `rings` bands.
-    fn uv_sphere(segments: usize, rings: usize, radius: f32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
-        let mut points = vec![Vec3::new(0.0, 0.0, radius)];
-        for i in 1..rings {
-            let theta = std::f32::consts::PI * i as f32 / rings as f32;
-            for j in 0..segments {
-                let phi = 2.0 * std::f32::consts::PI * j as f32 / segments as f32;
-                points.push(radius * Vec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos()));
-            }
-        }
-        points.push(Vec3::new(0.0, 0.0, -radius));
-        let (top, bottom) = (0u32, points.len() as u32 - 1);
-        let ring = |i: usize, j: usize| (1 + (i - 1) * segments + j % segments) as u32;
-        let mut tris = Vec::new();
-        for j in 0..segments {
-            tris.push([top, ring(1, j), ring(1, j + 1)]);
-            tris.push([bottom, ring(rings - 1, j + 1), ring(rings - 1, j)]);
-        }
-        for i in 1..rings - 1 {
-            for j in 0..segments {
-                let (a, b, c, d) = (ring(i, j), ring(i, j + 1), ring(i + 1, j + 1), ring(i + 1, j));
-                tris.push([a, d, c]);
-                tris.push([a, c, b]);
-            }
-        }
-        (points, tris)
-    }
 
     #[test]
     fn a_uv_sphere_crossing_the_skin_in_one_frame_does_not_tunnel() {
         let skin = grid(40, 40, 2.0);
         let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
-        let (sphere, tris) = uv_sphere(32, 16, 0.3);
+        let (sphere, tris) = uv_sphere_triangles(32, 16, 0.3);
         let at = |z: f32| sphere.iter().map(|p| *p + Vec3::Z * z).collect::<Vec<_>>();
         let settings = ColliderSettings { thickness: 0.01, static_friction: 0.0, kinetic_friction: 0.0 };
         let mut collider = Collider::new(&at(-0.5), &tris, settings).unwrap();

@@ -263,32 +263,49 @@ fn a_quad_folded_along_its_diagonal_is_stopped_by_a_collider_edge() {
     assert!(middle.z < 0.5 && middle.z > 0.4, "{end:?}");
 }
 
+/// A grid skin pressed onto a sphere from above by a first pass: where the
+/// in-loop tests start, and the target each pass pulls it towards (into the
+/// sphere and sideways).
+struct PressedSkin {
+    skin: PolyMesh,
+    collider: Collider,
+    topology: Skin,
+    target: Vec<Vec3>,
+    start: Vec<Vec3>,
+}
+
+fn pressed_skin(thickness: f32) -> PressedSkin {
+    let skin = grid(40, 40, 3.0);
+    let collider = collider_of(&quad_sphere(12, 0.6), Vec3::ZERO, ColliderSettings::new(thickness, 0.3));
+    let topology = Skin::from_mesh(skin.input()).unwrap();
+    let target: Vec<Vec3> = skin.positions.iter().map(|&p| p + Vec3::new(0.1, 0.0, 0.3)).collect();
+    let above: Vec<Vec3> = skin.positions.iter().map(|&p| p + Vec3::new(0.0, 0.0, 0.8)).collect();
+    let mut start = target.clone();
+    ColliderSet::new([&collider]).resolve_path(&above, &mut start, &topology, &ResolveParams::first_pass()).unwrap();
+    PressedSkin { skin, collider, topology, target, start }
+}
+
+/// A stand-in solver iteration: `x` halfway to `target`; returns where it was.
+fn pull(x: &mut [Vec3], target: &[Vec3]) -> Vec<Vec3> {
+    let before = x.to_vec();
+    for (p, q) in x.iter_mut().zip(target) {
+        *p += 0.5 * (*q - *p);
+    }
+    before
+}
+
 #[test]
 fn a_clearance_changes_nothing_but_the_work() {
     // A skin pressed onto a sphere over several in-loop passes, once with a
     // clearance measured at the start of the passes and once without: the
     // elements it skips are proven apart, so the results agree.
-    let skin = grid(40, 40, 3.0);
-    let c = collider_of(&quad_sphere(12, 0.6), Vec3::ZERO, ColliderSettings::new(0.02, 0.3));
-    let topo = Skin::from_mesh(skin.input()).unwrap();
+    let PressedSkin { skin, collider: c, topology: topo, target, start } = pressed_skin(0.02);
     let set = ColliderSet::new([&c]);
-    let target: Vec<Vec3> = skin.positions.iter().map(|&p| p + Vec3::new(0.1, 0.0, 0.3)).collect();
-    let mut start: Vec<Vec3> = skin.positions.iter().map(|&p| p + Vec3::new(0.0, 0.0, 0.8)).collect();
-    let mut first = target.clone();
-    set.resolve_path(&start, &mut first, &topo, &ResolveParams::first_pass()).unwrap();
-    start = first;
     let clearance = Clearance::new(&[&c], &topo, &start, 0.2).unwrap();
     let (mut with, mut without) = (start.clone(), start.clone());
     let (mut skipped, mut contacts) = (0, 0);
     for _ in 0..6 {
-        let step = |x: &mut Vec<Vec3>| {
-            let before = x.clone();
-            for (p, q) in x.iter_mut().zip(&target) {
-                *p += 0.5 * (*q - *p);
-            }
-            before
-        };
-        let (b1, b2) = (step(&mut with), step(&mut without));
+        let (b1, b2) = (pull(&mut with, &target), pull(&mut without, &target));
         skipped += clearance.clear(&topo, &b1, &with).vertex.iter().filter(|&&c| c).count();
         let s1 = set.resolve_path_with(&b1, &mut with, &topo, &ResolveParams::in_loop(), Some(&clearance)).unwrap();
         let s2 = set.resolve_path(&b2, &mut without, &topo, &ResolveParams::in_loop()).unwrap();
@@ -309,29 +326,15 @@ fn planes_lift_the_skin_pulled_back_in_without_a_lookup_and_keep_it_out() {
     // measured with the clearance: the vertices each pass pulls back into the
     // sphere are lifted along a plane instead of their first contact's
     // triangle, so positions differ a little, but nothing gets in.
-    let skin = grid(40, 40, 3.0);
     let thickness = 0.02;
-    let c = collider_of(&quad_sphere(12, 0.6), Vec3::ZERO, ColliderSettings::new(thickness, 0.3));
-    let topo = Skin::from_mesh(skin.input()).unwrap();
+    let PressedSkin { skin, collider: c, topology: topo, target, start } = pressed_skin(thickness);
     let set = ColliderSet::new([&c]);
-    let target: Vec<Vec3> = skin.positions.iter().map(|&p| p + Vec3::new(0.1, 0.0, 0.3)).collect();
-    let mut start: Vec<Vec3> = skin.positions.iter().map(|&p| p + Vec3::new(0.0, 0.0, 0.8)).collect();
-    let mut first = target.clone();
-    set.resolve_path(&start, &mut first, &topo, &ResolveParams::first_pass()).unwrap();
-    start = first;
     let clearance = Clearance::new(&[&c], &topo, &start, 0.2).unwrap().with_planes(&[&c]).unwrap();
     assert!(clearance.planes().unwrap().vertex_count() > 100);
     let (mut with, mut without) = (start.clone(), start.clone());
     let (mut lifted, mut contacts) = (0, 0);
     for _ in 0..6 {
-        let step = |x: &mut Vec<Vec3>| {
-            let before = x.clone();
-            for (p, q) in x.iter_mut().zip(&target) {
-                *p += 0.5 * (*q - *p);
-            }
-            before
-        };
-        let (b1, b2) = (step(&mut with), step(&mut without));
+        let (b1, b2) = (pull(&mut with, &target), pull(&mut without, &target));
         let s1 = set.resolve_path_with(&b1, &mut with, &topo, &ResolveParams::in_loop(), Some(&clearance)).unwrap();
         let s2 = set.resolve_path(&b2, &mut without, &topo, &ResolveParams::in_loop()).unwrap();
         assert!(s1.pinched.is_empty() && s2.pinched.is_empty());
