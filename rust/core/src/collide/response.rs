@@ -867,6 +867,7 @@ impl<'a> ColliderSet<'a> {
 
     /// Edge–edge and collider-vertex–skin-triangle corrections of one round,
     /// averaged per vertex. Returns the number of contacts and the changes.
+    #[allow(clippy::too_many_arguments)]
     fn shared_corrections(
         &self,
         start: &[Vec3],
