@@ -302,7 +302,7 @@ fn box_distance(p: Vec3, b: &Bounds) -> f64 {
 mod tests {
     use super::*;
     use crate::collide::collider::ColliderSettings;
-    use crate::collide::geometry::point_triangle_distance_squared;
+    use crate::collide::geometry::{point_triangle_distance_squared, triangle_samples};
     use crate::mesh::shapes::grid;
     use proptest::prelude::*;
 
@@ -376,13 +376,7 @@ mod tests {
             }
             for (k, _) in clear.triangle.iter().enumerate().filter(|(_, &c)| c) {
                 let [a, b, cc] = skin.triangles()[k];
-                let d = sampled_distance(&c, |t| {
-                    let (pa, pb, pc) = (path(a, t), path(b, t), path(cc, t));
-                    [(1.0, 0.0), (0.0, 1.0), (0.0, 0.0), (1.0 / 3.0, 1.0 / 3.0), (0.5, 0.5), (0.5, 0.0), (0.0, 0.5)]
-                        .iter()
-                        .map(|&(u, v)| pa * (1.0 - u - v) + pb * u + pc * v)
-                        .collect()
-                });
+                let d = sampled_distance(&c, |t| triangle_samples(path(a, t), path(b, t), path(cc, t)));
                 prop_assert!(d > sep, "triangle {k} clear but reaches {d} <= {sep}");
             }
         }

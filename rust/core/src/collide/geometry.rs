@@ -236,3 +236,13 @@ mod tests {
         assert!(!ray_up_crosses([0.5, 0.5, 2.0], a, b, c) && !ray_up_crosses([0.5, 0.5, 2.0], a, c, d));
     }
 }
+
+/// Points spread over triangle `a b c` (corners, edge midpoints, centroid):
+/// where the property tests sample a skin triangle's distance.
+#[cfg(test)]
+pub(crate) fn triangle_samples(a: DVec3, b: DVec3, c: DVec3) -> Vec<DVec3> {
+    [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0 / 3.0, 1.0 / 3.0), (0.5, 0.5), (0.5, 0.0), (0.0, 0.5)]
+        .iter()
+        .map(|&(u, v)| a * (1.0 - u - v) + b * u + c * v)
+        .collect()
+}

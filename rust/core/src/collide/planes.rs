@@ -270,7 +270,7 @@ mod tests {
     use crate::collide::audit::fan_triangles;
     use crate::collide::clearance::Clearance;
     use crate::collide::collider::ColliderSettings;
-    use crate::collide::geometry::point_triangle_distance_squared;
+    use crate::collide::geometry::{point_triangle_distance_squared, triangle_samples};
     use crate::collide::response::Skin;
     use crate::mesh::shapes::{grid, quad_sphere};
     use proptest::prelude::*;
@@ -377,10 +377,7 @@ mod tests {
                 if planes.clears(tri, &start, &end) {
                     let d = sampled_distance(&c, |t| {
                         let [a, b, cc] = tri.map(|v| path(v, t));
-                        [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0 / 3.0, 1.0 / 3.0), (0.5, 0.5), (0.5, 0.0), (0.0, 0.5)]
-                            .iter()
-                            .map(|&(u, w)| a * (1.0 - u - w) + b * u + cc * w)
-                            .collect()
+                        triangle_samples(a, b, cc)
                     });
                     prop_assert!(d > sep, "triangle {tri:?} cleared but reaches {d} <= {sep}");
                 }
