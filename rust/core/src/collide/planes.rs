@@ -217,9 +217,8 @@ fn vertex_planes(colliders: &[&Collider], outward: &[f64], p: Vec3, area: &Bound
         let (tris, current) = (col.triangles(), col.current());
         let reach = col.settings().thickness as f64 + margin;
         col.tree().query(&query, |t| {
-            // The tree's boxes cover the collider's whole sweep over the
-            // frame; the planes serve passes in which it stands still, so a
-            // triangle counts only if it reaches the box where it is now.
+            // The tree's boxes are grown in f32; the reach is decided here
+            // in f64, as the planes are.
             let corners = tris[t].map(|v| current[v as usize].as_dvec3());
             let (min, max) = (corners[0].min(corners[1]).min(corners[2]) - reach, corners[0].max(corners[1]).max(corners[2]) + reach);
             if min.cmple(hi).all() && lo.cmple(max).all() {

@@ -26,9 +26,12 @@
 //!    Several contacts on a vertex are averaged (Jacobi). With these and 1,
 //!    every way two triangle meshes can start to intersect is covered.
 //! 4. Repeat detection on the vertices that moved, up to
-//!    [`ResolveParams::max_rounds`] rounds. Vertices still in violation after
-//!    the last round are **pinched** (e.g. squeezed between two colliders):
-//!    they are reported, their displacement is bounded, never NaN.
+//!    [`ResolveParams::max_rounds`] rounds; an edge or triangle is checked
+//!    again only once a corner has moved since its last check (a vertex
+//!    projected in step 1 has its elements checked in the same round).
+//!    Vertices still in violation after the last round are **pinched**
+//!    (e.g. squeezed between two colliders): they are reported, their
+//!    displacement is bounded, never NaN.
 //!
 //! # Use in the two passes (seed 000, Algorithm 2)
 //!
@@ -65,7 +68,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use super::audit::{fan_triangles, triangle_edges};
-use super::bvh::Bounds;
+use super::bvh::{BoxTree, Bounds};
 use super::ccd::{self, CcdParams};
 use super::clearance::{ascending_unique, Clearance};
 use super::collider::Collider;
@@ -222,11 +225,12 @@ impl Skin {
         &list[offsets[v as usize] as usize..offsets[v as usize + 1] as usize]
     }
 
-    /// Edges and triangles touching any of `vertices`, each once, ascending.
-    fn touching(&self, vertices: &[u32]) -> (Vec<u32>, Vec<u32>) {
+    /// Edges and triangles touching any of `vertices`, together with the
+    /// given ones (`also`), each once, ascending.
+    fn touching(&self, vertices: &[u32], also: (&[u32], &[u32])) -> (Vec<u32>, Vec<u32>) {
         (
-            ascending_unique(vertices.iter().flat_map(|&v| self.edges_of(v).iter().copied()), self.edges.len()),
-            ascending_unique(vertices.iter().flat_map(|&v| self.triangles_of(v).iter().copied()), self.triangles.len()),
+            ascending_unique(also.0.iter().copied().chain(vertices.iter().flat_map(|&v| self.edges_of(v).iter().copied())), self.edges.len()),
+            ascending_unique(also.1.iter().copied().chain(vertices.iter().flat_map(|&v| self.triangles_of(v).iter().copied())), self.triangles.len()),
         )
     }
 }
@@ -349,6 +353,47 @@ impl<'a> ColliderSet<'a> {
         &self.colliders
     }
 
+    /// How collider `c` moves in a pass of `motion`.
+    fn motion(&self, c: usize, motion: ColliderMotion) -> ColliderMotion {
+        self.motions[c].unwrap_or(motion)
+    }
+
+    /// Collider `c`'s triangle tree for a pass of `motion`: its boxes over
+    /// the sweep (in the collider's drifting frame) or where it stands.
+    fn triangle_tree(&self, c: usize, motion: ColliderMotion) -> &'a BoxTree {
+        let col = self.colliders[c];
+        match self.motion(c, motion) {
+            ColliderMotion::Swept => col.swept_tree(),
+            ColliderMotion::AtCurrent => col.tree(),
+        }
+    }
+
+    /// The same for collider `c`'s vertices.
+    fn vertex_tree(&self, c: usize, motion: ColliderMotion) -> &'a BoxTree {
+        let col = self.colliders[c];
+        match self.motion(c, motion) {
+            ColliderMotion::Swept => col.swept_vertex_tree(),
+            ColliderMotion::AtCurrent => col.vertex_tree(),
+        }
+    }
+
+    /// The box to look up in collider `c`'s trees for a skin element whose
+    /// corners lie in `from` at the start of the step and in `to` at its end.
+    fn query_box(&self, c: usize, motion: ColliderMotion, from: Bounds, to: Bounds) -> Bounds {
+        match self.motion(c, motion) {
+            ColliderMotion::Swept => self.colliders[c].swept_query(from, to),
+            ColliderMotion::AtCurrent => from.union(to),
+        }
+    }
+
+    /// A skin point's path `s → e`, where collider `c`'s trees see it.
+    fn tree_path(&self, c: usize, motion: ColliderMotion, s: DVec3, e: DVec3) -> (DVec3, DVec3) {
+        match self.motion(c, motion) {
+            ColliderMotion::Swept => (s, e - self.colliders[c].drift().as_dvec3()),
+            ColliderMotion::AtCurrent => (s, e),
+        }
+    }
+
     /// Distance added beyond the thickness when projecting. It keeps f32
     /// rounding from putting a result back inside, and it is the margin by
     /// which a resting contact clears the CCD's minimum separation: the
@@ -406,19 +451,23 @@ impl<'a> ColliderSet<'a> {
     /// has a column of candidates but meets the nearest first.
     fn vertex_correction(&self, s: Vec3, e: Vec3, params: &ResolveParams) -> Option<Vec3> {
         let motion = params.motion;
-        let query = Bounds::of_points(&[s, e]);
+        let (from, to) = (Bounds::of_points(&[s]), Bounds::of_points(&[e]));
         let (s64, e64) = (d(s), d(e));
         let mut candidates = Scratch::lend(&CANDIDATES);
         let mut order: Vec<(f64, u32, u32)> = Vec::new();
         for (c, col) in self.colliders.iter().enumerate() {
             let ccd = self.ccd_params(col.settings().thickness as f64);
-            self.candidate_triangles(c, &query, &mut candidates);
+            self.candidate_triangles(c, motion, from, to, &mut candidates);
             if self.slab_apart(c, &candidates, &[s64], &[e64], motion, ccd.min_separation, 1) {
                 continue;
             }
+            // Entry times in the trees' frame: distances, and so contacts,
+            // are the same there at every instant.
             let grow = 4.0 * ccd.tolerance + 1e-6 * self.scale;
+            let (ps, pe) = self.tree_path(c, motion, s64, e64);
+            let tree = self.triangle_tree(c, motion);
             for &t in candidates.iter() {
-                if let Some(entry) = entry_time(s64, e64, &col.tree().primitive_bounds(t as usize), grow) {
+                if let Some(entry) = entry_time(ps, pe, &tree.primitive_bounds(t as usize), grow) {
                     order.push((entry, c as u32, t));
                 }
             }
@@ -467,12 +516,12 @@ impl<'a> ColliderSet<'a> {
         }
     }
 
-    /// Collider `c`'s triangles whose swept boxes (grown by the thickness)
-    /// meet `query`, into `out`: the only ones a skin element inside `query`
-    /// can reach.
-    fn candidate_triangles(&self, c: usize, query: &Bounds, out: &mut Vec<u32>) {
+    /// Collider `c`'s triangles whose boxes (grown by the thickness) meet
+    /// a skin element's, into `out`: the only ones the element can reach
+    /// while its corners move from `from` to `to` (see [`Self::query_box`]).
+    fn candidate_triangles(&self, c: usize, motion: ColliderMotion, from: Bounds, to: Bounds, out: &mut Vec<u32>) {
         out.clear();
-        self.colliders[c].tree().query(query, |t| {
+        self.triangle_tree(c, motion).query(&self.query_box(c, motion, from, to), |t| {
             out.push(t as u32);
             true
         });
@@ -605,13 +654,13 @@ impl<'a> ColliderSet<'a> {
     ) -> Option<(DVec3, DVec3)> {
         let [ia, ib] = edge.map(|v| v as usize);
         let (sa, sb, ea, eb) = (d(start[ia]), d(start[ib]), d(end[ia]), d(end[ib]));
-        let query = Bounds::of_points(&[start[ia], start[ib], end[ia], end[ib]]);
+        let (from, to) = (Bounds::of_points(&[start[ia], start[ib]]), Bounds::of_points(&[end[ia], end[ib]]));
         let mut hits: Vec<(usize, usize, ccd::CcdHit)> = Vec::new();
         let mut seen = Scratch::lend(&SEEN);
         let mut candidates = Scratch::lend(&CANDIDATES);
         for (c, col) in self.colliders.iter().enumerate() {
             let ccd_params = self.ccd_params(col.settings().thickness as f64);
-            self.candidate_triangles(c, &query, &mut candidates);
+            self.candidate_triangles(c, params.motion, from, to, &mut candidates);
             if self.slab_apart(c, &candidates, &[sa, sb], &[ea, eb], params.motion, ccd_params.min_separation, 1)
                 || (self.motions[c].unwrap_or(params.motion) == ColliderMotion::Swept
                     && self.slab_apart(c, &candidates, &[sa, sb], &[ea, eb], params.motion, ccd_params.min_separation, SLICES))
@@ -745,7 +794,7 @@ impl<'a> ColliderSet<'a> {
         let [i0, i1, i2] = tri.map(|v| v as usize);
         let (s0, s1, s2) = (d(start[i0]), d(start[i1]), d(start[i2]));
         let (e0, e1, e2) = (d(end[i0]), d(end[i1]), d(end[i2]));
-        let query = Bounds::of_points(&[start[i0], start[i1], start[i2], end[i0], end[i1], end[i2]]);
+        let (from, to) = (Bounds::of_points(&[start[i0], start[i1], start[i2]]), Bounds::of_points(&[end[i0], end[i1], end[i2]]));
         let mut hits: Vec<(usize, usize, ccd::CcdHit)> = Vec::new();
         let mut candidates = Scratch::lend(&CANDIDATES);
         // A skin triangle resting on a collider faces it: its own normal is
@@ -767,7 +816,7 @@ impl<'a> ColliderSet<'a> {
         for (c, col) in self.colliders.iter().enumerate() {
             let ccd_params = self.ccd_params(col.settings().thickness as f64);
             candidates.clear();
-            col.vertex_tree().query(&query, |v| {
+            self.vertex_tree(c, params.motion).query(&self.query_box(c, params.motion, from, to), |v| {
                 candidates.push(v as u32);
                 true
             });
@@ -941,7 +990,8 @@ impl<'a> ColliderSet<'a> {
 
     /// [`resolve_path`](Self::resolve_path), skipping the skin elements that
     /// `clearance` proves apart from the colliders (if it was measured
-    /// against them in their present state; otherwise it is not used).
+    /// against them in their present state and they stand still in this
+    /// pass; otherwise it is not used).
     /// The in-loop passes of a frame share one clearance.
     pub fn resolve_path_with(
         &self,
@@ -969,10 +1019,10 @@ impl<'a> ColliderSet<'a> {
         // first moved (most of a skin is not).
         let mut requested: Vec<(u32, Vec3)> = Vec::new();
         let mut moved = vec![false; n];
-        let clearance = clearance.filter(|c| c.is_valid_for(&self.colliders, n));
-        // The planes hold for colliders standing still.
-        let still = (0..self.colliders.len()).all(|c| self.motions[c].unwrap_or(params.motion) == ColliderMotion::AtCurrent);
-        let planes = clearance.filter(|_| still).and_then(|c| c.planes());
+        // The clearance and its planes hold for colliders standing still.
+        let still = (0..self.colliders.len()).all(|c| self.motion(c, params.motion) == ColliderMotion::AtCurrent);
+        let clearance = clearance.filter(|c| still && c.is_valid_for(&self.colliders, n));
+        let planes = clearance.and_then(|c| c.planes());
         let lift = |c: usize| {
             let settings = self.colliders[c].settings();
             let friction = |mu: f32| if params.friction { mu as f64 } else { 0.0 };
@@ -990,13 +1040,14 @@ impl<'a> ColliderSet<'a> {
             }
             // Without one, those whose step misses every collider's whole box.
             None => {
-                let roots: Vec<Bounds> = self.colliders.iter().map(|c| c.tree().bounds()).collect();
+                let roots: Vec<Bounds> = (0..self.colliders.len()).map(|c| self.triangle_tree(c, params.motion).bounds()).collect();
                 let reaches = |corners: &[u32]| {
-                    let mut step = Bounds::EMPTY;
+                    let (mut from, mut to) = (Bounds::EMPTY, Bounds::EMPTY);
                     for &v in corners {
-                        step = step.union(Bounds::of_points(&[start[v as usize], end[v as usize]]));
+                        from = from.union(Bounds::of_points(&[start[v as usize]]));
+                        to = to.union(Bounds::of_points(&[end[v as usize]]));
                     }
-                    roots.iter().any(|r| r.overlaps(&step))
+                    roots.iter().enumerate().any(|(c, r)| r.overlaps(&self.query_box(c, params.motion, from, to)))
                 };
                 let reaching = |elements: &[u32], count: usize| -> Vec<u32> {
                     let size = elements.len() / count.max(1);
@@ -1031,26 +1082,35 @@ impl<'a> ColliderSet<'a> {
                 .collect();
             stats.vertex_contacts += updates.len();
             stats.plane_lifts += lifted.swap(0, Ordering::Relaxed);
-            let mut next: Vec<u32> = Vec::with_capacity(updates.len());
             let mut apply = |i: u32, p: Vec3, end: &mut [Vec3]| {
                 if !moved[i as usize] {
                     moved[i as usize] = true;
                     requested.push((i, end[i as usize]));
                 }
                 end[i as usize] = p;
-                next.push(i);
             };
+            let mut lifted_now: Vec<u32> = Vec::with_capacity(updates.len());
             for (i, p) in updates {
                 apply(i, p, end);
+                lifted_now.push(i);
             }
             // Skin edges against collider edges, skin triangles against
-            // collider vertices.
+            // collider vertices: those still to be checked, and those around
+            // the vertices just moved, at their new ends. An element checked
+            // here stays checked until one of its corners moves again.
+            (active_edges, active_triangles) = skin.touching(&lifted_now, (&active_edges, &active_triangles));
             let (ee, fv, shared) = self.shared_corrections(start, end, skin, &active_edges, &active_triangles, params, planes);
             stats.edge_contacts += ee;
             stats.collider_vertex_contacts += fv;
+            let mut pushed: Vec<u32> = Vec::with_capacity(shared.len());
             for (i, p) in shared {
                 apply(i, p, end);
+                pushed.push(i);
             }
+            // Every vertex moved in this round is checked again in the next;
+            // the elements around those the shared corrections pushed are
+            // checked after the next round's vertex corrections.
+            let mut next: Vec<u32> = lifted_now.iter().chain(&pushed).copied().collect();
             next.sort_unstable();
             next.dedup();
             next.retain(|&i| skin.inverse_mass(i) > 0.0);
@@ -1058,7 +1118,7 @@ impl<'a> ColliderSet<'a> {
                 converged = true;
                 break;
             }
-            (active_edges, active_triangles) = skin.touching(&next);
+            (active_edges, active_triangles) = skin.touching(&pushed, (&[], &[]));
             active = next;
         }
         if !converged {
