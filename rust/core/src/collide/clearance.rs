@@ -196,10 +196,27 @@ impl Clearance {
     /// (The same proof, listing the rest: a pass runs it over the whole skin
     /// every iteration, so it goes straight to the short lists.)
     pub fn unproven(&self, skin: &Skin, start: &[Vec3], end: &[Vec3]) -> Unproven {
-        let reach = self.reach(start, end);
-        // An edge or triangle all of whose vertices stayed within their guard
-        // is proven; only those around the others need the test.
-        let loud: Vec<u32> = (0..reach.len() as u32).into_par_iter().with_min_len(4096).filter(|&i| reach[i as usize] >= self.guard[i as usize]).collect();
+        // One pass over the whole skin: how far each vertex got, and the
+        // vertices that passed their guard. An edge or triangle all of whose
+        // vertices stayed within their guard is proven; only those around
+        // the others need the test.
+        const CHUNK: usize = 4096;
+        let mut reach = vec![0.0f32; self.reference.len()];
+        let loud: Vec<u32> = reach
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .flat_map_iter(|(chunk, out)| {
+                let first = chunk * CHUNK;
+                let mut loud = Vec::new();
+                for (k, r) in out.iter_mut().enumerate() {
+                    *r = self.reach_of(first + k, start, end);
+                    if *r >= self.guard[first + k] {
+                        loud.push((first + k) as u32);
+                    }
+                }
+                loud
+            })
+            .collect();
         let vertices = loud.iter().copied().filter(|&i| reach[i as usize] >= self.vertex[i as usize]).collect();
         let edge_unproven = |k: u32| {
             let [a, b] = skin.edges()[k as usize];
@@ -209,29 +226,35 @@ impl Clearance {
             let [a, b, c] = skin.triangles()[k as usize];
             reach[a as usize].max(reach[b as usize]).max(reach[c as usize]) >= self.triangle[k as usize]
         };
-        let edges = ascending_unique(loud.iter().flat_map(|&v| skin.edges_of(v).iter().copied()).filter(|&k| edge_unproven(k)), skin.edges().len());
-        let triangles = ascending_unique(loud.iter().flat_map(|&v| skin.triangles_of(v).iter().copied()).filter(|&k| triangle_unproven(k)), skin.triangles().len());
+        let (edges, triangles) = rayon::join(
+            || {
+                let found: Vec<u32> = loud.par_iter().with_min_len(512).flat_map_iter(|&v| skin.edges_of(v).iter().copied().filter(|&k| edge_unproven(k))).collect();
+                ascending_unique(found.into_iter(), skin.edges().len())
+            },
+            || {
+                let found: Vec<u32> = loud.par_iter().with_min_len(512).flat_map_iter(|&v| skin.triangles_of(v).iter().copied().filter(|&k| triangle_unproven(k))).collect();
+                ascending_unique(found.into_iter(), skin.triangles().len())
+            },
+        );
         Unproven { vertices, edges, triangles }
     }
 
-    /// How far each vertex gets from its reference position over `start →
+    /// How far vertex `i` gets from its reference position over `start →
     /// end` (its path lies in the ball of that radius), rounded up to f32.
     ///
     /// In f32, which a pass runs over the whole skin every iteration: the
     /// difference, squares, sum and root each round by at most one part in
     /// 2²⁴, about five parts in all, so growing the result by one part in 2²⁰
     /// keeps it an upper bound.
-    fn reach(&self, start: &[Vec3], end: &[Vec3]) -> Vec<f32> {
+    fn reach_of(&self, i: usize, start: &[Vec3], end: &[Vec3]) -> f32 {
         const UP: f32 = 1.0 + 1.0 / (1 << 20) as f32;
-        let mut reach = vec![0.0f32; self.reference.len()];
-        reach.par_chunks_mut(4096).enumerate().for_each(|(chunk, out)| {
-            let first = chunk * 4096;
-            for (k, r) in out.iter_mut().enumerate() {
-                let (x, s, e) = (self.reference[first + k], start[first + k], end[first + k]);
-                *r = (s - x).length_squared().max((e - x).length_squared()).sqrt() * UP;
-            }
-        });
-        reach
+        let (x, s, e) = (self.reference[i], start[i], end[i]);
+        (s - x).length_squared().max((e - x).length_squared()).sqrt() * UP
+    }
+
+    /// [`Self::reach_of`] every vertex.
+    fn reach(&self, start: &[Vec3], end: &[Vec3]) -> Vec<f32> {
+        (0..self.reference.len()).into_par_iter().with_min_len(4096).map(|i| self.reach_of(i, start, end)).collect()
     }
 
     /// For a step `start → end` of the skin, which vertices, edges and

@@ -246,20 +246,23 @@ fn vertex_planes(colliders: &[&Collider], outward: &[f64], p: Vec3, area: &Bound
         };
         normals.push((n, c));
     }
+    // Every plane's level in one sweep over the corners.
+    let mut levels = [f64::NEG_INFINITY; PLANES_PER_VERTEX];
+    for &(c, t, _) in &found {
+        let col = colliders[c as usize];
+        let thickness = col.settings().thickness as f64;
+        for &v in &col.triangles()[t as usize] {
+            let corner = col.current()[v as usize].as_dvec3();
+            for (level, (normal, _)) in levels.iter_mut().zip(&normals) {
+                *level = level.max(normal.dot(corner) + thickness);
+            }
+        }
+    }
     normals
         .into_iter()
-        .filter_map(|(normal, collider)| {
-            let mut level = f64::NEG_INFINITY;
-            for &(c, t, _) in &found {
-                let col = colliders[c as usize];
-                let thickness = col.settings().thickness as f64;
-                for &v in &col.triangles()[t as usize] {
-                    level = level.max(normal.dot(col.current()[v as usize].as_dvec3()) + thickness);
-                }
-            }
-            let plane = Plane { normal, level: level + margin, collider };
-            above(&plane, p).then_some(plane)
-        })
+        .zip(levels)
+        .map(|((normal, collider), level)| Plane { normal, level: level + margin, collider })
+        .filter(|plane| above(plane, p))
         .collect()
 }
 
