@@ -25,7 +25,7 @@
 //! every change of a collider's positions or settings gives it a new
 //! [`Collider::generation`], and a stale clearance is not used.
 
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 use rayon::prelude::*;
 
 use super::bvh::Bounds;
@@ -98,14 +98,9 @@ impl Clearance {
                 let query = Bounds { min: p - Vec3::splat(radius), max: p + Vec3::splat(radius) };
                 let mut nearest = radius as f64;
                 for (c, root) in colliders.iter().zip(&roots) {
-                    if !root.overlaps(&query) {
-                        continue;
+                    if root.overlaps(&query) {
+                        nearest = c.tree().nearest_distance(p, nearest);
                     }
-                    let tree = c.tree();
-                    tree.query(&query, |t| {
-                        nearest = nearest.min(box_distance(p, &tree.primitive_bounds(t)));
-                        nearest > 0.0
-                    });
                 }
                 ((nearest - margin).max(0.0), nearest < radius as f64)
             })
@@ -316,15 +311,11 @@ fn round_down(x: f64) -> f32 {
 }
 
 
-/// Euclidean distance from `p` to box `b` (0 inside), in f64.
-fn box_distance(p: Vec3, b: &Bounds) -> f64 {
-    let (p, lo, hi) = (p.as_dvec3(), b.min.as_dvec3(), b.max.as_dvec3());
-    (lo - p).max(p - hi).max(DVec3::ZERO).length()
-}
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use glam::DVec3;
     use crate::collide::collider::ColliderSettings;
     use crate::collide::geometry::{point_triangle_distance_squared, triangle_samples};
     use crate::mesh::shapes::grid;
