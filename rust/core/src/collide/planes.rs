@@ -11,7 +11,7 @@
 //! For a skin vertex near a collider, at reference positions `x` (the start
 //! of the in-loop passes), take the box `B = x ± R` and every collider
 //! triangle whose box at its current position, grown by the thickness, meets
-//! `B` (found through the BVH, whose leaf boxes cover the whole frame). A
+//! `B` (found through the collider's BVH of those boxes). A
 //! triangle that is not among them keeps every point of `B` farther than its
 //! thickness. For a unit direction `n`, let
 //! `level = max(n·q + thickness)` over the corners `q` of those triangles:
@@ -35,7 +35,7 @@
 //! friction as a contact with a triangle ([`super::response`]). Its new step
 //! is then proven clear by the same plane, so no second lookup is needed.
 
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec3, Vec4};
 use rayon::prelude::*;
 
 use super::bvh::Bounds;
@@ -200,31 +200,36 @@ impl LocalPlanes {
     }
 }
 
+/// A bound on how far the f32 sweep of [`vertex_planes`] may fall below
+/// the exact `n·q + thickness` with the f64 normal. Rounding the normal to
+/// f32 moves `n·q` by at most half an ulp of 1 per component times
+/// `|q|₁ ≤ 3·extent`; the three products and three sums each round by half
+/// an ulp of a value below `3·extent + thickness`. Seven half-ulps in all:
+/// four ulps cover them.
+fn f32_sweep_rounding(colliders: &[&Collider]) -> f64 {
+    let largest = colliders.iter().map(|c| 3.0 * c.extent() as f64 + c.settings().thickness as f64).fold(0.0, f64::max);
+    4.0 * f32::EPSILON as f64 * largest
+}
+
 fn above(plane: &Plane, p: Vec3) -> bool {
     plane.normal.dot(p.as_dvec3()) >= plane.level
 }
 
 /// The planes of one vertex at `p` with box `area` (see the module documentation).
 fn vertex_planes(colliders: &[&Collider], outward: &[f64], p: Vec3, area: &Bounds, margin: f64) -> Vec<Plane> {
-    // Leaf boxes are grown by the thickness in f32; the query is grown a
-    // little more so that rounding cannot drop a triangle that reaches the box.
+    // The tree's boxes (current corners grown by the thickness) are grown
+    // in f32; the query is grown a little more so that rounding cannot drop
+    // a triangle that reaches the box. A few more than reach it only raise
+    // the levels a little.
     let query = area.inflated(margin as f32);
     let p64 = p.as_dvec3();
-    let (lo, hi) = (area.min.as_dvec3(), area.max.as_dvec3());
     // (collider, triangle, squared distance from p to its centroid)
-    let mut found: Vec<(u32, u32, f64)> = Vec::new();
+    let mut found: Vec<(u32, u32, f32)> = Vec::new();
     for (c, col) in colliders.iter().enumerate() {
         let (tris, current) = (col.triangles(), col.current());
-        let reach = col.settings().thickness as f64 + margin;
         col.tree().query(&query, |t| {
-            // The tree's boxes are grown in f32; the reach is decided here
-            // in f64, as the planes are.
-            let corners = tris[t].map(|v| current[v as usize].as_dvec3());
-            let (min, max) = (corners[0].min(corners[1]).min(corners[2]) - reach, corners[0].max(corners[1]).max(corners[2]) + reach);
-            if min.cmple(hi).all() && lo.cmple(max).all() {
-                let centroid = (corners[0] + corners[1] + corners[2]) / 3.0;
-                found.push((c as u32, t as u32, (centroid - p64).length_squared()));
-            }
+            let [a, b, cc] = tris[t].map(|v| current[v as usize]);
+            found.push((c as u32, t as u32, ((a + b + cc) / 3.0 - p).length_squared()));
             true
         });
     }
@@ -246,22 +251,31 @@ fn vertex_planes(colliders: &[&Collider], outward: &[f64], p: Vec3, area: &Bound
         };
         normals.push((n, c));
     }
-    // Every plane's level in one sweep over the corners.
-    let mut levels = [f64::NEG_INFINITY; PLANES_PER_VERTEX];
+    if normals.is_empty() {
+        return Vec::new();
+    }
+    // Every plane's level in one sweep over the corners, the four planes in
+    // the lanes of one f32 vector; the sweep's rounding is added after.
+    let lane = |k: usize| normals[k.min(normals.len() - 1)].0.as_vec3();
+    let (nx, ny, nz) = (
+        Vec4::new(lane(0).x, lane(1).x, lane(2).x, lane(3).x),
+        Vec4::new(lane(0).y, lane(1).y, lane(2).y, lane(3).y),
+        Vec4::new(lane(0).z, lane(1).z, lane(2).z, lane(3).z),
+    );
+    let mut top = Vec4::splat(f32::NEG_INFINITY);
     for &(c, t, _) in &found {
         let col = colliders[c as usize];
-        let thickness = col.settings().thickness as f64;
+        let thickness = Vec4::splat(col.settings().thickness);
         for &v in &col.triangles()[t as usize] {
-            let corner = col.current()[v as usize].as_dvec3();
-            for (level, (normal, _)) in levels.iter_mut().zip(&normals) {
-                *level = level.max(normal.dot(corner) + thickness);
-            }
+            let q = col.current()[v as usize];
+            top = top.max(nx * q.x + ny * q.y + nz * q.z + thickness);
         }
     }
+    let rounding = f32_sweep_rounding(colliders);
     normals
         .into_iter()
-        .zip(levels)
-        .map(|((normal, collider), level)| Plane { normal, level: level + margin, collider })
+        .zip(top.to_array())
+        .map(|((normal, collider), level)| Plane { normal, level: level as f64 + rounding + margin, collider })
         .filter(|plane| above(plane, p))
         .collect()
 }
