@@ -1040,21 +1040,33 @@ impl<'a> ColliderSet<'a> {
             }
             // Without one, those whose step misses every collider's whole box.
             None => {
-                let roots: Vec<Bounds> = (0..self.colliders.len()).map(|c| self.triangle_tree(c, params.motion).bounds()).collect();
-                let reaches = |corners: &[u32]| {
-                    let (mut from, mut to) = (Bounds::EMPTY, Bounds::EMPTY);
-                    for &v in corners {
-                        from = from.union(Bounds::of_points(&[start[v as usize]]));
-                        to = to.union(Bounds::of_points(&[end[v as usize]]));
-                    }
-                    roots.iter().enumerate().any(|(c, r)| r.overlaps(&self.query_box(c, params.motion, from, to)))
-                };
-                let reaching = |elements: &[u32], count: usize| -> Vec<u32> {
-                    let size = elements.len() / count.max(1);
-                    (0..count as u32).into_par_iter().with_min_len(4096).filter(|&k| reaches(&elements[k as usize * size..(k as usize + 1) * size])).collect()
-                };
-                let all: Vec<u32> = (0..n as u32).collect();
-                (reaching(&all, n), reaching(skin.edges.as_flattened(), skin.edges.len()), reaching(skin.triangles.as_flattened(), skin.triangles.len()))
+                let mut reach_vertices = vec![false; n];
+                let mut reach_edges = vec![false; skin.edges.len()];
+                let mut reach_triangles = vec![false; skin.triangles.len()];
+                for c in 0..self.colliders.len() {
+                    // Each vertex's box over the step where the collider's
+                    // trees see it, once; an element's is its corners' union.
+                    let root = self.triangle_tree(c, params.motion).bounds();
+                    let boxes: Vec<Bounds> = (0..n)
+                        .into_par_iter()
+                        .with_min_len(4096)
+                        .map(|i| self.query_box(c, params.motion, Bounds::of_points(&[start[i]]), Bounds::of_points(&[end[i]])))
+                        .collect();
+                    let mark = |flags: &mut [bool], elements: &[u32], size: usize| {
+                        flags.par_chunks_mut(4096).enumerate().for_each(|(chunk, out)| {
+                            for (k, flag) in out.iter_mut().enumerate() {
+                                let first = (chunk * 4096 + k) * size;
+                                let union = elements[first..first + size].iter().fold(Bounds::EMPTY, |u, &v| u.union(boxes[v as usize]));
+                                *flag |= root.overlaps(&union);
+                            }
+                        })
+                    };
+                    reach_vertices.par_iter_mut().zip(&boxes).with_min_len(4096).for_each(|(flag, b)| *flag |= root.overlaps(b));
+                    mark(&mut reach_edges, skin.edges.as_flattened(), 2);
+                    mark(&mut reach_triangles, skin.triangles.as_flattened(), 3);
+                }
+                let listed = |flags: &[bool]| -> Vec<u32> { (0..flags.len() as u32).into_par_iter().with_min_len(4096).filter(|&k| flags[k as usize]).collect() };
+                (listed(&reach_vertices), listed(&reach_edges), listed(&reach_triangles))
             }
         };
         // Vertices with inverse mass 0 move as imposed: never corrected.
