@@ -106,15 +106,21 @@ def collider_objects(obj) -> list:
     )
 
 
-def _world_triangles(collider, depsgraph) -> tuple[np.ndarray, np.ndarray]:
-    """``(positions (N, 3) world, triangles (T, 3))`` of the evaluated collider, the triangles
-    in a canonical order (:func:`canonical_triangles`)."""
+def _world_positions(collider, depsgraph) -> tuple[np.ndarray, int]:
+    """``(positions (N, 3) world, triangle count)`` of the evaluated collider."""
     evaluated = collider.evaluated_get(depsgraph)
     mesh = evaluated.data
     positions = to_world(mesh_arrays.positions(mesh), evaluated.matrix_world)
-    triangles = np.empty(len(mesh.loop_triangles) * 3, dtype=np.int32)
-    mesh.loop_triangles.foreach_get("vertices", triangles)
-    return np.ascontiguousarray(positions, dtype=np.float32), canonical_triangles(triangles.reshape(-1, 3))
+    return np.ascontiguousarray(positions, dtype=np.float32), len(mesh.loop_triangles)
+
+
+def _world_triangles(collider, depsgraph) -> tuple[np.ndarray, np.ndarray]:
+    """``(positions (N, 3) world, triangles (T, 3))`` of the evaluated collider, the triangles
+    in a canonical order (:func:`canonical_triangles`)."""
+    positions, count = _world_positions(collider, depsgraph)
+    triangles = np.empty(count * 3, dtype=np.int32)
+    collider.evaluated_get(depsgraph).data.loop_triangles.foreach_get("vertices", triangles)
+    return positions, canonical_triangles(triangles.reshape(-1, 3))
 
 
 def canonical_triangles(triangles: np.ndarray) -> np.ndarray:
@@ -179,8 +185,13 @@ class ColliderRig:
 
         first = not self.colliders
         for k, collider in enumerate(self.objects):
-            positions, triangles = _world_triangles(collider, depsgraph)
-            topology = (len(positions), len(triangles))
+            # The triangles are read once: later frames only check their count.
+            if first:
+                positions, triangles = _world_triangles(collider, depsgraph)
+                count = len(triangles)
+            else:
+                positions, count = _world_positions(collider, depsgraph)
+            topology = (len(positions), count)
             matrix = collider.evaluated_get(depsgraph).matrix_world.copy()
             if first:
                 self._matrices.append(matrix)
