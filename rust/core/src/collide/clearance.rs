@@ -64,6 +64,10 @@ pub struct Clearance {
     margin: f64,
     /// Per vertex: whether some collider's box lies within the radius.
     near: Vec<bool>,
+    /// The edges and triangles around the near vertices, ascending: where
+    /// the resting contacts are, whose elements every pass lists again.
+    near_edges: Vec<u32>,
+    near_triangles: Vec<u32>,
     /// Supporting planes of the colliders around the vertices near them
     /// ([`Self::with_planes`]).
     planes: Option<LocalPlanes>,
@@ -135,11 +139,16 @@ impl Clearance {
                 edges.chain(triangles).fold(vertex[v as usize], f32::min)
             })
             .collect();
+        let near_vertices: Vec<u32> = (0..positions.len() as u32).filter(|&v| near[v as usize]).collect();
+        let near_edges = ascending_unique(near_vertices.iter().flat_map(|&v| skin.edges_of(v).iter().copied()), skin.edges().len());
+        let near_triangles = ascending_unique(near_vertices.iter().flat_map(|&v| skin.triangles_of(v).iter().copied()), skin.triangles().len());
         Ok(Clearance {
             reference: positions.to_vec(),
             guard,
             radius,
             margin,
+            near_edges,
+            near_triangles,
             near,
             planes: None,
             vertex,
@@ -221,16 +230,13 @@ impl Clearance {
             let [a, b, c] = skin.triangles()[k as usize];
             reach[a as usize].max(reach[b as usize]).max(reach[c as usize]) >= self.triangle[k as usize]
         };
-        let (edges, triangles) = rayon::join(
-            || {
-                let found: Vec<u32> = loud.par_iter().with_min_len(512).flat_map_iter(|&v| skin.edges_of(v).iter().copied().filter(|&k| edge_unproven(k))).collect();
-                ascending_unique(found.into_iter(), skin.edges().len())
-            },
-            || {
-                let found: Vec<u32> = loud.par_iter().with_min_len(512).flat_map_iter(|&v| skin.triangles_of(v).iter().copied().filter(|&k| triangle_unproven(k))).collect();
-                ascending_unique(found.into_iter(), skin.triangles().len())
-            },
-        );
+        // An unproven element has a loud corner. Around the near vertices
+        // (the resting contacts, loud in every pass) the elements are listed
+        // once per clearance and only filtered here; around the few loud
+        // vertices elsewhere they are gathered.
+        let far_loud: Vec<u32> = loud.iter().copied().filter(|&v| !self.near[v as usize]).collect();
+        let edges = gather_unproven(&self.near_edges, &far_loud, |v| skin.edges_of(v), edge_unproven, skin.edges().len());
+        let triangles = gather_unproven(&self.near_triangles, &far_loud, |v| skin.triangles_of(v), triangle_unproven, skin.triangles().len());
         Unproven { vertices, edges, triangles }
     }
 
@@ -298,6 +304,29 @@ pub(super) fn ascending_unique(indices: impl Iterator<Item = u32>, count: usize)
             word &= word - 1;
         }
     }
+    out
+}
+
+/// The unproven elements among `listed` (ascending) and around the vertices
+/// `loud`, ascending, each once.
+fn gather_unproven<'s>(listed: &[u32], loud: &[u32], around: impl Fn(u32) -> &'s [u32], unproven: impl Fn(u32) -> bool + Sync, count: usize) -> Vec<u32> {
+    let kept: Vec<u32> = listed.par_iter().with_min_len(1024).copied().filter(|&k| unproven(k)).collect();
+    let gathered = ascending_unique(loud.iter().flat_map(|&v| around(v).iter().copied()).filter(|&k| unproven(k)), count);
+    merge_ascending(&kept, &gathered)
+}
+
+/// The union of two ascending lists, ascending, each value once.
+fn merge_ascending(a: &[u32], b: &[u32]) -> Vec<u32> {
+    let mut out = Vec::with_capacity(a.len() + b.len());
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        let next = a[i].min(b[j]);
+        out.push(next);
+        i += (a[i] == next) as usize;
+        j += (b[j] == next) as usize;
+    }
+    out.extend_from_slice(&a[i..]);
+    out.extend_from_slice(&b[j..]);
     out
 }
 
