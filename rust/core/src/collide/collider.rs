@@ -295,10 +295,17 @@ impl Collider {
         self.generation = next_generation();
         self.shape = self.measure_shape();
         self.drift = self.measure_drift();
-        let report = self.swept_tree.update(&self.swept_boxes())?;
-        self.swept_vertex_tree.update(&self.swept_vertex_boxes())?;
-        self.tree.update(&self.still_boxes())?;
-        self.vertex_tree.update(&self.still_vertex_boxes())?;
+        // The four trees are independent: refitted side by side.
+        let (swept_boxes, swept_vertex_boxes, still_boxes, still_vertex_boxes) =
+            (self.swept_boxes(), self.swept_vertex_boxes(), self.still_boxes(), self.still_vertex_boxes());
+        let (swept, still) = rayon::join(
+            || rayon::join(|| self.swept_tree.update(&swept_boxes), || self.swept_vertex_tree.update(&swept_vertex_boxes)),
+            || rayon::join(|| self.tree.update(&still_boxes), || self.vertex_tree.update(&still_vertex_boxes)),
+        );
+        let report = swept.0?;
+        swept.1?;
+        still.0?;
+        still.1?;
         self.last_update = Some(report);
         Ok(report)
     }
