@@ -110,26 +110,30 @@ impl Clearance {
             })
             .unzip();
         let at = |v: u32| positions[v as usize].as_dvec3();
-        let edge: Vec<f32> = skin
-            .edges()
-            .par_iter()
-            .map(|&[a, b]| {
-                let (da, db) = (vertex[a as usize], vertex[b as usize]);
-                let length = (at(a) - at(b)).length();
-                (0.5 * (da + db - length)).max(da.max(db) - length)
-            })
-            .map(round_down)
-            .collect();
-        let triangle: Vec<f32> = skin
-            .triangles()
-            .par_iter()
-            .map(|&corners| {
-                let x = corners.map(at);
-                let longest = (x[0] - x[1]).length().max((x[1] - x[2]).length()).max((x[2] - x[0]).length());
-                corners.iter().map(|&v| vertex[v as usize]).fold(0.0, f64::max) - longest
-            })
-            .map(round_down)
-            .collect();
+        let edge_bounds = || -> Vec<f32> {
+            skin.edges()
+                .par_iter()
+                .map(|&[a, b]| {
+                    let (da, db) = (vertex[a as usize], vertex[b as usize]);
+                    let length = (at(a) - at(b)).length();
+                    (0.5 * (da + db - length)).max(da.max(db) - length)
+                })
+                .map(round_down)
+                .collect()
+        };
+        let triangle_bounds = || -> Vec<f32> {
+            skin.triangles()
+                .par_iter()
+                .map(|&corners| {
+                    let x = corners.map(at);
+                    let longest = (x[0] - x[1]).length().max((x[1] - x[2]).length()).max((x[2] - x[0]).length());
+                    corners.iter().map(|&v| vertex[v as usize]).fold(0.0, f64::max) - longest
+                })
+                .map(round_down)
+                .collect()
+        };
+        // Independent, and each too short to keep both cores busy alone.
+        let (edge, triangle) = rayon::join(edge_bounds, triangle_bounds);
         let vertex: Vec<f32> = vertex.into_iter().map(round_down).collect();
         let guard = (0..positions.len() as u32)
             .into_par_iter()
@@ -165,7 +169,13 @@ impl Clearance {
     pub fn default_radius(colliders: &[&Collider], skin: &Skin, positions: &[Vec3]) -> f32 {
         let thickness = colliders.iter().map(|c| c.settings().thickness).fold(0.0, f32::max);
         let edges = skin.edges();
-        let total: f64 = edges.iter().map(|&[a, b]| positions[a as usize].distance(positions[b as usize]) as f64).sum();
+        // Summed in fixed chunks, so the radius does not depend on how the
+        // work was shared out.
+        let chunks: Vec<f64> = edges
+            .par_chunks(8192)
+            .map(|chunk| chunk.iter().map(|&[a, b]| positions[a as usize].distance(positions[b as usize]) as f64).sum())
+            .collect();
+        let total: f64 = chunks.iter().sum();
         4.0 * thickness + 2.0 * (total / edges.len().max(1) as f64) as f32
     }
 
