@@ -78,6 +78,9 @@ pub struct Collider {
     tree: BoxTree,
     /// Thickened boxes of the vertices at the current positions.
     vertex_tree: BoxTree,
+    /// Previous = current: the swept trees would hold the still trees'
+    /// boxes, so they are neither refitted nor used.
+    at_rest: bool,
     /// CSR lists of the triangles around every vertex.
     vertex_triangle_offsets: Vec<u32>,
     vertex_triangle_list: Vec<u32>,
@@ -181,6 +184,7 @@ impl Collider {
             swept_vertex_tree: BoxTree::build(&[])?,
             tree: BoxTree::build(&[])?,
             vertex_tree: BoxTree::build(&[])?,
+            at_rest: true,
             vertex_triangle_offsets,
             vertex_triangle_list,
             last_update: None,
@@ -198,7 +202,7 @@ impl Collider {
 
     /// Next frame: the current positions become the previous ones, `positions`
     /// the current ones; the BVHs are refitted (and rebuilt if degraded). The
-    /// report is the swept triangle tree's.
+    /// report is the triangle tree's at the current positions.
     pub fn update(&mut self, positions: &[Vec3]) -> Result<UpdateReport> {
         self.check_count(positions.len())?;
         validate_positions("collider positions", positions)?;
@@ -269,6 +273,9 @@ impl Collider {
 
     pub fn set_settings(&mut self, settings: ColliderSettings) -> Result<()> {
         settings.validate()?;
+        if settings == self.settings {
+            return Ok(());
+        }
         self.settings = settings;
         self.refresh().map(|_| ())
     }
@@ -295,16 +302,26 @@ impl Collider {
         self.generation = next_generation();
         self.shape = self.measure_shape();
         self.drift = self.measure_drift();
+        // A collider at rest (a skin standing in as one, each pass) sweeps
+        // nowhere: its still trees serve for both.
+        self.at_rest = self.previous == self.current;
+        let (still_boxes, still_vertex_boxes) = (self.still_boxes(), self.still_vertex_boxes());
+        if self.at_rest {
+            let (still, vertices) = rayon::join(|| self.tree.update(&still_boxes), || self.vertex_tree.update(&still_vertex_boxes));
+            let report = still?;
+            vertices?;
+            self.last_update = Some(report);
+            return Ok(report);
+        }
         // The four trees are independent: refitted side by side.
-        let (swept_boxes, swept_vertex_boxes, still_boxes, still_vertex_boxes) =
-            (self.swept_boxes(), self.swept_vertex_boxes(), self.still_boxes(), self.still_vertex_boxes());
+        let (swept_boxes, swept_vertex_boxes) = (self.swept_boxes(), self.swept_vertex_boxes());
         let (swept, still) = rayon::join(
             || rayon::join(|| self.swept_tree.update(&swept_boxes), || self.swept_vertex_tree.update(&swept_vertex_boxes)),
             || rayon::join(|| self.tree.update(&still_boxes), || self.vertex_tree.update(&still_vertex_boxes)),
         );
-        let report = swept.0?;
+        swept.0?;
         swept.1?;
-        still.0?;
+        let report = still.0?;
         still.1?;
         self.last_update = Some(report);
         Ok(report)
@@ -457,11 +474,11 @@ impl Collider {
     /// The BVH over thickened triangle boxes over the frame, in the frame
     /// moving with [`Collider::drift`]; query it with [`Collider::swept_query`].
     pub fn swept_tree(&self) -> &BoxTree {
-        &self.swept_tree
+        if self.at_rest { &self.tree } else { &self.swept_tree }
     }
     /// The same for vertex boxes.
     pub fn swept_vertex_tree(&self) -> &BoxTree {
-        &self.swept_vertex_tree
+        if self.at_rest { &self.vertex_tree } else { &self.swept_vertex_tree }
     }
     /// The box, in the drifting frame, of a skin element whose corners lie
     /// in `start` at the start of the step and in `end` at its end.
@@ -715,6 +732,16 @@ mod tests {
         let b = c.swept_box(0);
         assert!(b.min.x <= -0.1 + 1e-6 && b.max.x >= 1.1 - 1e-6 && b.max.x < 1.2, "{b:?}");
         assert_eq!(c.tree().primitive_bounds(0).min.x, 2.0 - 0.1, "the still tree holds the current boxes");
+        // At rest the still trees serve as the swept ones; moving again, the
+        // swept trees are refitted from wherever they were.
+        c.hold().unwrap();
+        assert_eq!(c.swept_tree().primitive_bounds(0), c.tree().primitive_bounds(0));
+        assert_eq!(c.swept_vertex_tree().primitive_bounds(3), c.vertex_tree().primitive_bounds(3));
+        let back: Vec<Vec3> = moved.iter().map(|&v| v + Vec3::new(0.0, 0.0, 5.0)).collect();
+        c.update(&back).unwrap();
+        assert_eq!(c.drift(), Vec3::new(0.0, 0.0, 5.0));
+        assert_eq!(c.swept_tree().primitive_bounds(0), c.swept_box(0));
+        assert!(c.swept_tree().primitive_bounds(0).max.z < 4.0, "boxes in the drifting frame, not over the sweep");
         let err = c.update(&moved[..3]).unwrap_err().to_string();
         assert_eq!(err, "collider had 4 vertices, update gave 3");
     }
