@@ -15,6 +15,8 @@
 //!   and lift the vertices the solver pulls back in, without a lookup.
 //! * [`proximity`]: cheap exact-distance proofs that a pair stays apart,
 //!   which spare resting contacts the interval CCD.
+//! * `slab`: proofs that a skin element stays apart from a whole patch of
+//!   collider triangles at once, the patch's corners gathered once.
 //! * [`response`]: [`ColliderSet::resolve_path`], the building block of both
 //!   collision passes (projection, friction, pinched vertices); its module doc
 //!   shows the intended use in seed 000's Algorithm 2.
@@ -30,6 +32,7 @@ pub mod geometry;
 pub mod planes;
 pub mod proximity;
 pub mod response;
+mod slab;
 
 pub use audit::{audit, AuditParams, AuditReport};
 pub use bvh::{BoxTree, Bounds, UpdateReport};

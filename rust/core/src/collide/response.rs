@@ -75,6 +75,7 @@ use super::collider::Collider;
 use super::geometry::{triangle_normal, unit};
 use super::planes::{Lift, LocalPlanes, VertexStep};
 use super::proximity;
+use super::slab::{Patch, SLICES};
 use crate::mesh::{validate_positions, MeshInput};
 use crate::{Error, Result};
 
@@ -256,14 +257,6 @@ fn incidence<'e>(n: usize, elements: impl Iterator<Item = &'e [u32]> + Clone) ->
     }
     (offsets, list)
 }
-
-/// Parts of the step that get a slab each when one slab for the whole step
-/// does not prove a skin edge or triangle apart from a moving collider (a
-/// contact sliding over a curved collider). Against a still collider such a
-/// failure is nearly always a real contact, and slicing would only add work.
-/// With each slab taken in the middle of its part, four prove as many of the
-/// benchmark's sliding contacts as eight did with slabs taken at the end.
-const SLICES: usize = 4;
 
 thread_local! {
     /// Per-thread lists of an element's candidate triangles (or collider
@@ -458,7 +451,7 @@ impl<'a> ColliderSet<'a> {
         for (c, col) in self.colliders.iter().enumerate() {
             let ccd = self.ccd_params(col.settings().thickness as f64);
             self.candidate_triangles(c, motion, from, to, &mut candidates);
-            if self.slab_apart(c, &candidates, &[s64], &[e64], motion, ccd.min_separation, 1) {
+            if self.slab_apart(c, &candidates, &[s64], &[e64], motion, ccd.min_separation, false) {
                 continue;
             }
             // Entry times in the trees' frame: distances, and so contacts,
@@ -529,74 +522,18 @@ impl<'a> ColliderSet<'a> {
 
     /// Whether a skin element (corners `start → end`, at most 3) provably
     /// stays farther than `separation` from all of collider `c`'s `triangles`
-    /// (and so from their edges and vertices) over the step, by slabs
-    /// ([`proximity::separated_along`]) instead of a proof per pair: one slab
-    /// for each of `slices` equal parts of the step (a contact that slides or
-    /// passes a curved collider needs several directions). A slab's
-    /// direction is the normal of the triangle nearest to the element at
-    /// the middle of its part; its frame translates with that triangle's
-    /// first corner. Resting contacts on a locally convex collider pass; anything
-    /// else falls through to the pairwise tests.
+    /// over the step, by slabs (see [`Patch::apart`]; `sliced` allows a slab
+    /// per part of the step when the collider sweeps).
     #[allow(clippy::too_many_arguments)]
-    fn slab_apart(&self, c: usize, triangles: &[u32], start: &[DVec3], end: &[DVec3], motion: ColliderMotion, separation: f64, slices: usize) -> bool {
+    fn slab_apart(&self, c: usize, triangles: &[u32], start: &[DVec3], end: &[DVec3], motion: ColliderMotion, separation: f64, sliced: bool) -> bool {
         if triangles.is_empty() {
             return true;
         }
-        let motion = self.motions[c].unwrap_or(motion);
-        (0..slices).all(|k| {
-            let (t0, t1) = (k as f64 / slices as f64, (k + 1) as f64 / slices as f64);
-            self.slab_apart_over(c, triangles, start, end, motion, separation, t0, t1)
+        let swept = self.motion(c, motion) == ColliderMotion::Swept;
+        Patch::with(|patch| {
+            patch.gather(self.colliders[c], triangles, swept);
+            patch.apart(start, end, separation, sliced)
         })
-    }
-
-    /// One slab of [`Self::slab_apart`], over the part `t0..t1` of the step.
-    #[allow(clippy::too_many_arguments)]
-    fn slab_apart_over(&self, c: usize, triangles: &[u32], start: &[DVec3], end: &[DVec3], motion: ColliderMotion, separation: f64, t0: f64, t1: f64) -> bool {
-        let count = start.len().min(3);
-        let (mut from, mut to) = ([DVec3::ZERO; 3], [DVec3::ZERO; 3]);
-        for k in 0..count {
-            from[k] = start[k] + t0 * (end[k] - start[k]);
-            to[k] = start[k] + t1 * (end[k] - start[k]);
-        }
-        let (from, to) = (&from[..count], &to[..count]);
-        let col = self.colliders[c];
-        let (tris, previous, current) = (col.triangles(), col.previous(), col.current());
-        let at = |v: u32, t: f64| {
-            let p = d(current[v as usize]);
-            match motion {
-                ColliderMotion::AtCurrent => p,
-                ColliderMotion::Swept if t == 1.0 => p,
-                ColliderMotion::Swept => {
-                    let q = d(previous[v as usize]);
-                    q + t * (p - q)
-                }
-            }
-        };
-        // The triangle nearest to the element halfway through the part: a
-        // contact sliding over a curved collider is then bounded by the
-        // tangent plane in the middle of its slide, where the surface falls
-        // away least at both ends.
-        let middle = 0.5 * (t0 + t1);
-        let centre = (from.iter().chain(to).copied().sum::<DVec3>()) / (2 * count) as f64;
-        let mut anchor = (f64::INFINITY, triangles[0]);
-        for &t in triangles {
-            let centroid = tris[t as usize].iter().map(|&v| at(v, middle)).sum::<DVec3>() / 3.0;
-            let gap = (centroid - centre).length_squared();
-            if gap < anchor.0 {
-                anchor = (gap, t);
-            }
-        }
-        let [a, b, cc] = tris[anchor.1 as usize];
-        let Some(n) = triangle_normal(at(a, middle), at(b, middle), at(cc, middle)) else { return false };
-        let shift = at(a, t1) - at(a, t0);
-        let corners = triangles.iter().flat_map(|&t| tris[t as usize]).map(|v| match motion {
-            ColliderMotion::AtCurrent => {
-                let p = d(current[v as usize]);
-                (p, p)
-            }
-            ColliderMotion::Swept => (at(v, t0), at(v, t1)),
-        });
-        proximity::separated_along(n, shift, from, to, corners, separation)
     }
 
     /// The projected end position for a vertex–triangle contact, or `None`
@@ -661,10 +598,7 @@ impl<'a> ColliderSet<'a> {
         for (c, col) in self.colliders.iter().enumerate() {
             let ccd_params = self.ccd_params(col.settings().thickness as f64);
             self.candidate_triangles(c, params.motion, from, to, &mut candidates);
-            if self.slab_apart(c, &candidates, &[sa, sb], &[ea, eb], params.motion, ccd_params.min_separation, 1)
-                || (self.motions[c].unwrap_or(params.motion) == ColliderMotion::Swept
-                    && self.slab_apart(c, &candidates, &[sa, sb], &[ea, eb], params.motion, ccd_params.min_separation, SLICES))
-            {
+            if self.slab_apart(c, &candidates, &[sa, sb], &[ea, eb], params.motion, ccd_params.min_separation, true) {
                 continue;
             }
             seen.clear();
