@@ -30,7 +30,7 @@ use rayon::prelude::*;
 
 use super::bvh::Bounds;
 use super::collider::Collider;
-use super::planes::LocalPlanes;
+use super::planes::{rounding_margin, LocalPlanes};
 use super::response::Skin;
 use crate::mesh::validate_positions;
 use crate::{Error, Result};
@@ -40,7 +40,7 @@ use crate::{Error, Result};
 /// passes, and half the box has a quarter of the triangles to bound (on the
 /// benchmark's sliding contact, the measurement took 43 ms at the whole
 /// radius, 25 ms at half, with the same passes after it).
-const PLANE_REACH: f32 = 0.5;
+pub(super) const PLANE_REACH: f32 = 0.5;
 
 /// Distance bounds of a skin's vertices, edges and triangles at reference
 /// positions from a set of colliders.
@@ -87,13 +87,7 @@ impl Clearance {
             return Err(Error::invalid(format!("clearance radius is {radius}; it must be finite and ≥ 0")));
         }
         // Boxes are f32, grown by the thickness in f32: allow for their rounding.
-        let scale = colliders
-            .iter()
-            .flat_map(|c| c.current().iter().chain(c.previous()))
-            .chain(positions)
-            .map(|p| p.abs().max_element())
-            .fold(1e-3f32, f32::max);
-        let margin = 4e-6 * scale as f64;
+        let margin = rounding_margin(colliders, positions.iter().copied());
         let roots: Vec<Bounds> = colliders.iter().map(|c| c.tree().bounds()).collect();
         // Per vertex: the distance bound, and whether any box lies within the radius.
         let (vertex, near): (Vec<f64>, Vec<bool>) = positions

@@ -69,6 +69,9 @@ pub struct Collider {
     /// of its vertices' displacements, per axis. The swept trees hold their
     /// boxes in a frame moving with it (see [`Collider::drift`]).
     drift: Vec3,
+    /// How far any vertex's displacement over the frame is from the drift
+    /// (Euclidean): how far the collider moves within the drifting frame.
+    drift_spread: f64,
     /// Thickened boxes of the triangles over the frame, in the drifting frame.
     swept_tree: BoxTree,
     /// Thickened boxes of the vertices over the frame, in the drifting frame
@@ -180,6 +183,7 @@ impl Collider {
             current: positions.to_vec(),
             settings,
             drift: Vec3::ZERO,
+            drift_spread: 0.0,
             swept_tree: BoxTree::build(&[])?,
             swept_vertex_tree: BoxTree::build(&[])?,
             tree: BoxTree::build(&[])?,
@@ -302,6 +306,7 @@ impl Collider {
         self.generation = next_generation();
         self.shape = self.measure_shape();
         self.drift = self.measure_drift();
+        self.drift_spread = self.measure_drift_spread();
         // A collider at rest (a skin standing in as one, each pass) sweeps
         // nowhere: its still trees serve for both.
         self.at_rest = self.previous == self.current;
@@ -340,6 +345,19 @@ impl Collider {
             return Vec3::ZERO;
         }
         0.5 * (lo + hi)
+    }
+
+    /// The largest distance of a vertex's displacement from the drift, in
+    /// f64 from the f32 positions, rounded up.
+    fn measure_drift_spread(&self) -> f64 {
+        use rayon::prelude::*;
+        let drift = self.drift.as_dvec3();
+        let largest = (self.previous.par_iter(), self.current.par_iter())
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|(&a, &b)| (b.as_dvec3() - a.as_dvec3() - drift).length())
+            .reduce(|| 0.0, f64::max);
+        largest * (1.0 + 1e-12) + f64::EPSILON * drift.abs().max_element()
     }
 
     /// Box of triangle `t` over the whole frame in the frame drifting with
@@ -470,6 +488,12 @@ impl Collider {
     /// stay small (a rigidly translating collider's are its boxes at rest).
     pub fn drift(&self) -> Vec3 {
         self.drift
+    }
+    /// How far any point of the collider moves over the step within the
+    /// frame drifting with [`Collider::drift`]: zero for a rigid translation,
+    /// up to rounding.
+    pub fn drift_spread(&self) -> f64 {
+        self.drift_spread
     }
     /// The BVH over thickened triangle boxes over the frame, in the frame
     /// moving with [`Collider::drift`]; query it with [`Collider::swept_query`].

@@ -1,5 +1,7 @@
 //! Supporting planes of the colliders around the skin in contact, measured
-//! once per frame and used by every in-loop pass.
+//! once per frame and used by every in-loop pass; and for the first pass,
+//! measured in the frame that moves with colliders translating together
+//! ([`LocalPlanes::drifting`]), where a vertex they carry barely moves.
 //!
 //! Through a frame's in-loop passes the colliders stand still, yet every pass
 //! pulls the thousands of skin vertices resting on them back in (the solver
@@ -118,6 +120,36 @@ impl LocalPlanes {
         LocalPlanes { boxes, offsets, planes }
     }
 
+    /// Planes for a pass in which the colliders sweep (the first pass), if
+    /// they share one drift ([`Collider::drift`]) and barely move in its
+    /// frame (a rigid translation). Measured at the colliders' current
+    /// positions around `start + drift` of each of `vertices`, within
+    /// `radius`: in the frame that moves with the drift and meets the world
+    /// at the end of the step, a skin step runs from `start + drift` to its
+    /// end and the colliders stay within their drift spread of where they
+    /// are now, which the levels and the lookup allow for. Returns the planes
+    /// and the starts in that frame, for [`Self::vertex_step`] and
+    /// [`Self::clears`].
+    pub fn drifting(colliders: &[&Collider], outward: &[f64], start: &[Vec3], vertices: &[u32], radius: f32) -> Option<(LocalPlanes, Vec<Vec3>)> {
+        let drift = colliders.first()?.drift();
+        let thinnest = colliders.iter().map(|c| c.settings().thickness as f64).fold(f64::INFINITY, f64::min);
+        let spread = colliders.iter().map(|c| c.drift_spread()).fold(0.0, f64::max);
+        // Colliders that move apart, or deform or turn within the frame, would
+        // raise the levels past any use.
+        if vertices.is_empty() || colliders.iter().any(|c| c.drift() != drift) || !(spread <= thinnest) {
+            return None;
+        }
+        let shifted: Vec<Vec3> = start.par_iter().with_min_len(4096).map(|&p| p + drift).collect();
+        let mut near = vec![false; start.len()];
+        for &v in vertices {
+            near[v as usize] = true;
+        }
+        // `p + drift` rounds to f32 by at most half an ulp per component.
+        let largest = vertices.iter().map(|&v| shifted[v as usize].abs().max_element()).fold(0.0f32, f32::max);
+        let margin = rounding_margin(colliders, vertices.iter().map(|&v| shifted[v as usize])) + spread + 2.0 * f32::EPSILON as f64 * largest as f64;
+        Some((LocalPlanes::new(colliders, outward, &shifted, &near, radius, margin), shifted))
+    }
+
     /// Vertices with at least one plane.
     pub fn vertex_count(&self) -> usize {
         self.offsets.windows(2).filter(|w| w[1] > w[0]).count()
@@ -149,33 +181,45 @@ impl LocalPlanes {
     /// Vertex `v`'s step `s → e` against its planes: clear, lifted out along
     /// the plane that needs the smallest lift, or unknown. `lift(collider)`
     /// gives the slack and friction of a collider.
+    ///
+    /// A step may leave the box (a vertex pulled deep into a collider that
+    /// carried it): it is then lifted if it crosses a level inside the box,
+    /// since up to that point it stays in the box and above the level.
     pub fn vertex_step(&self, v: u32, s: Vec3, e: Vec3, lift: impl Fn(usize) -> Lift) -> VertexStep {
         let planes = self.of(v);
         let area = &self.boxes[v as usize];
-        if planes.is_empty() || !area.contains(s) || !area.contains(e) {
+        if planes.is_empty() || !area.contains(s) {
             return VertexStep::Unknown;
         }
+        let inside = area.contains(e);
         let (s64, e64) = (s.as_dvec3(), e.as_dvec3());
-        let mut best: Option<(f64, &Plane)> = None;
+        // (lift, plane, where the step crosses its level)
+        let mut best: Option<(f64, &Plane, DVec3)> = None;
         for plane in planes {
             let (hs, he) = (plane.normal.dot(s64), plane.normal.dot(e64));
             if hs < plane.level {
                 continue;
             }
             if he >= plane.level {
-                return VertexStep::Clear;
+                if inside {
+                    return VertexStep::Clear;
+                }
+                continue;
             }
             let lift = plane.level - he;
-            if best.is_none_or(|(b, _)| lift < b) {
-                best = Some((lift, plane));
+            if best.is_some_and(|(b, _, _)| lift >= b) {
+                continue;
+            }
+            let contact = s64 + (e64 - s64) * ((hs - plane.level) / (hs - he));
+            if inside || area.contains(contact.as_vec3()) {
+                best = Some((lift, plane, contact));
             }
         }
-        let Some((_, plane)) = best else { return VertexStep::Unknown };
+        let Some((_, plane, contact)) = best else { return VertexStep::Unknown };
         let n = plane.normal;
         let Lift { slack, static_friction, kinetic_friction } = lift(plane.collider as usize);
-        let (hs, he) = (n.dot(s64), n.dot(e64));
-        // Where the step crossed the level: the contact, which friction holds.
-        let contact = s64 + (e64 - s64) * ((hs - plane.level) / (hs - he));
+        let he = n.dot(e64);
+        // The contact is where the step crossed the level; friction holds it.
         let depth = plane.level + slack - he;
         let mut out = e64 + depth * n;
         if static_friction > 0.0 || kinetic_friction > 0.0 {
@@ -198,6 +242,18 @@ impl LocalPlanes {
             VertexStep::Unknown
         }
     }
+}
+
+/// The allowance for the f32 rounding of the trees' boxes (grown by the
+/// thickness in f32) and of dot products, for lookups around `positions`.
+pub(super) fn rounding_margin(colliders: &[&Collider], positions: impl Iterator<Item = Vec3>) -> f64 {
+    let scale = colliders
+        .iter()
+        .flat_map(|c| c.current().iter().chain(c.previous()).copied())
+        .chain(positions)
+        .map(|p| p.abs().max_element())
+        .fold(1e-3f32, f32::max);
+    4e-6 * scale as f64
 }
 
 /// A bound on how far the f32 sweep of [`vertex_planes`] may fall below
@@ -399,6 +455,105 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The smallest distance between points sampled on a moving skin element
+    /// and the collider's triangles moving from their previous to their
+    /// current positions, at the same instants.
+    fn sampled_distance_moving(c: &Collider, points: impl Fn(f64) -> Vec<DVec3>) -> f64 {
+        let mut min = f64::INFINITY;
+        for i in 0..=40 {
+            let t = i as f64 / 40.0;
+            let at = |v: u32| c.previous()[v as usize].as_dvec3().lerp(c.current()[v as usize].as_dvec3(), t);
+            for p in points(t) {
+                for tri in c.triangles() {
+                    min = min.min(point_triangle_distance_squared(p, at(tri[0]), at(tri[1]), at(tri[2])).sqrt());
+                }
+            }
+        }
+        min
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 32, ..ProptestConfig::default() })]
+
+        /// A collider carries a skin along while translating (and, a little,
+        /// deforming); the solve's target pulls the skin into it. Whatever
+        /// the first pass's planes, measured in the frame drifting with the
+        /// collider, clear or lift keeps farther than the thickness from the
+        /// moving collider at every instant of its step.
+        #[test]
+        fn what_the_drifting_planes_clear_or_lift_stays_apart_from_the_moving_collider(
+            valley in any::<bool>(), offset in small(0.02), wobble in prop::collection::vec(small(0.01), 2 * 36),
+            thickness in 0.001f32..0.03, shift in small(0.1), deform in 0.0f32..0.004, pull in 0.0f32..0.1, seed in 0u32..1000,
+        ) {
+            let (still, top) = collider(valley, thickness);
+            let previous: Vec<Vec3> = still.current().to_vec();
+            // Each vertex translates by `shift`, give or take up to `deform`.
+            let jitter = |v: usize| {
+                let h = |k: u32| ((v as u32).wrapping_mul(2654435761).wrapping_add(seed * 97 + k) % 1000) as f32 / 500.0 - 1.0;
+                Vec3::new(h(1), h(2), h(3)) * (deform / 3f32.sqrt())
+            };
+            let current: Vec<Vec3> = previous.iter().enumerate().map(|(v, &p)| p + shift + jitter(v)).collect();
+            let mut c = Collider::new(&previous, still.triangles(), still.settings()).unwrap();
+            c.update(&current).unwrap();
+            let mesh = grid(5, 5, 0.3);
+            let skin = Skin::from_mesh(mesh.input()).unwrap();
+            // Resting on the collider where it was, pulled into where it is.
+            let rest: Vec<Vec3> = mesh.positions.iter().map(|&p| p + Vec3::new(0.0, 0.0, top + thickness + 0.004) + offset).collect();
+            let start: Vec<Vec3> = rest.iter().zip(&wobble[..36]).map(|(&p, &w)| p + w).collect();
+            let end: Vec<Vec3> = rest.iter().zip(&wobble[36..]).map(|(&p, &w)| p + shift + w - Vec3::Z * pull).collect();
+            let all: Vec<u32> = (0..36).collect();
+            let Some((planes, from)) = LocalPlanes::drifting(&[&c], &[c.outward_sign()], &start, &all, 0.05) else {
+                prop_assert!(c.drift_spread() > thickness as f64, "no planes for a collider moving {} within its frame", c.drift_spread());
+                return Ok(());
+            };
+            let sep = thickness as f64;
+            let segment = |a: Vec3, b: Vec3| move |t: f64| vec![a.as_dvec3().lerp(b.as_dvec3(), t)];
+            for v in 0..36u32 {
+                let (s, e) = (start[v as usize], end[v as usize]);
+                match planes.vertex_step(v, from[v as usize], e, lift) {
+                    VertexStep::Clear => {
+                        let d = sampled_distance_moving(&c, segment(s, e));
+                        prop_assert!(d > sep, "vertex {v} cleared but reaches {d} <= {sep}");
+                    }
+                    VertexStep::Lifted(lifted) => {
+                        let d = sampled_distance_moving(&c, segment(s, lifted));
+                        prop_assert!(d > sep, "vertex {v} lifted to {lifted:?} but its step reaches {d} <= {sep}");
+                    }
+                    VertexStep::Unknown => {}
+                }
+            }
+            let path = |v: u32, t: f64| start[v as usize].as_dvec3().lerp(end[v as usize].as_dvec3(), t);
+            for edge in skin.edges() {
+                if planes.clears(edge, &from, &end) {
+                    let d = sampled_distance_moving(&c, |t| (0..=6).map(|j| path(edge[0], t).lerp(path(edge[1], t), j as f64 / 6.0)).collect());
+                    prop_assert!(d > sep, "edge {edge:?} cleared but reaches {d} <= {sep}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn drifting_planes_need_colliders_that_translate_together() {
+        let (a, _) = collider(false, 0.01);
+        let moved = |c: &Collider, by: Vec3| {
+            let mut m = Collider::new(c.current(), c.triangles(), c.settings()).unwrap();
+            m.update(&c.current().iter().map(|&p| p + by).collect::<Vec<_>>()).unwrap();
+            m
+        };
+        let start = [Vec3::new(0.0, 0.0, 0.52)];
+        let (up, also_up, sideways) = (moved(&a, Vec3::Z * 0.03), moved(&a, Vec3::Z * 0.03), moved(&a, Vec3::X * 0.03));
+        assert!(up.drift_spread() < 1e-6, "a translation spreads {}", up.drift_spread());
+        let (planes, from) = LocalPlanes::drifting(&[&up, &also_up], &[1.0, 1.0], &start, &[0], 0.05).expect("one shared drift");
+        assert_eq!(from[0], start[0] + Vec3::Z * 0.03);
+        assert_eq!(planes.vertex_count(), 1);
+        assert!(LocalPlanes::drifting(&[&up, &sideways], &[1.0, 1.0], &start, &[0], 0.05).is_none(), "two drifts");
+        // Grown by a tenth: the vertices move up to 5 cm within the frame, past the thickness.
+        let mut grown = Collider::new(a.current(), a.triangles(), a.settings()).unwrap();
+        grown.update(&a.current().iter().map(|&p| p * 1.1).collect::<Vec<_>>()).unwrap();
+        assert!(grown.drift_spread() > 0.04);
+        assert!(LocalPlanes::drifting(&[&grown], &[1.0], &start, &[0], 0.05).is_none(), "deforming");
     }
 
     #[test]

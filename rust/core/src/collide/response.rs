@@ -70,7 +70,7 @@ use rayon::prelude::*;
 use super::audit::{fan_triangles, triangle_edges};
 use super::bvh::{BoxTree, Bounds};
 use super::ccd::{self, CcdParams};
-use super::clearance::{ascending_unique, Clearance};
+use super::clearance::{ascending_unique, Clearance, PLANE_REACH};
 use super::collider::Collider;
 use super::geometry::{triangle_normal, unit};
 use super::planes::{Lift, LocalPlanes, VertexStep};
@@ -123,7 +123,8 @@ pub struct ContactStats {
     /// Collider-vertex–skin-triangle projections applied (over all rounds).
     pub collider_vertex_contacts: usize,
     /// Of the vertex–triangle projections, those made along a supporting
-    /// plane of the clearance ([`Clearance::with_planes`]) without a lookup.
+    /// plane without a lookup: the clearance's ([`Clearance::with_planes`])
+    /// or the sweeping colliders' ([`LocalPlanes::drifting`]).
     pub plane_lifts: usize,
     /// Vertices whose end position changed, ascending.
     pub moved: Vec<u32>,
@@ -859,9 +860,9 @@ impl<'a> ColliderSet<'a> {
         edges: &[u32],
         triangles: &[u32],
         params: &ResolveParams,
-        planes: Option<&LocalPlanes>,
+        planes: Option<(&LocalPlanes, &[Vec3])>,
     ) -> (usize, usize, Vec<(u32, Vec3)>) {
-        let cleared = |corners: &[u32]| planes.is_some_and(|p| p.clears(corners, start, end));
+        let cleared = |corners: &[u32]| planes.is_some_and(|(p, from)| p.clears(corners, from, end));
         let from_edges: Vec<(u32, [DVec3; 2])> = if params.edge_edge {
             edges
                 .par_iter()
@@ -956,7 +957,6 @@ impl<'a> ColliderSet<'a> {
         // The clearance and its planes hold for colliders standing still.
         let still = (0..self.colliders.len()).all(|c| self.motion(c, params.motion) == ColliderMotion::AtCurrent);
         let clearance = clearance.filter(|c| still && c.is_valid_for(&self.colliders, n));
-        let planes = clearance.and_then(|c| c.planes());
         let lift = |c: usize| {
             let settings = self.colliders[c].settings();
             let friction = |mu: f32| if params.friction { mu as f64 } else { 0.0 };
@@ -1007,6 +1007,22 @@ impl<'a> ColliderSet<'a> {
         if skin.inverse_mass.is_some() {
             active.retain(|&i| skin.inverse_mass(i) > 0.0);
         }
+        // Supporting planes: the clearance's for still colliders; for sweeping
+        // ones, planes measured now around the active vertices in the frame
+        // drifting with the colliders, if they translate together. Each comes
+        // with the step starts in its frame.
+        let all_swept = (0..self.colliders.len()).all(|c| self.motion(c, params.motion) == ColliderMotion::Swept);
+        let drifting = match clearance {
+            None if all_swept => {
+                let radius = PLANE_REACH * Clearance::default_radius(&self.colliders, skin, start);
+                LocalPlanes::drifting(&self.colliders, &self.outward, start, &active, radius)
+            }
+            _ => None,
+        };
+        let planes: Option<(&LocalPlanes, &[Vec3])> = match &drifting {
+            Some((planes, from)) => Some((planes, from)),
+            None => clearance.and_then(|c| c.planes()).map(|planes| (planes, start)),
+        };
         let lifted = AtomicUsize::new(0);
         let mut converged = false;
         for _ in 0..params.max_rounds.max(1) {
@@ -1016,7 +1032,7 @@ impl<'a> ColliderSet<'a> {
                 .par_iter()
                 .filter_map(|&i| {
                     let (s, e) = (start[i as usize], end[i as usize]);
-                    match planes.map_or(VertexStep::Unknown, |p| p.vertex_step(i, s, e, lift)) {
+                    match planes.map_or(VertexStep::Unknown, |(p, from)| p.vertex_step(i, from[i as usize], e, lift)) {
                         VertexStep::Clear => None,
                         VertexStep::Lifted(p) => {
                             lifted.fetch_add(1, Ordering::Relaxed);
@@ -1074,7 +1090,7 @@ impl<'a> ColliderSet<'a> {
                 .copied()
                 .filter(|&i| {
                     let (s, e) = (start[i as usize], end[i as usize]);
-                    match planes.map_or(VertexStep::Unknown, |p| p.vertex_step(i, s, e, lift)) {
+                    match planes.map_or(VertexStep::Unknown, |(p, from)| p.vertex_step(i, from[i as usize], e, lift)) {
                         VertexStep::Clear => false,
                         VertexStep::Lifted(_) => true,
                         VertexStep::Unknown => self.vertex_correction(s, e, params).is_some(),
