@@ -191,6 +191,12 @@ impl Clearance {
         self.planes.as_ref()
     }
 
+    /// The planes, keeping nothing else: the next frame's first pass moves
+    /// them along with the colliders ([`LocalPlanes::drifting`]).
+    pub fn into_planes(self) -> Option<LocalPlanes> {
+        self.planes
+    }
+
     /// Whether this clearance was measured against exactly these colliders in
     /// their present state, for a skin of `vertex_count` vertices.
     pub fn is_valid_for(&self, colliders: &[&Collider], vertex_count: usize) -> bool {

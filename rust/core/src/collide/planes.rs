@@ -97,20 +97,22 @@ impl LocalPlanes {
     /// colliders); `margin` absorbs the f32 rounding of the BVH's boxes and
     /// of the dot products.
     pub fn new(colliders: &[&Collider], outward: &[f64], positions: &[Vec3], near: &[bool], radius: f32, margin: f64) -> LocalPlanes {
-        let per_vertex: Vec<(Bounds, Vec<Plane>)> = positions
-            .par_iter()
-            .zip(near)
-            .map(|(&p, &near)| {
-                let area = Bounds { min: p - Vec3::splat(radius), max: p + Vec3::splat(radius) };
-                if !near {
-                    return (area, Vec::new());
-                }
-                (area, vertex_planes(colliders, outward, p, &area, margin))
-            })
-            .collect();
-        let mut offsets = Vec::with_capacity(positions.len() + 1);
+        LocalPlanes::gather(positions.len(), |v| {
+            let p = positions[v];
+            let area = Bounds { min: p - Vec3::splat(radius), max: p + Vec3::splat(radius) };
+            if !near[v] {
+                return (area, Vec::new());
+            }
+            (area, vertex_planes(colliders, outward, p, &area, margin))
+        })
+    }
+
+    /// Each vertex's box and planes from `of(v)`, in parallel.
+    fn gather(n: usize, of: impl Fn(usize) -> (Bounds, Vec<Plane>) + Sync) -> LocalPlanes {
+        let per_vertex: Vec<(Bounds, Vec<Plane>)> = (0..n).into_par_iter().with_min_len(1024).map(&of).collect();
+        let mut offsets = Vec::with_capacity(n + 1);
         let mut planes = Vec::new();
-        let mut boxes = Vec::with_capacity(positions.len());
+        let mut boxes = Vec::with_capacity(n);
         offsets.push(0);
         for (area, own) in per_vertex {
             boxes.push(area);
@@ -122,15 +124,28 @@ impl LocalPlanes {
 
     /// Planes for a pass in which the colliders sweep (the first pass), if
     /// they share one drift ([`Collider::drift`]) and barely move in its
-    /// frame (a rigid translation). Measured at the colliders' current
-    /// positions around `start + drift` of each of `vertices`, within
-    /// `radius`: in the frame that moves with the drift and meets the world
-    /// at the end of the step, a skin step runs from `start + drift` to its
-    /// end and the colliders stay within their drift spread of where they
-    /// are now, which the levels and the lookup allow for. Returns the planes
-    /// and the starts in that frame, for [`Self::vertex_step`] and
-    /// [`Self::clears`].
-    pub fn drifting(colliders: &[&Collider], outward: &[f64], start: &[Vec3], vertices: &[u32], radius: f32) -> Option<(LocalPlanes, Vec<Vec3>)> {
+    /// frame (a rigid translation). In the frame that moves with the drift
+    /// and meets the world at the end of the step, a skin step runs from
+    /// `start + drift` to its end, and the colliders stay within their drift
+    /// spread of where they are now, which the levels and the lookup allow
+    /// for. Returns the planes and the starts in that frame, for
+    /// [`Self::vertex_step`] and [`Self::clears`].
+    ///
+    /// A vertex's planes are last frame's, `carried`, moved along with the
+    /// colliders, where it had some and its start lies in their box:
+    /// `carried` must have been measured for this skin against these
+    /// colliders, in this order, with these settings, standing where this
+    /// step starts them (their previous positions). The other `vertices`
+    /// are measured around `start + drift`, within `radius`, against the
+    /// colliders' current positions.
+    pub fn drifting(
+        colliders: &[&Collider],
+        outward: &[f64],
+        start: &[Vec3],
+        vertices: &[u32],
+        radius: f32,
+        carried: Option<&LocalPlanes>,
+    ) -> Option<(LocalPlanes, Vec<Vec3>)> {
         let drift = colliders.first()?.drift();
         let thinnest = colliders.iter().map(|c| c.settings().thickness as f64).fold(f64::INFINITY, f64::min);
         let spread = colliders.iter().map(|c| c.drift_spread()).fold(0.0, f64::max);
@@ -147,7 +162,31 @@ impl LocalPlanes {
         // `p + drift` rounds to f32 by at most half an ulp per component.
         let largest = vertices.iter().map(|&v| shifted[v as usize].abs().max_element()).fold(0.0f32, f32::max);
         let margin = rounding_margin(colliders, vertices.iter().map(|&v| shifted[v as usize])) + spread + 2.0 * f32::EPSILON as f64 * largest as f64;
-        Some((LocalPlanes::new(colliders, outward, &shifted, &near, radius, margin), shifted))
+        let carried = carried.filter(|c| c.boxes.len() == start.len());
+        let d = drift.as_dvec3();
+        let planes = LocalPlanes::gather(start.len(), |v| {
+            let p = shifted[v];
+            if let Some(carried) = carried {
+                let own = carried.of(v as u32);
+                // Moved along with the colliders: a point of the moved box
+                // that is `margin` (the spread and the rounding) inside it
+                // and above a moved level keeps as far from the colliders at
+                // every instant as the point `margin` nearer to them did
+                // from where they stood.
+                let held = carried.boxes[v];
+                let area = Bounds { min: held.min + drift, max: held.max + drift }.inflated(-(margin as f32));
+                if !own.is_empty() && area.contains(p) {
+                    let moved = own.iter().map(|plane| Plane { level: plane.level + plane.normal.dot(d) + margin, ..*plane });
+                    return (area, moved.filter(|plane| above(plane, p)).collect());
+                }
+            }
+            let area = Bounds { min: p - Vec3::splat(radius), max: p + Vec3::splat(radius) };
+            if !near[v] {
+                return (area, Vec::new());
+            }
+            (area, vertex_planes(colliders, outward, p, &area, margin))
+        });
+        Some((planes, shifted))
     }
 
     /// Vertices with at least one plane.
@@ -480,12 +519,14 @@ mod tests {
         /// A collider carries a skin along while translating (and, a little,
         /// deforming); the solve's target pulls the skin into it. Whatever
         /// the first pass's planes, measured in the frame drifting with the
-        /// collider, clear or lift keeps farther than the thickness from the
-        /// moving collider at every instant of its step.
+        /// collider or carried along from where it stood, clear or lift keeps
+        /// farther than the thickness from the moving collider at every
+        /// instant of its step.
         #[test]
         fn what_the_drifting_planes_clear_or_lift_stays_apart_from_the_moving_collider(
             valley in any::<bool>(), offset in small(0.02), wobble in prop::collection::vec(small(0.01), 2 * 36),
             thickness in 0.001f32..0.03, shift in small(0.1), deform in 0.0f32..0.004, pull in 0.0f32..0.1, seed in 0u32..1000,
+            carry in any::<bool>(),
         ) {
             let (still, top) = collider(valley, thickness);
             let previous: Vec<Vec3> = still.current().to_vec();
@@ -504,7 +545,12 @@ mod tests {
             let start: Vec<Vec3> = rest.iter().zip(&wobble[..36]).map(|(&p, &w)| p + w).collect();
             let end: Vec<Vec3> = rest.iter().zip(&wobble[36..]).map(|(&p, &w)| p + shift + w - Vec3::Z * pull).collect();
             let all: Vec<u32> = (0..36).collect();
-            let Some((planes, from)) = LocalPlanes::drifting(&[&c], &[c.outward_sign()], &start, &all, 0.05) else {
+            // Or last frame's planes, measured where the collider stood, carried along.
+            let carried = carry.then(|| {
+                let before = Collider::new(&previous, still.triangles(), still.settings()).unwrap();
+                Clearance::new(&[&before], &skin, &rest, 0.2).unwrap().with_planes(&[&before]).unwrap().into_planes().unwrap()
+            });
+            let Some((planes, from)) = LocalPlanes::drifting(&[&c], &[c.outward_sign()], &start, &all, 0.05, carried.as_ref()) else {
                 prop_assert!(c.drift_spread() > thickness as f64, "no planes for a collider moving {} within its frame", c.drift_spread());
                 return Ok(());
             };
@@ -545,15 +591,15 @@ mod tests {
         let start = [Vec3::new(0.0, 0.0, 0.52)];
         let (up, also_up, sideways) = (moved(&a, Vec3::Z * 0.03), moved(&a, Vec3::Z * 0.03), moved(&a, Vec3::X * 0.03));
         assert!(up.drift_spread() < 1e-6, "a translation spreads {}", up.drift_spread());
-        let (planes, from) = LocalPlanes::drifting(&[&up, &also_up], &[1.0, 1.0], &start, &[0], 0.05).expect("one shared drift");
+        let (planes, from) = LocalPlanes::drifting(&[&up, &also_up], &[1.0, 1.0], &start, &[0], 0.05, None).expect("one shared drift");
         assert_eq!(from[0], start[0] + Vec3::Z * 0.03);
         assert_eq!(planes.vertex_count(), 1);
-        assert!(LocalPlanes::drifting(&[&up, &sideways], &[1.0, 1.0], &start, &[0], 0.05).is_none(), "two drifts");
+        assert!(LocalPlanes::drifting(&[&up, &sideways], &[1.0, 1.0], &start, &[0], 0.05, None).is_none(), "two drifts");
         // Grown by a tenth: the vertices move up to 5 cm within the frame, past the thickness.
         let mut grown = Collider::new(a.current(), a.triangles(), a.settings()).unwrap();
         grown.update(&a.current().iter().map(|&p| p * 1.1).collect::<Vec<_>>()).unwrap();
         assert!(grown.drift_spread() > 0.04);
-        assert!(LocalPlanes::drifting(&[&grown], &[1.0], &start, &[0], 0.05).is_none(), "deforming");
+        assert!(LocalPlanes::drifting(&[&grown], &[1.0], &start, &[0], 0.05, None).is_none(), "deforming");
     }
 
     #[test]

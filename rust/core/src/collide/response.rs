@@ -936,6 +936,26 @@ impl<'a> ColliderSet<'a> {
         params: &ResolveParams,
         clearance: Option<&Clearance>,
     ) -> Result<ContactStats> {
+        self.resolve(start, end, skin, params, clearance, None)
+    }
+
+    /// [`resolve_path`](Self::resolve_path) for colliders that sweep, with the
+    /// supporting planes of the last frame's in-loop passes to carry along
+    /// with them where they still hold (see [`LocalPlanes::drifting`] for
+    /// what `carried` must have been measured against).
+    pub fn resolve_path_carrying(&self, start: &[Vec3], end: &mut [Vec3], skin: &Skin, params: &ResolveParams, carried: Option<&LocalPlanes>) -> Result<ContactStats> {
+        self.resolve(start, end, skin, params, None, carried)
+    }
+
+    fn resolve(
+        &self,
+        start: &[Vec3],
+        end: &mut [Vec3],
+        skin: &Skin,
+        params: &ResolveParams,
+        clearance: Option<&Clearance>,
+        carried: Option<&LocalPlanes>,
+    ) -> Result<ContactStats> {
         let n = start.len();
         if end.len() != n || skin.vertex_count != n {
             return Err(Error::invalid(format!(
@@ -1008,14 +1028,15 @@ impl<'a> ColliderSet<'a> {
             active.retain(|&i| skin.inverse_mass(i) > 0.0);
         }
         // Supporting planes: the clearance's for still colliders; for sweeping
-        // ones, planes measured now around the active vertices in the frame
-        // drifting with the colliders, if they translate together. Each comes
-        // with the step starts in its frame.
+        // ones, planes around the active vertices in the frame drifting with
+        // the colliders, if they translate together (carried along from the
+        // last frame where they hold). Each comes with the step starts in its
+        // frame.
         let all_swept = (0..self.colliders.len()).all(|c| self.motion(c, params.motion) == ColliderMotion::Swept);
         let drifting = match clearance {
             None if all_swept => {
                 let radius = PLANE_REACH * Clearance::default_radius(&self.colliders, skin, start);
-                LocalPlanes::drifting(&self.colliders, &self.outward, start, &active, radius)
+                LocalPlanes::drifting(&self.colliders, &self.outward, start, &active, radius, carried)
             }
             _ => None,
         };

@@ -132,6 +132,8 @@ pub struct PyramidDeformer {
     pub(super) contact_targets: Option<ConstraintId>,
     /// The skin as a collider, for compliant colliders' vertices to meet.
     pub(super) skin_collider: Option<crate::collide::Collider>,
+    /// The last substep's in-loop supporting planes, for the next first pass.
+    pub(super) carried_planes: Option<super::step::CarriedPlanes>,
 }
 
 /// What [`PyramidDeformer::set_closeness`] last applied.
@@ -188,6 +190,7 @@ impl PyramidDeformer {
             inertia: None,
             contact_targets: None,
             skin_collider: None,
+            carried_planes: None,
         };
         deformer.set_closeness(Closeness::Default)?;
         Ok(deformer)

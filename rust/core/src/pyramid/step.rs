@@ -37,7 +37,8 @@ use super::compliance::{compliant_skin, contact_targets, recede_from};
 use super::deformer::{Closeness, PyramidDeformer};
 use super::dynamics::{kinetic_energy, Dynamics, MAX_SUBSTEPS};
 use crate::collide::audit::is_inside;
-use crate::collide::{Clearance, Collider, ColliderSet, ContactStats, ResolveParams, Skin};
+use crate::collide::planes::LocalPlanes;
+use crate::collide::{Clearance, Collider, ColliderSet, ColliderSettings, ContactStats, ResolveParams, Skin};
 use crate::mesh::validate_positions;
 use crate::solve::{Targets, IterationHook};
 use crate::strain::{EdgeLimits, MaxStretch};
@@ -322,7 +323,8 @@ impl PyramidDeformer {
             }
             // 2. The skin towards its target while the colliders sweep.
             let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
-            let first = ColliderSet::new(refs).resolve_path(x_n, &mut x, &self.skin, &ResolveParams::first_pass())?;
+            let carried = self.carried_planes.take().filter(|k| k.fits(colliders)).map(|k| k.planes);
+            let first = ColliderSet::new(refs).resolve_path_carrying(x_n, &mut x, &self.skin, &ResolveParams::first_pass(), carried.as_ref())?;
             accumulate(&mut report.first_pass, &first);
             suspects.extend_from_slice(&first.pinched);
             for &c in &compliant {
@@ -377,6 +379,10 @@ impl PyramidDeformer {
         let hook: Option<&mut dyn IterationHook> =
             if any_colliders || unified.is_some() { Some(&mut in_loop) } else { None };
         self.solver.solve(input, &mut x, options.iterations, hook)?;
+        self.carried_planes = clearance.and_then(Clearance::into_planes).map(|planes| CarriedPlanes {
+            planes,
+            colliders: colliders.iter().map(|c| (c.current().to_vec(), c.settings())).collect(),
+        });
         if let Some((limits, StrainMode::Post)) = limits {
             limits.project(&mut x, &inverse_mass, POST_STRAIN_SWEEPS, STRAIN_TOLERANCE);
         }
@@ -498,6 +504,7 @@ pub(super) fn accumulate(total: &mut ContactStats, part: &ContactStats) {
     total.vertex_contacts += part.vertex_contacts;
     total.edge_contacts += part.edge_contacts;
     total.collider_vertex_contacts += part.collider_vertex_contacts;
+    total.plane_lifts += part.plane_lifts;
     total.rounds += part.rounds;
     total.max_correction = total.max_correction.max(part.max_correction);
     total.moved.extend_from_slice(&part.moved);
@@ -518,6 +525,24 @@ fn still_pinched(x: &[Vec3], colliders: &[&Collider], suspects: Vec<u32>, mut pi
     pinched.sort_unstable();
     pinched.dedup();
     pinched
+}
+
+/// A substep's in-loop supporting planes, kept for the next substep's first
+/// pass, which moves them along with the colliders
+/// ([`LocalPlanes::drifting`]); with the colliders' positions and settings
+/// they were measured against.
+#[derive(Debug, Clone)]
+pub(super) struct CarriedPlanes {
+    planes: LocalPlanes,
+    colliders: Vec<(Vec<Vec3>, ColliderSettings)>,
+}
+
+impl CarriedPlanes {
+    /// Whether the colliders start this step where, and as, the planes met them.
+    pub(super) fn fits(&self, colliders: &[&mut Collider]) -> bool {
+        self.colliders.len() == colliders.len()
+            && self.colliders.iter().zip(colliders).all(|((positions, settings), c)| c.settings() == *settings && c.previous() == &positions[..])
+    }
 }
 
 impl PyramidDeformer {

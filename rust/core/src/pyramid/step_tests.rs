@@ -305,3 +305,43 @@ mod strain {
         assert!(audit.0 + audit.1 + audit.2 > 0, "post-collision limiting left no penetration: {audit:?}");
     }
 }
+
+mod carried_planes {
+    use super::*;
+
+    /// A sphere rising into the skin carries it along. Each frame's first
+    /// pass moves the last frame's in-loop planes along with the sphere, but
+    /// only while the sphere starts where, and as, they met it: a thicker
+    /// collider or one put back elsewhere gets fresh ones. The skin never
+    /// gets inside.
+    #[test]
+    fn last_frames_planes_are_carried_only_while_the_colliders_start_where_they_met_them() {
+        let skin = grid(30, 30, 2.0);
+        let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let (ball, tris) = sphere(0.3);
+        let at = |k: usize| moved(&ball.positions, Vec3::new(0.0, 0.0, -0.32 + 0.03 * k as f32));
+        let mut c = Collider::new(&at(0), &tris, ColliderSettings::new(0.01, 0.3)).unwrap();
+        let options = StepOptions::new(10, Closeness::Uniform(0.05));
+        let step = |deformer: &mut PyramidDeformer, c: &mut Collider| {
+            let (x, report) = deformer.step(&skin.positions, &mut [c], &options).unwrap();
+            assert_eq!(penetrations(&skin, &x, &[c]), (0, 0, 0));
+            report
+        };
+        for k in 1..=5 {
+            c.update(&at(k)).unwrap();
+            let carried = deformer.carried_planes.as_ref().is_some_and(|p| p.fits(&[&mut c]));
+            assert_eq!(carried, k > 1, "frame {k}");
+            let report = step(&mut deformer, &mut c);
+            if k > 2 {
+                assert!(report.first_pass.plane_lifts > 0, "frame {k}: the first pass lifted nothing along planes");
+            }
+        }
+        c.set_settings(ColliderSettings::new(0.02, 0.3)).unwrap();
+        c.update(&at(6)).unwrap();
+        assert!(!deformer.carried_planes.as_ref().unwrap().fits(&[&mut c]), "a thicker collider");
+        step(&mut deformer, &mut c);
+        c.set_positions(&at(4), &at(5)).unwrap();
+        assert!(!deformer.carried_planes.as_ref().unwrap().fits(&[&mut c]), "a collider put back");
+        step(&mut deformer, &mut c);
+    }
+}
