@@ -409,7 +409,7 @@ impl<'a> ColliderSet<'a> {
 
     /// Triangle corners of collider `c` at the start and end of the step.
     fn triangle_ends(&self, c: usize, t: usize, motion: ColliderMotion) -> ([DVec3; 3], [DVec3; 3]) {
-        let motion = self.motions[c].unwrap_or(motion);
+        let motion = self.motion(c, motion);
         let col = self.colliders[c];
         let tri = col.triangles()[t];
         let end = tri.map(|v| d(col.current()[v as usize]));
@@ -421,7 +421,7 @@ impl<'a> ColliderSet<'a> {
     }
 
     fn edge_ends(&self, c: usize, e: usize, motion: ColliderMotion) -> ([DVec3; 2], [DVec3; 2]) {
-        let motion = self.motions[c].unwrap_or(motion);
+        let motion = self.motion(c, motion);
         let col = self.colliders[c];
         let edge = col.edges()[e];
         let end = edge.map(|v| d(col.current()[v as usize]));
@@ -758,7 +758,7 @@ impl<'a> ColliderSet<'a> {
             if candidates.is_empty() {
                 continue;
             }
-            let swept = self.motions[c].unwrap_or(params.motion) == ColliderMotion::Swept;
+            let swept = self.motion(c, params.motion) == ColliderMotion::Swept;
             if slab(c, &candidates, 0.0, 1.0)
                 || (swept && (0..SLICES).all(|k| slab(c, &candidates, k as f64 / SLICES as f64, (k + 1) as f64 / SLICES as f64)))
             {
@@ -835,7 +835,7 @@ impl<'a> ColliderSet<'a> {
     }
 
     fn vertex_ends(&self, c: usize, v: usize, motion: ColliderMotion) -> (DVec3, DVec3) {
-        let motion = self.motions[c].unwrap_or(motion);
+        let motion = self.motion(c, motion);
         let col = self.colliders[c];
         let end = d(col.current()[v]);
         match motion {
