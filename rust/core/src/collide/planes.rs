@@ -423,7 +423,7 @@ mod tests {
 
     /// The smallest distance between points sampled on a moving skin element
     /// and the (still) collider's triangles.
-    fn sampled_distance(c: &Collider, points: impl Fn(f64) -> Vec<DVec3>) -> f64 {
+    fn sampled_distance(c: &Collider, points: &dyn Fn(f64) -> Vec<DVec3>) -> f64 {
         let at = |v: u32| c.current()[v as usize].as_dvec3();
         let mut min = f64::INFINITY;
         for i in 0..=40 {
@@ -444,6 +444,53 @@ mod tests {
         Lift { slack: 1e-3, static_friction: 0.3, kinetic_friction: 0.2 }
     }
 
+    /// Checks that whatever `planes` clear or lift keeps farther than `sep`
+    /// by `distance`, the smallest sampled distance of a moving skin point
+    /// set from the collider: the vertices' steps (the planes see them start
+    /// at `from`, the world at `start`), and the skin's edges and triangles.
+    fn planes_keep_apart(
+        planes: &LocalPlanes,
+        from: &[Vec3],
+        start: &[Vec3],
+        end: &[Vec3],
+        skin: &Skin,
+        sep: f64,
+        distance: impl Fn(&dyn Fn(f64) -> Vec<DVec3>) -> f64,
+    ) -> Result<(), TestCaseError> {
+        let segment = |a: Vec3, b: Vec3| move |t: f64| vec![a.as_dvec3().lerp(b.as_dvec3(), t)];
+        for v in 0..start.len() as u32 {
+            let (s, e) = (start[v as usize], end[v as usize]);
+            match planes.vertex_step(v, from[v as usize], e, lift) {
+                VertexStep::Clear => {
+                    let d = distance(&segment(s, e));
+                    prop_assert!(d > sep, "vertex {v} cleared but reaches {d} <= {sep}");
+                }
+                VertexStep::Lifted(lifted) => {
+                    let d = distance(&segment(s, lifted));
+                    prop_assert!(d > sep, "vertex {v} lifted to {lifted:?} but its step reaches {d} <= {sep}");
+                }
+                VertexStep::Unknown => {}
+            }
+        }
+        let path = |v: u32, t: f64| start[v as usize].as_dvec3().lerp(end[v as usize].as_dvec3(), t);
+        for edge in skin.edges() {
+            if planes.clears(edge, from, end) {
+                let d = distance(&|t| (0..=6).map(|j| path(edge[0], t).lerp(path(edge[1], t), j as f64 / 6.0)).collect());
+                prop_assert!(d > sep, "edge {edge:?} cleared but reaches {d} <= {sep}");
+            }
+        }
+        for tri in skin.triangles() {
+            if planes.clears(tri, from, end) {
+                let d = distance(&|t| {
+                    let [a, b, cc] = tri.map(|v| path(v, t));
+                    triangle_samples(a, b, cc)
+                });
+                prop_assert!(d > sep, "triangle {tri:?} cleared but reaches {d} <= {sep}");
+            }
+        }
+        Ok(())
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
 
@@ -461,45 +508,14 @@ mod tests {
             let planes = clearance.planes().unwrap();
             let start: Vec<Vec3> = reference.iter().zip(&wobble[..36]).map(|(&p, &w)| p + w).collect();
             let end: Vec<Vec3> = reference.iter().zip(&wobble[36..]).map(|(&p, &w)| p + w).collect();
-            let sep = thickness as f64;
-            let segment = |a: Vec3, b: Vec3| move |t: f64| vec![a.as_dvec3().lerp(b.as_dvec3(), t)];
-            for v in 0..36u32 {
-                let (s, e) = (start[v as usize], end[v as usize]);
-                match planes.vertex_step(v, s, e, lift) {
-                    VertexStep::Clear => {
-                        let d = sampled_distance(&c, segment(s, e));
-                        prop_assert!(d > sep, "vertex {v} cleared but reaches {d} <= {sep}");
-                    }
-                    VertexStep::Lifted(lifted) => {
-                        let d = sampled_distance(&c, segment(s, lifted));
-                        prop_assert!(d > sep, "vertex {v} lifted to {lifted:?} but its step reaches {d} <= {sep}");
-                    }
-                    VertexStep::Unknown => {}
-                }
-            }
-            let path = |v: u32, t: f64| start[v as usize].as_dvec3().lerp(end[v as usize].as_dvec3(), t);
-            for edge in skin.edges() {
-                if planes.clears(edge, &start, &end) {
-                    let d = sampled_distance(&c, |t| (0..=6).map(|j| path(edge[0], t).lerp(path(edge[1], t), j as f64 / 6.0)).collect());
-                    prop_assert!(d > sep, "edge {edge:?} cleared but reaches {d} <= {sep}");
-                }
-            }
-            for tri in skin.triangles() {
-                if planes.clears(tri, &start, &end) {
-                    let d = sampled_distance(&c, |t| {
-                        let [a, b, cc] = tri.map(|v| path(v, t));
-                        triangle_samples(a, b, cc)
-                    });
-                    prop_assert!(d > sep, "triangle {tri:?} cleared but reaches {d} <= {sep}");
-                }
-            }
+            planes_keep_apart(planes, &start, &start, &end, &skin, thickness as f64, |points| sampled_distance(&c, points))?;
         }
     }
 
     /// The smallest distance between points sampled on a moving skin element
     /// and the collider's triangles moving from their previous to their
     /// current positions, at the same instants.
-    fn sampled_distance_moving(c: &Collider, points: impl Fn(f64) -> Vec<DVec3>) -> f64 {
+    fn sampled_distance_moving(c: &Collider, points: &dyn Fn(f64) -> Vec<DVec3>) -> f64 {
         let mut min = f64::INFINITY;
         for i in 0..=40 {
             let t = i as f64 / 40.0;
@@ -554,29 +570,7 @@ mod tests {
                 prop_assert!(c.drift_spread() > thickness as f64, "no planes for a collider moving {} within its frame", c.drift_spread());
                 return Ok(());
             };
-            let sep = thickness as f64;
-            let segment = |a: Vec3, b: Vec3| move |t: f64| vec![a.as_dvec3().lerp(b.as_dvec3(), t)];
-            for v in 0..36u32 {
-                let (s, e) = (start[v as usize], end[v as usize]);
-                match planes.vertex_step(v, from[v as usize], e, lift) {
-                    VertexStep::Clear => {
-                        let d = sampled_distance_moving(&c, segment(s, e));
-                        prop_assert!(d > sep, "vertex {v} cleared but reaches {d} <= {sep}");
-                    }
-                    VertexStep::Lifted(lifted) => {
-                        let d = sampled_distance_moving(&c, segment(s, lifted));
-                        prop_assert!(d > sep, "vertex {v} lifted to {lifted:?} but its step reaches {d} <= {sep}");
-                    }
-                    VertexStep::Unknown => {}
-                }
-            }
-            let path = |v: u32, t: f64| start[v as usize].as_dvec3().lerp(end[v as usize].as_dvec3(), t);
-            for edge in skin.edges() {
-                if planes.clears(edge, &from, &end) {
-                    let d = sampled_distance_moving(&c, |t| (0..=6).map(|j| path(edge[0], t).lerp(path(edge[1], t), j as f64 / 6.0)).collect());
-                    prop_assert!(d > sep, "edge {edge:?} cleared but reaches {d} <= {sep}");
-                }
-            }
+            planes_keep_apart(&planes, &from, &start, &end, &skin, thickness as f64, |points| sampled_distance_moving(&c, points))?;
         }
     }
 
