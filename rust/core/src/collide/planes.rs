@@ -160,8 +160,10 @@ impl LocalPlanes {
             near[v as usize] = true;
         }
         // `p + drift` rounds to f32 by at most half an ulp per component.
-        let largest = vertices.iter().map(|&v| shifted[v as usize].abs().max_element()).fold(0.0f32, f32::max);
-        let margin = rounding_margin(colliders, vertices.iter().map(|&v| shifted[v as usize])) + spread + 2.0 * f32::EPSILON as f64 * largest as f64;
+        // Over every vertex: a carried plane may serve any corner of an
+        // element, active or not.
+        let largest = shifted.par_iter().with_min_len(4096).map(|p| p.abs().max_element()).reduce(|| 0.0f32, f32::max);
+        let margin = rounding_margin(colliders, std::iter::once(Vec3::splat(largest))) + spread + 2.0 * f32::EPSILON as f64 * largest as f64;
         let carried = carried.filter(|c| c.boxes.len() == start.len());
         let d = drift.as_dvec3();
         let planes = LocalPlanes::gather(start.len(), |v| {
