@@ -381,7 +381,7 @@ impl PyramidDeformer {
         self.solver.solve(input, &mut x, options.iterations, hook)?;
         self.carried_planes = clearance.and_then(Clearance::into_planes).map(|planes| CarriedPlanes {
             planes,
-            colliders: colliders.iter().map(|c| (c.current().to_vec(), c.settings())).collect(),
+            colliders: colliders.iter().map(|c| (c.current().to_vec(), c.triangles().to_vec(), c.settings())).collect(),
         });
         if let Some((limits, StrainMode::Post)) = limits {
             limits.project(&mut x, &inverse_mass, POST_STRAIN_SWEEPS, STRAIN_TOLERANCE);
@@ -534,14 +534,19 @@ fn still_pinched(x: &[Vec3], colliders: &[&Collider], suspects: Vec<u32>, mut pi
 #[derive(Debug, Clone)]
 pub(super) struct CarriedPlanes {
     planes: LocalPlanes,
-    colliders: Vec<(Vec<Vec3>, ColliderSettings)>,
+    /// Per collider: positions, triangles (a plane's promise holds only for
+    /// the triangles there were) and settings.
+    colliders: Vec<(Vec<Vec3>, Vec<[u32; 3]>, ColliderSettings)>,
 }
 
 impl CarriedPlanes {
-    /// Whether the colliders start this step where, and as, the planes met them.
+    /// Whether the colliders start this step where, and as, the planes met
+    /// them: the same positions, triangles and settings.
     pub(super) fn fits(&self, colliders: &[&mut Collider]) -> bool {
         self.colliders.len() == colliders.len()
-            && self.colliders.iter().zip(colliders).all(|((positions, settings), c)| c.settings() == *settings && c.previous() == &positions[..])
+            && self.colliders.iter().zip(colliders).all(|((positions, triangles, settings), c)| {
+                c.settings() == *settings && c.previous() == &positions[..] && c.triangles() == &triangles[..]
+            })
     }
 }
 

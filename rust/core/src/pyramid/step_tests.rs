@@ -312,8 +312,8 @@ mod carried_planes {
     /// A sphere rising into the skin carries it along. Each frame's first
     /// pass moves the last frame's in-loop planes along with the sphere, but
     /// only while the sphere starts where, and as, they met it: a thicker
-    /// collider or one put back elsewhere gets fresh ones. The skin never
-    /// gets inside.
+    /// collider, one put back elsewhere, or other triangles at the same
+    /// positions get fresh ones. The skin never gets inside.
     #[test]
     fn last_frames_planes_are_carried_only_while_the_colliders_start_where_they_met_them() {
         let skin = grid(30, 30, 2.0);
@@ -343,5 +343,15 @@ mod carried_planes {
         c.set_positions(&at(4), &at(5)).unwrap();
         assert!(!deformer.carried_planes.as_ref().unwrap().fits(&[&mut c]), "a collider put back");
         step(&mut deformer, &mut c);
+        // Where the sphere stands now, as a new collider: the same one fits,
+        // one with other triangles (here half of them) does not.
+        let settings = c.settings();
+        let mut same = Collider::new(&at(5), &tris, settings).unwrap();
+        let mut half = Collider::new(&at(5), &tris[..tris.len() / 2], settings).unwrap();
+        same.update(&at(6)).unwrap();
+        half.update(&at(6)).unwrap();
+        let carried = deformer.carried_planes.as_ref().unwrap();
+        assert!(carried.fits(&[&mut same]), "the same collider");
+        assert!(!carried.fits(&[&mut half]), "other triangles at the same positions");
     }
 }
