@@ -87,7 +87,7 @@ impl Clearance {
             return Err(Error::invalid(format!("clearance radius is {radius}; it must be finite and ≥ 0")));
         }
         // Boxes are f32, grown by the thickness in f32: allow for their rounding.
-        let margin = rounding_margin(colliders, positions.iter().copied());
+        let margin = rounding_margin(colliders, positions.iter().copied(), radius);
         let roots: Vec<Bounds> = colliders.iter().map(|c| c.tree().bounds()).collect();
         // Per vertex: the distance bound, and whether any box lies within the radius.
         let (vertex, near): (Vec<f64>, Vec<bool>) = positions

@@ -163,7 +163,7 @@ impl LocalPlanes {
         // Over every vertex: a carried plane may serve any corner of an
         // element, active or not.
         let largest = shifted.par_iter().with_min_len(4096).map(|p| p.abs().max_element()).reduce(|| 0.0f32, f32::max);
-        let margin = rounding_margin(colliders, std::iter::once(Vec3::splat(largest))) + spread + 2.0 * f32::EPSILON as f64 * largest as f64;
+        let margin = rounding_margin(colliders, std::iter::once(Vec3::splat(largest)), radius) + spread + 2.0 * f32::EPSILON as f64 * largest as f64;
         let carried = carried.filter(|c| c.boxes.len() == start.len());
         let d = drift.as_dvec3();
         let planes = LocalPlanes::gather(start.len(), |v| {
@@ -286,15 +286,19 @@ impl LocalPlanes {
 }
 
 /// The allowance for the f32 rounding of the trees' boxes (grown by the
-/// thickness in f32) and of dot products, for lookups around `positions`.
-pub(super) fn rounding_margin(colliders: &[&Collider], positions: impl Iterator<Item = Vec3>) -> f64 {
-    let scale = colliders
+/// thickness in f32) and of dot products, for lookups within `reach` of
+/// `positions`: some 30 ulps of the largest coordinate, or of the thickness
+/// or reach where those are larger (a box corner's coordinate is below
+/// twice the larger of them, so half of that still covers its rounding).
+pub(super) fn rounding_margin(colliders: &[&Collider], positions: impl Iterator<Item = Vec3>, reach: f32) -> f64 {
+    let coordinates = colliders
         .iter()
         .flat_map(|c| c.current().iter().chain(c.previous()).copied())
         .chain(positions)
         .map(|p| p.abs().max_element())
         .fold(1e-3f32, f32::max);
-    4e-6 * scale as f64
+    let thickest = colliders.iter().map(|c| c.settings().thickness).fold(0.0f32, f32::max);
+    4e-6 * coordinates.max(thickest).max(reach) as f64
 }
 
 /// A bound on how far the f32 sweep of [`vertex_planes`] may fall below
