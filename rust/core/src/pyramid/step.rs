@@ -529,8 +529,8 @@ fn still_pinched(x: &[Vec3], colliders: &[&Collider], suspects: Vec<u32>, mut pi
 
 /// A substep's in-loop supporting planes, kept for the next substep's first
 /// pass, which moves them along with the colliders
-/// ([`LocalPlanes::drifting`]); with the colliders' positions and settings
-/// they were measured against.
+/// ([`LocalPlanes::drifting`]); with the colliders' positions, triangles
+/// and settings they were measured against.
 #[derive(Debug, Clone)]
 pub(super) struct CarriedPlanes {
     planes: LocalPlanes,
