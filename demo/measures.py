@@ -1,0 +1,126 @@
+"""Measures of a deformed surface that share nothing with Tegument's solver.
+
+Used by the tests, the demo and the benchmarks to compare skinning, Corrective Smooth and
+Pyramid Deform on the same frames. Plain numpy on the mesh's own arrays, plus Blender's
+``mathutils.bvhtree`` for triangle overlaps; nothing here imports ``tegument``.
+
+- :func:`spike_measure`: per vertex, how much further it stands from the mean of its one-ring
+  than at rest, over the mean rest length of its ring edges. Smooth deformation keeps it near 0;
+  a spike or a tear shows as a large value.
+- :func:`coincident_groups` and :func:`seam_gap`: vertices that coincide at rest (split seams of
+  glTF, FBX and USD imports) and how far apart they end up.
+- :func:`self_intersections`: pairs of faces that intersect although they share no vertex
+  (vertices coincident at rest count as shared, so a closed split seam is not an intersection).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def polygon_edges(corner_verts: np.ndarray, polygon_sizes: np.ndarray) -> np.ndarray:
+    """``(E, 2)`` unique undirected edges (smaller index first) of the polygons."""
+    corner_verts = np.asarray(corner_verts, dtype=np.int64)
+    sizes = np.asarray(polygon_sizes, dtype=np.int64)
+    starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+    following = np.arange(len(corner_verts)) + 1
+    ends = np.repeat(starts + sizes, sizes)
+    following[following == ends] = np.repeat(starts, sizes)[following == ends]
+    pairs = np.stack([corner_verts, corner_verts[following]], axis=1)
+    pairs.sort(axis=1)
+    return np.unique(pairs[pairs[:, 0] != pairs[:, 1]], axis=0)
+
+
+def _ring_means(positions: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    n = len(positions)
+    sums = np.zeros((n, 3))
+    counts = np.zeros(n)
+    for a, b in ((0, 1), (1, 0)):
+        np.add.at(sums, edges[:, a], positions[edges[:, b]])
+        np.add.at(counts, edges[:, a], 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return sums / counts[:, None], counts
+
+
+def spike_measure(positions: np.ndarray, rest: np.ndarray, corner_verts: np.ndarray, polygon_sizes: np.ndarray) -> np.ndarray:
+    """Per vertex: (|x − mean of its ring| now − the same at rest) ÷ mean rest length of its ring
+    edges; 0 for vertices without edges. Non-finite positions give non-finite values."""
+    positions = np.asarray(positions, dtype=np.float64)
+    rest = np.asarray(rest, dtype=np.float64)
+    edges = polygon_edges(corner_verts, polygon_sizes)
+    now, counts = _ring_means(positions, edges)
+    then, _ = _ring_means(rest, edges)
+    lengths = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
+    ring_length = np.zeros(len(rest))
+    for column in (0, 1):
+        np.add.at(ring_length, edges[:, column], lengths)
+    has_ring = counts > 0
+    out = np.zeros(len(rest))
+    growth = np.linalg.norm(positions - now, axis=1) - np.linalg.norm(rest - then, axis=1)
+    out[has_ring] = growth[has_ring] / (ring_length[has_ring] / counts[has_ring])
+    return out
+
+
+def mesh_size(rest: np.ndarray) -> float:
+    """The diagonal of the rest positions' bounding box."""
+    rest = np.asarray(rest, dtype=np.float64)
+    return float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))) if len(rest) else 0.0
+
+
+def coincident_groups(rest: np.ndarray, tolerance: float = 1e-6) -> np.ndarray:
+    """Per vertex, the smallest index of the vertices it coincides with at rest (itself where
+    none does): split seams map to one representative. Vertices closer than half of
+    ``tolerance`` × the mesh size along every axis are always joined, never ones further apart
+    than ``tolerance`` × the mesh size along an axis."""
+    rest = np.asarray(rest, dtype=np.float64)
+    label = np.arange(len(rest))
+    if len(rest) < 2:
+        return label
+    cell = tolerance * max(mesh_size(rest), 1e-30)
+    # Two vertices closer than half a cell along an axis share a cell along it in the grid
+    # either unshifted or shifted by half a cell: the 8 shifted grids cover every such pair.
+    for shift in np.array(np.meshgrid([0.0, 0.5], [0.0, 0.5], [0.0, 0.5])).reshape(3, -1).T:
+        keys = np.floor(rest / cell + shift).astype(np.int64)
+        _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+        inverse = inverse.ravel()
+        joined = np.flatnonzero(first[inverse] != np.arange(len(rest)))
+        for i, j in zip(joined, first[inverse[joined]]):
+            a, b = _root(label, int(i)), _root(label, int(j))
+            label[max(a, b)] = min(a, b)
+    return np.array([_root(label, i) for i in range(len(rest))])
+
+
+def _root(label: np.ndarray, i: int) -> int:
+    """Union-find root with path halving."""
+    while label[i] != i:
+        label[i] = label[label[i]]
+        i = label[i]
+    return int(i)
+
+
+def seam_gap(positions: np.ndarray, groups: np.ndarray) -> float:
+    """The largest distance between a vertex and its group's representative (0 without seams)."""
+    positions = np.asarray(positions, dtype=np.float64)
+    split = groups != np.arange(len(groups))
+    if not split.any():
+        return 0.0
+    return float(np.linalg.norm(positions[split] - positions[groups[split]], axis=1).max())
+
+
+def self_intersections(positions: np.ndarray, corner_verts: np.ndarray, polygon_sizes: np.ndarray,
+                       groups: np.ndarray | None = None) -> int:
+    """Pairs of polygons that intersect and share no vertex (``groups``, e.g. from
+    :func:`coincident_groups`, makes vertices coincident at rest count as shared).
+
+    Blender's ``BVHTree.overlap`` of the mesh with itself decides intersection.
+    """
+    from mathutils.bvhtree import BVHTree
+
+    corner_verts = np.asarray(corner_verts, dtype=np.int64)
+    sizes = np.asarray(polygon_sizes, dtype=np.int64)
+    starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+    polygons = [corner_verts[s:s + k].tolist() for s, k in zip(starts, sizes)]
+    tree = BVHTree.FromPolygons(np.asarray(positions, dtype=np.float64).tolist(), polygons, all_triangles=False, epsilon=0.0)
+    shared_id = np.asarray(groups if groups is not None else np.arange(int(corner_verts.max(initial=-1)) + 1))
+    sets = [frozenset(shared_id[p].tolist()) for p in polygons]
+    return sum(1 for i, j in tree.overlap(tree) if i < j and not (sets[i] & sets[j]))
