@@ -19,7 +19,7 @@ impl PolyMesh {
         MeshInput { positions: &self.positions, corner_verts: &self.corner_verts, polygon_sizes: &self.polygon_sizes }
     }
 
-    fn push_polygon(&mut self, corners: &[usize]) {
+    pub fn push_polygon(&mut self, corners: &[usize]) {
         self.corner_verts.extend(corners.iter().map(|&c| c as i32));
         self.polygon_sizes.push(corners.len() as i32);
     }

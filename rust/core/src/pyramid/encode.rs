@@ -10,6 +10,15 @@
 //! * plain mode stores `b`; scale-safe mode stores, per neighbour, the tangent
 //!   of the edge's elevation over the plane `t_j = (b − h_j)/|v' − v_j'|`.
 //!
+//! A boundary vertex's ring is open: it starts and ends at its neighbours on
+//! the border. Its normal is that of the ring closed by the chord between them
+//! (what [`super::project::frame`] measures at run time, unchanged), and its
+//! mean-value weights are taken on the ring closed by a virtual neighbour in
+//! the gap ([`OpenRingClosing`]), whose weight is then shared out among the
+//! real neighbours it is made of. Both lifts only need weights that sum to 1
+//! and reproduce the projected vertex, so the projection and the kernels treat
+//! open rings like closed ones.
+//!
 //! Everything is computed in f64; only the results are stored in f32.
 
 // `!(x > limit)` on purpose throughout: a NaN must fail these checks, not pass them.
@@ -39,7 +48,8 @@ const MIN_RELATIVE_AREA: f64 = 1e-8;
 /// follow their input (closeness 1); neighbours still see them.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum PinReason {
-    /// On an open border: its ring does not surround it.
+    /// On an open border, with a one-ring too small or too narrow to close
+    /// (fewer than 3 neighbours, or all of them nearly on one line).
     Boundary,
     /// Its polygons do not form one fan (non-manifold edge, bow-tie, flipped face).
     NonManifold,
@@ -62,7 +72,7 @@ pub enum PinReason {
 impl PinReason {
     pub fn describe(self) -> &'static str {
         match self {
-            PinReason::Boundary => "boundary",
+            PinReason::Boundary => "boundary corner without a usable one-ring",
             PinReason::NonManifold => "non-manifold",
             PinReason::Isolated => "isolated",
             PinReason::LowValence => "fewer than 3 neighbours",
@@ -186,13 +196,11 @@ fn encode_vertex(
     if topology.is_non_manifold(v) {
         return Err(PinReason::NonManifold);
     }
-    if topology.is_boundary(v) {
-        return Err(PinReason::Boundary);
-    }
+    let open = topology.is_boundary(v);
     let ring = topology.one_ring(v);
     let k = ring.len();
     if k < 3 {
-        return Err(PinReason::LowValence);
+        return Err(if open { PinReason::Boundary } else { PinReason::LowValence });
     }
     if k > MAX_VALENCE {
         return Err(PinReason::HighValence);
@@ -201,6 +209,8 @@ fn encode_vertex(
     let x = rest[v].as_dvec3();
     let centroid = p.iter().sum::<DVec3>() / k as f64;
     // Relative to the centroid: same sum for a closed loop, less cancellation.
+    // An open ring is closed by the chord from its last neighbour to its first,
+    // which is the polygon `project::frame` measures at run time too.
     let area: DVec3 = (0..k)
         .map(|j| (p[j] - centroid).cross(p[(j + 1) % k] - centroid))
         .sum();
@@ -216,9 +226,49 @@ fn encode_vertex(
     let height = (x - centroid).dot(normal);
     let heights: Vec<f64> = p.iter().map(|q| (*q - centroid).dot(normal)).collect();
     let projected = x - height * normal;
-    let d: Vec<DVec3> = (0..k)
+    // The neighbours in the tangent plane, relative to the projected vertex.
+    let mut d: Vec<DVec3> = (0..k)
         .map(|j| (p[j] - heights[j] * normal) - projected)
         .collect();
+    let closing = if open {
+        let closing = OpenRingClosing::new(&d).ok_or(PinReason::Boundary)?;
+        d.push(closing.point);
+        Some(closing)
+    } else {
+        None
+    };
+    let raw = mean_value_weights(&d, normal)?;
+    let r: Vec<f64> = d.iter().map(|d| d.length()).collect();
+    // Only real neighbours are stored: the virtual one's weight goes to the
+    // neighbours it is an affine combination of, so weights still sum to 1 and
+    // reproduce the projected vertex, which is all both lifts rely on.
+    let weights: Vec<f64> = match closing {
+        Some(closing) => closing.redistribute(&raw),
+        None => raw,
+    };
+    if weights.iter().any(|w| !w.is_finite()) {
+        return Err(PinReason::NotStarShaped);
+    }
+    let tangents: Vec<f32> = if scale_safe {
+        (0..k)
+            .map(|j| ((height - heights[j]) / r[j]) as f32)
+            .collect()
+    } else {
+        Vec::new()
+    };
+    Ok(Ring {
+        weights: weights.iter().map(|&w| w as f32).collect(),
+        tangents,
+        height: height as f32,
+    })
+}
+
+/// Floater's mean-value weights of the origin with respect to the polygon
+/// `d` (points relative to the vertex, in the plane normal to `normal`,
+/// counter-clockwise), normalised to sum 1. The origin must be strictly inside
+/// the polygon's kernel, away from its corners.
+fn mean_value_weights(d: &[DVec3], normal: DVec3) -> std::result::Result<Vec<f64>, PinReason> {
+    let k = d.len();
     let r: Vec<f64> = d.iter().map(|d| d.length()).collect();
     let mean_r = r.iter().sum::<f64>() / k as f64;
     if r.iter().any(|&r| !(r > 1e-6 * mean_r)) {
@@ -248,19 +298,72 @@ fn encode_vertex(
     if !(sum.is_finite() && sum > 0.0) {
         return Err(PinReason::NotStarShaped);
     }
-    let weights: Vec<f32> = raw.iter().map(|w| (w / sum) as f32).collect();
-    let tangents: Vec<f32> = if scale_safe {
-        (0..k)
-            .map(|j| ((height - heights[j]) / r[j]) as f32)
-            .collect()
-    } else {
-        Vec::new()
-    };
-    Ok(Ring {
-        weights,
-        tangents,
-        height: height as f32,
-    })
+    Ok(raw.iter().map(|w| w / sum).collect())
+}
+
+/// Largest weight, relative to the chord, that the virtual neighbour of an
+/// open ring may take: beyond it the ring is a sliver (all neighbours nearly on
+/// one line through the vertex) and the weights would amplify rounding.
+const MAX_CLOSING_REACH: f64 = 16.0;
+
+/// The virtual neighbour that closes an open one-ring (a boundary vertex).
+///
+/// The ring `r_0 … r_{k−1}` (counter-clockwise, first and last on the border)
+/// leaves a gap between `r_{k−1}` and `r_0`. The virtual neighbour
+/// `g = (1 + λ) c − λ q`, with `c` the chord's midpoint and `q` the mean of the
+/// inner neighbours, sits in that gap on the far side of the vertex, so that
+/// the vertex is inside the closed ring and gets mean-value weights like any
+/// interior vertex. Being an affine combination of real neighbours, `g` never
+/// needs to be stored or evaluated: its weight is shared out among them.
+#[derive(Debug, Clone, Copy)]
+struct OpenRingClosing {
+    /// `g`, relative to the projected vertex.
+    point: DVec3,
+    /// `λ`.
+    reach: f64,
+    /// Number of real neighbours.
+    k: usize,
+}
+
+impl OpenRingClosing {
+    /// From the real neighbours relative to the projected vertex (k ≥ 3);
+    /// `None` when the ring is too narrow to close.
+    fn new(d: &[DVec3]) -> Option<Self> {
+        let k = d.len();
+        let chord_middle = 0.5 * (d[0] + d[k - 1]);
+        let inner = d[1..k - 1].iter().sum::<DVec3>() / (k - 2) as f64;
+        let outward = chord_middle - inner;
+        let length = outward.length();
+        let mean_r = d.iter().map(|q| q.length()).sum::<f64>() / k as f64;
+        if !(length > 1e-9 * mean_r) {
+            return None;
+        }
+        let direction = outward / length;
+        // The vertex (the origin here) lies `beyond` past the chord along
+        // `direction` (negative when the fan spans more than a half turn); put
+        // `g` a mean ring radius past whichever is further.
+        let beyond = (-chord_middle).dot(direction).max(0.0);
+        let reach = (beyond + mean_r) / length;
+        if !(reach <= MAX_CLOSING_REACH) {
+            return None;
+        }
+        Some(Self { point: chord_middle + reach * outward, reach, k })
+    }
+
+    /// `k` real weights from the `k + 1` weights of the closed ring.
+    fn redistribute(&self, closed: &[f64]) -> Vec<f64> {
+        let k = self.k;
+        let virtual_weight = closed[k];
+        let mut weights = closed[..k].to_vec();
+        let at_chord_end = 0.5 * (1.0 + self.reach) * virtual_weight;
+        weights[0] += at_chord_end;
+        weights[k - 1] += at_chord_end;
+        let per_inner = self.reach * virtual_weight / (k - 2) as f64;
+        for w in &mut weights[1..k - 1] {
+            *w -= per_inner;
+        }
+        weights
+    }
 }
 
 impl Encoding {

@@ -1,8 +1,9 @@
 //! Pyramid coordinates (Sheffer & Kraevoy 2004) as projective constraints
 //! (seed 000 §2).
 //!
-//! * [`encode`]: at bind time, each interior vertex is described relative to
-//!   its ordered one-ring: mean-value weights of its projection on the ring's
+//! * [`encode`]: at bind time, each vertex is described relative to its
+//!   ordered one-ring (an open ring, at a boundary, closed by a virtual
+//!   neighbour): mean-value weights of its projection on the ring's
 //!   plane, and a normal offset (a plain height, or per-neighbour edge
 //!   elevation tangents in scale-safe mode). Vertices that cannot be encoded
 //!   are pinned and listed with the reason.
@@ -35,6 +36,8 @@ pub use encode::{encode, Encoding, PinReason, MAX_VALENCE};
 pub use dynamics::{Dynamics, MAX_SUBSTEPS, STIFFNESS_DENSITY};
 pub use step::{StepOptions, StepReport, StrainMode, StrainOptions};
 
+#[cfg(test)]
+mod open_ring_tests;
 #[cfg(test)]
 mod tests;
 
