@@ -11,16 +11,12 @@ import bpy
 import numpy as np
 from bpy.props import StringProperty
 
-from .. import mesh_arrays
+from .. import jobs, mesh_arrays
 from ..deform import evaluate
-from ..deform.evaluate import DeformError
 from ..warp import bake
 from ..warp.inputs import WarpError
 
-_EXPECTED = (WarpError, DeformError)
-
-
-class TEGUMENT_OT_warp_bake(bpy.types.Operator):
+class TEGUMENT_OT_warp_bake(jobs.BakeOperator, bpy.types.Operator):
     """Bake the Tegument UV Warp node's redirection sequence over its frame range (Esc cancels and keeps the frames done)"""
 
     bl_idname = "tegument.warp_bake"
@@ -29,75 +25,8 @@ class TEGUMENT_OT_warp_bake(bpy.types.Operator):
     material: StringProperty(name="Material", description="Material holding the node (empty: the active object's active material)")
     node: StringProperty(name="Node", description="Name of the Tegument UV Warp node (empty: the active node)")
 
-    def _target(self, context):
-        try:
-            return bake.find_node(context, self.material, self.node)
-        except WarpError as error:
-            self.report({"ERROR"}, str(error))
-            return None
-
-    def execute(self, context):
-        target = self._target(context)
-        if target is None:
-            return {"CANCELLED"}
-        try:
-            _, cancelled, job = bake.bake_blocking(context, *target)
-        except _EXPECTED as error:
-            self.report({"ERROR"}, str(error))
-            return {"CANCELLED"}
-        self.report({"WARNING" if cancelled else "INFO"},
-                    f"{'Cancelled' if cancelled else 'Baked'} UV warp of {job.label}: {job.summary.text()}")
-        return {"CANCELLED"} if cancelled else {"FINISHED"}
-
-    def invoke(self, context, event):
-        if bpy.app.background or context.window is None:
-            return self.execute(context)
-        target = self._target(context)
-        if target is None:
-            return {"CANCELLED"}
-        try:
-            self._job = bake.WarpBakeJob(context, *target)
-        except _EXPECTED as error:
-            self.report({"ERROR"}, str(error))
-            return {"CANCELLED"}
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(0.001, window=context.window)
-        wm.progress_begin(0, len(self._job.frames))
-        wm.modal_handler_add(self)
-        return {"RUNNING_MODAL"}
-
-    def modal(self, context, event):
-        job = self._job
-        if event.type == "ESC":
-            return self._end(context, cancelled=True)
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
-        try:
-            job.step()
-        except _EXPECTED as error:
-            job.abort()
-            self._end(context, cancelled=True, failed=True)
-            self.report({"ERROR"}, str(error))
-            return {"CANCELLED"}
-        context.window_manager.progress_update(job.done)
-        context.workspace.status_text_set(
-            f"Tegument: baking UV warp of {job.label}, frame {job.done}/{len(job.frames)}, "
-            f"ETA {job.eta_seconds():.0f} s (Esc to cancel)"
-        )
-        if job.finished:
-            return self._end(context, cancelled=False)
-        return {"RUNNING_MODAL"}
-
-    def _end(self, context, *, cancelled: bool, failed: bool = False):
-        wm = context.window_manager
-        wm.event_timer_remove(self._timer)
-        wm.progress_end()
-        context.workspace.status_text_set(None)
-        if not failed:
-            self._job.commit()
-            self.report({"WARNING" if cancelled else "INFO"},
-                        f"{'Cancelled' if cancelled else 'Baked'} UV warp of {self._job.label}: {self._job.summary.text()}")
-        return {"CANCELLED"} if cancelled else {"FINISHED"}
+    def make_job(self, context) -> bake.WarpBakeJob:
+        return bake.WarpBakeJob(context, *bake.find_node(context, self.material, self.node))
 
 
 def bind_rest(context, obj) -> str:
@@ -138,8 +67,8 @@ class TEGUMENT_OT_warp_bind(bpy.types.Operator):
             if node.object is None or node.object.type != "MESH":
                 raise WarpError(f"{node.name}: set the node's Object to a mesh first")
             message = bind_rest(context, node.object)
-        except _EXPECTED as error:
-            self.report({"ERROR"}, str(error))
+        except Exception as error:
+            self.report({"ERROR"}, jobs.message(error))
             return {"CANCELLED"}
         self.report({"INFO"}, message)
         return {"FINISHED"}
