@@ -327,8 +327,8 @@ def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=N
             f"but the bind has {deformer.vertex_count}: a modifier above Tegument changes the topology "
             "(move it below Tegument, or rebind)"
         )
-    if not np.isfinite(world).all():
-        vertex = int(np.argwhere(~np.isfinite(world))[0][0])
+    vertex = mesh_arrays.first_non_finite(world)
+    if vertex is not None:
         raise DeformError(f"{obj.name}: at frame {frame} the input position of vertex {vertex} is not finite")
     matrix = obj.evaluated_get(depsgraph).matrix_world
     iterations = obj.tegument.iterations

@@ -34,20 +34,25 @@ def _deformed_poll(cls, context) -> bool:
     return True
 
 
+def bind_pose(context, obj):
+    """The positions a bind stores (Bind Pose): the mesh's own, or what the modifiers above
+    Tegument make of them, which may have another vertex count (each caller says what to do)."""
+    if obj.tegument.bind_source == "EVALUATED":
+        with evaluate.upstream_only(obj):
+            return evaluate.evaluated_positions(obj, context.evaluated_depsgraph_get())[0]
+    return mesh_arrays.positions(obj.data)
+
+
 def bind(context, obj) -> str:
     """Stores the rest pose and checks it can be encoded; returns a status message."""
     import tegument
 
-    if obj.tegument.bind_source == "EVALUATED":
-        with evaluate.upstream_only(obj):
-            rest, _ = evaluate.evaluated_positions(obj, context.evaluated_depsgraph_get())
-        if len(rest) != len(obj.data.vertices):
-            raise DeformError(
-                f"{obj.name}: the modifier stack gives {len(rest)} vertices, the mesh has {len(obj.data.vertices)}; "
-                "bind to the original positions or move topology-changing modifiers below Tegument"
-            )
-    else:
-        rest = mesh_arrays.positions(obj.data)
+    rest = bind_pose(context, obj)
+    if len(rest) != len(obj.data.vertices):
+        raise DeformError(
+            f"{obj.name}: the modifier stack gives {len(rest)} vertices, the mesh has {len(obj.data.vertices)}; "
+            "bind to the original positions or move topology-changing modifiers below Tegument"
+        )
     corners = mesh_arrays.corner_verts(obj.data)
     sizes = mesh_arrays.polygon_sizes(obj.data)
     try:

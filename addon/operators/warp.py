@@ -8,13 +8,14 @@ previous sequence stays as it was and nothing is half-written.
 from __future__ import annotations
 
 import bpy
-import numpy as np
 from bpy.props import StringProperty
 
 from .. import jobs, mesh_arrays
 from ..deform import evaluate
 from ..warp import bake
 from ..warp.inputs import WarpError
+from .deform import bind_pose
+
 
 class TEGUMENT_OT_warp_bake(jobs.BakeOperator, bpy.types.Operator):
     """Bake the Tegument UV Warp node's redirection sequence over its frame range (Esc cancels and keeps the frames done)"""
@@ -36,16 +37,13 @@ def bind_rest(context, obj) -> str:
     warp needs only the positions, and a mesh the deformer cannot encode can
     still carry a warped texture.
     """
-    if obj.tegument.bind_source == "EVALUATED":
-        with evaluate.upstream_only(obj):
-            rest, _ = evaluate.evaluated_positions(obj, context.evaluated_depsgraph_get())
-        if len(rest) != len(obj.data.vertices):
-            raise WarpError(f"{obj.name}: the modifier stack gives {len(rest)} vertices, the mesh has "
-                            f"{len(obj.data.vertices)}; bind to the original positions (Bind Pose: Original)")
-    else:
-        rest = mesh_arrays.positions(obj.data)
-    if not np.isfinite(rest).all():
-        raise WarpError(f"{obj.name}: vertex {int(np.argwhere(~np.isfinite(rest))[0][0])} has a non-finite position")
+    rest = bind_pose(context, obj)
+    if len(rest) != len(obj.data.vertices):
+        raise WarpError(f"{obj.name}: the modifier stack gives {len(rest)} vertices, the mesh has "
+                        f"{len(obj.data.vertices)}; bind to the original positions (Bind Pose: Original)")
+    vertex = mesh_arrays.first_non_finite(rest)
+    if vertex is not None:
+        raise WarpError(f"{obj.name}: vertex {vertex} has a non-finite position")
     evaluate.store_rest(obj, rest)
     obj.tegument.bound_vertices = len(rest)
     return f"Bound {obj.name}: {len(rest)} vertices"

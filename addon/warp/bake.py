@@ -149,8 +149,8 @@ class WarpBakeJob:
                 f"with {len(self.inputs.rest)}: a modifier changes the topology (move it to the end of the stack, "
                 "or disable it in the viewport while baking)"
             )
-        if not np.isfinite(positions).all():
-            vertex = int(np.argwhere(~np.isfinite(positions))[0][0])
+        vertex = mesh_arrays.first_non_finite(positions)
+        if vertex is not None:
             raise WarpError(f"{self.label}: at frame {frame} the position of vertex {vertex} of {obj.name} is not finite")
         try:
             self.warp.solve(positions)
