@@ -34,8 +34,9 @@ class Job(Protocol):
 
     frames: range
     done: int  # frames stepped so far
+    label: str  # what is baked, in console lines: "Ball", "Skin › Tegument UV Warp"
+    log_prefix: str  # what bakes it, first on console lines: "Tegument", "Tegument UV Warp"
     title: str  # what is baked, in operator messages: "Ball", "UV warp of Skin › Tegument UV Warp"
-    log_name: str  # the prefix of its console lines: "Tegument: Ball"
 
     @property
     def finished(self) -> bool: ...
@@ -114,9 +115,9 @@ def run_blocking(context, job: Job, *, report=print) -> bool:
     finally:
         wm.progress_end()
     if cancelled:
-        report(f"{job.log_name}: bake cancelled; keeping the {job.done} frames done")
+        report(f"{job.log_prefix}: bake of {job.label} cancelled; keeping the {job.done} frames done")
     job.commit()
-    report(f"{job.log_name}: {job.outcome()}")
+    report(f"{job.log_prefix}: {job.label}: {job.outcome()}")
     return cancelled
 
 

@@ -68,8 +68,8 @@ class BakeJob:
     def __init__(self, context, obj, frames: range, *, keep_existing: bool = False):
         self.scene = context.scene
         self.obj = obj
-        self.title = obj.name
-        self.log_name = f"Tegument: {obj.name}"
+        self.label = self.title = obj.name
+        self.log_prefix = "Tegument"
         self.frames = frames
         self.settings = obj.tegument
         if evaluate.tegument_modifier(obj) is None:
@@ -206,7 +206,7 @@ class BakeJob:
         return frame
 
     def progress_line(self) -> str:
-        return (f"{self.log_name} frame {self.frames[self.done - 1]} ({self.done}/{len(self.frames)}) "
+        return (f"{self.log_prefix}: {self.label} frame {self.frames[self.done - 1]} ({self.done}/{len(self.frames)}) "
                 f"{1000 * self.times[-1]:.1f} ms, ETA {self.eta_seconds():.1f} s")
 
     def outcome(self) -> str:

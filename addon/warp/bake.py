@@ -87,7 +87,7 @@ class WarpBakeJob:
         self.node = node
         self.label = f"{material.name} › {node.name}"
         self.title = f"UV warp of {self.label}"
-        self.log_name = f"Tegument UV Warp: {self.label}"
+        self.log_prefix = "Tegument UV Warp"
         self.frames = frames if frames is not None else range(node.frame_start, node.frame_end + 1)
         if len(self.frames) == 0:
             raise WarpError(f"{self.label}: the frame range {self.frames.start}–{self.frames.stop - 1} is empty")
@@ -168,7 +168,7 @@ class WarpBakeJob:
 
     def progress_line(self) -> str:
         stats = self.summary.frames[-1]
-        return (f"{self.log_name} frame {stats.frame} ({self.done}/{len(self.frames)}) "
+        return (f"{self.log_prefix}: {self.label} frame {stats.frame} ({self.done}/{len(self.frames)}) "
                 f"{1000 * stats.seconds:.1f} ms, rigid stretch {stats.identity_mean:.3f} → {stats.warped_mean:.3f}, "
                 f"fold-overs {stats.foldovers}, ETA {self.eta_seconds():.1f} s")
 
@@ -185,9 +185,12 @@ class WarpBakeJob:
                 return
             directory = self.inputs.directory
             baked = self.frames[: self.done]
-            for udim in self.inputs.tiles:
-                for frame in baked:
-                    os.replace(self._staged(udim, frame), warp_node.frame_file(directory, self.stem, udim, frame))
+            try:
+                for udim in self.inputs.tiles:
+                    for frame in baked:
+                        os.replace(self._staged(udim, frame), warp_node.frame_file(directory, self.stem, udim, frame))
+            except OSError as error:
+                raise WarpError(f"{self.label}: cannot move the baked frames into {directory}: {error.strerror}") from None
             self._remove_stale(baked)
             if self.node.write_heatmap:
                 self._write_heatmaps(baked.stop - 1)
