@@ -14,6 +14,7 @@ done; an error aborts, and the previous result stays as it was.
 from __future__ import annotations
 
 import contextlib
+import functools
 import traceback
 from typing import Callable, Protocol
 
@@ -70,6 +71,21 @@ def message(error: Exception) -> str:
         return str(error)
     traceback.print_exception(error)
     return f"Tegument internal error (please report it, the console has the details): {type(error).__name__}: {error}"
+
+
+def reports_errors(method):
+    """Decorates an operator method: any exception becomes a ``self.report`` error and
+    ``{'CANCELLED'}``, never a traceback dialog (see :func:`message`)."""
+
+    @functools.wraps(method)
+    def reporting(self, context):
+        try:
+            return method(self, context)
+        except Exception as error:
+            self.report({"ERROR"}, message(error))
+            return {"CANCELLED"}
+
+    return reporting
 
 
 @contextlib.contextmanager
@@ -204,24 +220,19 @@ class BakeOperator:
     def make_job(self, context) -> Job:
         raise NotImplementedError
 
+    @reports_errors
     def execute(self, context):
-        try:
-            job = self.make_job(context)
-            cancelled = run_blocking(context, job)
-        except Exception as error:
-            self.report({"ERROR"}, message(error))
-            return {"CANCELLED"}
-        return finish(self.report, job, cancelled)
+        job = self.make_job(context)
+        return finish(self.report, job, run_blocking(context, job))
 
     def invoke(self, context, event):
         if bpy.app.background or context.window is None:
             return self.execute(context)
-        try:
-            job = self.make_job(context)
-        except Exception as error:
-            self.report({"ERROR"}, message(error))
-            return {"CANCELLED"}
-        self._run = ModalRun(context, job, self.report)
+        return self._start(context)
+
+    @reports_errors
+    def _start(self, context):
+        self._run = ModalRun(context, self.make_job(context), self.report)
         context.window_manager.modal_handler_add(self)
         return {"RUNNING_MODAL"}
 

@@ -15,23 +15,7 @@ from .. import jobs, mesh_arrays, pc2
 from ..deform import bake, colliders, evaluate
 from ..deform.evaluate import DeformError
 from ..deform.properties import MODIFIER_NAME
-
-
-def _mesh_poll(cls, context) -> bool:
-    obj = context.active_object
-    if obj is None or obj.type != "MESH":
-        cls.poll_message_set("The active object must be a mesh")
-        return False
-    return True
-
-
-def _deformed_poll(cls, context) -> bool:
-    if not _mesh_poll(cls, context):
-        return False
-    if evaluate.tegument_modifier(context.active_object) is None:
-        cls.poll_message_set("The active object has no Tegument modifier (Add Pyramid Deform first)")
-        return False
-    return True
+from . import polls
 
 
 def bind_pose(context, obj):
@@ -79,8 +63,9 @@ class TEGUMENT_OT_deform_add(bpy.types.Operator):
     bl_label = "Add Pyramid Deform"
     bl_options = {"REGISTER", "UNDO"}
 
-    poll = classmethod(_mesh_poll)
+    poll = classmethod(polls.mesh)
 
+    @jobs.reports_errors
     def execute(self, context):
         obj = context.active_object
         if evaluate.tegument_modifier(obj) is not None:
@@ -90,11 +75,7 @@ class TEGUMENT_OT_deform_add(bpy.types.Operator):
         if settings.cache_path in ("", "//tegument/object.pc2"):
             settings.cache_path = f"//tegument/{bpy.path.clean_name(obj.name)}.pc2"
         settings.frame_start, settings.frame_end = context.scene.frame_start, context.scene.frame_end
-        try:
-            message = bind(context, obj)
-        except Exception as error:
-            self.report({"ERROR"}, jobs.message(error))
-            return {"CANCELLED"}
+        message = bind(context, obj)
         modifier = obj.modifiers.new(MODIFIER_NAME, "MESH_CACHE")
         modifier.cache_format = "PC2"
         modifier.filepath = settings.cache_path
@@ -110,7 +91,7 @@ class TEGUMENT_OT_deform_remove(bpy.types.Operator):
     bl_label = "Remove Pyramid Deform"
     bl_options = {"REGISTER", "UNDO"}
 
-    poll = classmethod(_deformed_poll)
+    poll = classmethod(polls.deformed)
 
     def execute(self, context):
         obj = context.active_object
@@ -131,14 +112,11 @@ class TEGUMENT_OT_bind(bpy.types.Operator):
     bl_label = "Bind"
     bl_options = {"REGISTER", "UNDO"}
 
-    poll = classmethod(_mesh_poll)
+    poll = classmethod(polls.mesh)
 
+    @jobs.reports_errors
     def execute(self, context):
-        try:
-            self.report({"INFO"}, bind(context, context.active_object))
-        except Exception as error:
-            self.report({"ERROR"}, jobs.message(error))
-            return {"CANCELLED"}
+        self.report({"INFO"}, bind(context, context.active_object))
         return {"FINISHED"}
 
 
@@ -148,7 +126,7 @@ class TEGUMENT_OT_bake(jobs.BakeOperator, bpy.types.Operator):
     bl_idname = "tegument.bake"
     bl_label = "Bake"
 
-    poll = classmethod(_deformed_poll)
+    poll = classmethod(polls.deformed)
 
     def make_job(self, context) -> bake.BakeJob:
         obj = context.active_object
@@ -161,8 +139,9 @@ class TEGUMENT_OT_bake_frame(bpy.types.Operator):
     bl_idname = "tegument.bake_frame"
     bl_label = "Bake Frame"
 
-    poll = classmethod(_deformed_poll)
+    poll = classmethod(polls.deformed)
 
+    @jobs.reports_errors
     def execute(self, context):
         obj = context.active_object
         settings = obj.tegument
@@ -172,12 +151,7 @@ class TEGUMENT_OT_bake_frame(bpy.types.Operator):
             return {"CANCELLED"}
         cached = pc2.frame_count(evaluate.cache_file(obj))
         first = min(settings.frame_start + cached, frame)
-        try:
-            bake.bake_blocking(context, obj, range(first, frame + 1), keep_existing=True,
-                               report=lambda line: None)
-        except Exception as error:
-            self.report({"ERROR"}, jobs.message(error))
-            return {"CANCELLED"}
+        bake.bake_blocking(context, obj, range(first, frame + 1), keep_existing=True, report=lambda line: None)
         self.report({"INFO"}, f"Baked frame {frame} of {obj.name}")
         return {"FINISHED"}
 
@@ -189,7 +163,7 @@ class TEGUMENT_OT_free_bake(bpy.types.Operator):
     bl_label = "Free Bake"
     bl_options = {"REGISTER", "UNDO"}
 
-    poll = classmethod(_deformed_poll)
+    poll = classmethod(polls.deformed)
 
     def execute(self, context):
         obj = context.active_object

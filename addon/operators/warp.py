@@ -59,16 +59,12 @@ class TEGUMENT_OT_warp_bind(bpy.types.Operator):
     material: StringProperty(name="Material", description="Material holding the node (empty: the active object's active material)")
     node: StringProperty(name="Node", description="Name of the Tegument UV Warp node (empty: the active node)")
 
+    @jobs.reports_errors
     def execute(self, context):
-        try:
-            _, node = bake.find_node(context, self.material, self.node)
-            if node.object is None or node.object.type != "MESH":
-                raise WarpError(f"{node.name}: set the node's Object to a mesh first")
-            message = bind_rest(context, node.object)
-        except Exception as error:
-            self.report({"ERROR"}, jobs.message(error))
-            return {"CANCELLED"}
-        self.report({"INFO"}, message)
+        _, node = bake.find_node(context, self.material, self.node)
+        if node.object is None or node.object.type != "MESH":
+            raise WarpError(f"{node.name}: set the node's Object to a mesh first")
+        self.report({"INFO"}, bind_rest(context, node.object))
         return {"FINISHED"}
 
 
