@@ -8,6 +8,7 @@ stand-in job (``ScriptedJob``) covers the runner's own rules without a scene.
 
 from __future__ import annotations
 
+import contextlib
 import pathlib
 import signal
 from types import SimpleNamespace
@@ -234,6 +235,23 @@ def warp_node(tmp_path):
     return material, node, tmp_path / "tegument" / "warp"
 
 
+@contextlib.contextmanager
+def ctrl_c_at_frame_change(count: int):
+    """Presses Ctrl-C (SIGINT, what it does to a background bake) at the ``count``-th frame change."""
+    seen = []
+
+    def interrupt(scene, depsgraph=None):
+        seen.append(scene.frame_current)
+        if len(seen) == count:
+            signal.raise_signal(signal.SIGINT)
+
+    bpy.app.handlers.frame_change_post.append(interrupt)
+    try:
+        yield
+    finally:
+        bpy.app.handlers.frame_change_post.remove(interrupt)
+
+
 def sequence(folder: pathlib.Path) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in folder.iterdir()} if folder.is_dir() else {}
 
@@ -311,18 +329,8 @@ def test_an_unexpected_error_in_a_warp_bake_is_a_message_not_a_traceback(warp_no
 def test_ctrl_c_in_a_command_line_warp_bake_keeps_the_frames_done(warp_node, capfd):
     a = addon()
     material, node, folder = warp_node
-    seen = []
-
-    def interrupt_after_two(scene, depsgraph=None):
-        seen.append(scene.frame_current)
-        if len(seen) == 2:
-            signal.raise_signal(signal.SIGINT)
-
-    bpy.app.handlers.frame_change_post.append(interrupt_after_two)
-    try:
+    with ctrl_c_at_frame_change(2):
         code = a.cli.main(["warp-bake", "--material", material.name, "--node", node.name])
-    finally:
-        bpy.app.handlers.frame_change_post.remove(interrupt_after_two)
     assert code == 130
     assert sorted(sequence(folder)) == [f"Skin_Tegument_UV_Warp_1001_{f:04d}.exr" for f in (1, 2)]
     assert (node.baked_start, node.baked_frames) == (1, 2)
