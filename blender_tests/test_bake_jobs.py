@@ -344,3 +344,30 @@ def test_a_bad_frame_range_on_the_command_line_is_a_usage_error_for_both_bakes(w
         assert cli.main([command, "--frames", "1-x"]) == 2
         assert "error: --frames expects START-END, got '1-x'" in capfd.readouterr().err
     assert sequence(warp_node[2]) == {}
+
+
+# ------------------------------------------------------------ the panels (their shared base and toggles)
+
+def test_panels_draw_the_same_settings_in_the_same_order(ball):
+    from test_uv_warp_node import RecordingLayout
+
+    ui = addon().ui
+    settings = ball.tegument
+
+    def drawn():
+        log = []
+        panel = SimpleNamespace(layout=RecordingLayout(log))
+        context = SimpleNamespace(object=ball, window_manager=bpy.context.window_manager)
+        ui.modifier_panel.TEGUMENT_PT_modifier.draw(panel, context)
+        return [args[1] for name, args, _ in log if name in ("prop", "prop_search")]
+
+    common = ["enabled", "iterations", "closeness", "closeness_group", "scale_safe", "bind_source",
+              "collider_collection", "substeps", "dynamic"]
+    tail = ["frame_start", "frame_end", "cache_path", "live"]
+    assert drawn() == common + ["limit_stretch"] + tail
+    settings.dynamic = settings.limit_stretch = True
+    assert drawn() == common + ["mass", "damping", "use_gravity", "limit_stretch", "max_stretch",
+                                "max_stretch_group", "strain_mode"] + tail
+    for panel in (ui.modifier_panel.TEGUMENT_PT_modifier, ui.collider_panel.TEGUMENT_PT_collider):
+        assert (panel.bl_space_type, panel.bl_region_type) == ("PROPERTIES", "WINDOW")
+        assert panel.poll(SimpleNamespace(object=ball)) and not panel.poll(SimpleNamespace(object=None))
