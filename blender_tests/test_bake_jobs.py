@@ -52,6 +52,9 @@ class FakeWindow:
     def status_text_set(self, text):
         self._record("status", text)
 
+    def modal_handler_add(self, operator):
+        self._record("modal_handler_add", operator)
+
     def context(self):
         return SimpleNamespace(window_manager=self, workspace=self, window=object())
 
@@ -203,6 +206,28 @@ def test_blender_cancelling_the_modal_run_commits_even_when_the_window_is_gone()
     run = jobs.ModalRun(FakeWindow().context(), job, reports)
     run.cancel(FakeWindow().context())
     assert job.events == ["commit", "abort"] and reports == []
+
+
+def test_the_operator_mixin_starts_drives_and_cancels_a_modal_run():
+    """What invoke() does in the UI (headless Blender always takes the blocking path)."""
+    jobs = addon().jobs
+    window, reports = FakeWindow(), Reports()
+    context = window.context()
+    job = ScriptedJob(2)
+    operator = SimpleNamespace(make_job=lambda context: job, report=reports)
+    assert jobs.BakeOperator._start(operator, context) == {"RUNNING_MODAL"}
+    assert ("modal_handler_add", operator) in window.calls
+    timer = SimpleNamespace(type="TIMER")
+    assert jobs.BakeOperator.modal(operator, context, timer) == {"RUNNING_MODAL"}
+    jobs.BakeOperator.cancel(operator, context)
+    assert job.done == 1 and job.events == ["commit"] and window.closed()
+
+    def refused(context):
+        raise addon().deform.evaluate.DeformError("Ball is already being baked: wait for that bake to finish")
+
+    operator = SimpleNamespace(make_job=refused, report=reports)
+    assert jobs.BakeOperator._start(operator, FakeWindow().context()) == {"CANCELLED"}
+    assert reports[-1] == ("ERROR", "Ball is already being baked: wait for that bake to finish")
 
 
 def test_both_bake_operators_are_driven_by_the_one_runner():
