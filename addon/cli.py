@@ -17,8 +17,10 @@ import sys
 
 import bpy
 
-from . import pc2
+from . import jobs
 from .deform import bake, evaluate
+from .warp import bake as warp_bake
+from .warp import node as warp_node
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -37,13 +39,19 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _frames(text: str | None, settings) -> range:
+def _span(text: str | None) -> tuple[int, int] | None:
+    """``--frames S-E`` as ``(S, E)``; None when not given (each bake's own range)."""
     if not text:
-        return range(settings.frame_start, settings.frame_end + 1)
+        return None
     try:
         start, end = (int(part) for part in text.split("-", 1))
     except ValueError:
-        raise SystemExit(f"error: --frames expects START-END, got {text!r}") from None
+        raise ValueError(f"error: --frames expects START-END, got {text!r}") from None
+    return start, end
+
+
+def _frames(span: tuple[int, int] | None, settings) -> range:
+    start, end = span if span is not None else (settings.frame_start, settings.frame_end)
     return range(start, end + 1)
 
 
@@ -53,8 +61,31 @@ def main(argv: list[str]) -> int:
         args = _parser().parse_args(argv)
     except SystemExit as stop:
         return int(stop.code or 0)
-    if args.command == "warp-bake":
-        return warp_bake(args)
+    try:
+        span = _span(args.frames)
+    except ValueError as error:  # checked before anything is baked
+        print(error, file=sys.stderr)
+        return 2
+    targets = _deform_jobs(args, span) if args.command == "bake" else _warp_jobs(args, span)
+    if isinstance(targets, int):
+        return targets
+    failed = 0
+    for make_job in targets:
+        try:
+            cancelled = jobs.run_blocking(bpy.context, make_job())
+        except jobs.EXPECTED as error:
+            print(f"error: {error}", file=sys.stderr)
+            failed += 1
+            continue
+        if cancelled:
+            return 130
+    if args.save and bpy.data.filepath:
+        bpy.ops.wm.save_mainfile()
+    return 1 if failed else 0
+
+
+def _deform_jobs(args, span):
+    """One job factory per object to bake, or the exit code of a usage error."""
     scene = bpy.context.scene
     if args.objects:
         names = [name.strip() for name in args.objects.split(",") if name.strip()]
@@ -68,39 +99,21 @@ def main(argv: list[str]) -> int:
     if not objects:
         print("error: nothing to bake: no object has Pyramid Deform", file=sys.stderr)
         return 2
-    failed = 0
-    for obj in objects:
+
+    def job_of(obj):
         if evaluate.tegument_modifier(obj) is None:
-            print(f"error: {obj.name} has no Pyramid Deform", file=sys.stderr)
-            failed += 1
-            continue
-        try:
-            frames = _frames(args.frames, obj.tegument)
-        except SystemExit as stop:  # a bad --frames is a usage error, not a reason to leave main()
-            print(stop.code, file=sys.stderr)
-            return 2
+            raise evaluate.DeformError(f"{obj.name} has no Pyramid Deform")
+        frames = _frames(span, obj.tegument)
         if frames.start != obj.tegument.frame_start:
             obj.tegument.frame_start = frames.start  # the cache starts where the bake starts
         bpy.context.view_layer.objects.active = obj
-        try:
-            written, cancelled = bake.bake_blocking(bpy.context, obj, frames, report=print)
-        except (evaluate.DeformError, pc2.CacheError) as error:
-            print(f"error: {error}", file=sys.stderr)
-            failed += 1
-            continue
-        print(f"Tegument: {obj.name}: {written} frames in {evaluate.cache_file(obj)}")
-        if cancelled:
-            return 130
-    if args.save and bpy.data.filepath:
-        bpy.ops.wm.save_mainfile()
-    return 1 if failed else 0
+        return bake.BakeJob(bpy.context, obj, frames)
+
+    return [lambda obj=obj: job_of(obj) for obj in objects]
 
 
-def warp_bake(args) -> int:
-    from .warp import bake as warp_bake_module
-    from .warp import node as warp_node
-    from .warp.inputs import WarpError
-
+def _warp_jobs(args, span):
+    """One job factory per node to bake, or the exit code of a usage error."""
     if args.material:
         material = bpy.data.materials.get(args.material)
         if material is None:
@@ -117,20 +130,7 @@ def warp_bake(args) -> int:
             print("error: nothing to bake: no material has a Tegument UV Warp node"
                   + (f" named {args.node}" if args.node else ""), file=sys.stderr)
             return 2
-    failed = 0
-    for material, node in targets:
-        frames = _frames(args.frames, node)
-        try:
-            _, cancelled, _ = warp_bake_module.bake_blocking(bpy.context, material, node, frames, report=print)
-        except WarpError as error:
-            print(f"error: {error}", file=sys.stderr)
-            failed += 1
-            continue
-        if cancelled:
-            return 130
-    if args.save and bpy.data.filepath:
-        bpy.ops.wm.save_mainfile()
-    return 1 if failed else 0
+    return [lambda m=m, n=n: warp_bake.WarpBakeJob(bpy.context, m, n, _frames(span, n)) for m, n in targets]
 
 
 def _command(argv: list[str]) -> int:

@@ -22,6 +22,13 @@ def positions(mesh: bpy.types.Mesh) -> np.ndarray:
     return out
 
 
+def first_non_finite(positions: np.ndarray) -> int | None:
+    """The first vertex with a NaN or infinite coordinate, or None (one pass when all are finite)."""
+    if np.isfinite(positions).all():
+        return None
+    return int(np.argwhere(~np.isfinite(positions))[0][0])
+
+
 def corner_verts(mesh: bpy.types.Mesh) -> np.ndarray:
     """The vertex of every face corner, int32 ``(L,)``."""
     out = np.empty(len(mesh.loops), dtype=np.int32)

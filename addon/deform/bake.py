@@ -16,7 +16,7 @@ import time
 import bpy
 import numpy as np
 
-from .. import mesh_arrays, pc2
+from .. import jobs, mesh_arrays, pc2
 from . import colliders, evaluate
 from .evaluate import DeformError
 
@@ -63,11 +63,13 @@ def build_deformer(obj):
 
 
 class BakeJob:
-    """Solves ``frames`` of ``obj`` into a new cache, one frame per :meth:`step`."""
+    """Solves ``frames`` of ``obj`` into a new cache, one frame per :meth:`step` (a :class:`jobs.Job`)."""
 
     def __init__(self, context, obj, frames: range, *, keep_existing: bool = False):
         self.scene = context.scene
         self.obj = obj
+        self.label = self.title = obj.name
+        self.log_prefix = "Tegument"
         self.frames = frames
         self.settings = obj.tegument
         if evaluate.tegument_modifier(obj) is None:
@@ -203,6 +205,13 @@ class BakeJob:
         self.done += 1
         return frame
 
+    def progress_line(self) -> str:
+        return (f"{self.log_prefix}: {self.label} frame {self.frames[self.done - 1]} ({self.done}/{len(self.frames)}) "
+                f"{1000 * self.times[-1]:.1f} ms, ETA {self.eta_seconds():.1f} s")
+
+    def outcome(self) -> str:
+        return f"{self.writer.frames} frames, {self.settings.last_frame_ms:.1f} ms per frame"
+
     def _audit(self, frame: int) -> None:
         """Counts what the audit finds in this frame's result (not timed: it is a check)."""
         import tegument
@@ -214,7 +223,6 @@ class BakeJob:
         found = tegument.audit(self._world, self.corners, self.sizes, self.rig.colliders)
         for key in self.audit_totals:
             self.audit_totals[key] += found[key]
-
 
     def eta_seconds(self) -> float:
         if not self.times:
@@ -319,8 +327,8 @@ def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=N
             f"but the bind has {deformer.vertex_count}: a modifier above Tegument changes the topology "
             "(move it below Tegument, or rebind)"
         )
-    if not np.isfinite(world).all():
-        vertex = int(np.argwhere(~np.isfinite(world))[0][0])
+    vertex = mesh_arrays.first_non_finite(world)
+    if vertex is not None:
         raise DeformError(f"{obj.name}: at frame {frame} the input position of vertex {vertex} is not finite")
     matrix = obj.evaluated_get(depsgraph).matrix_world
     iterations = obj.tegument.iterations
@@ -337,52 +345,8 @@ def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=N
     return evaluate.to_local(solved, matrix), solved
 
 
-@contextlib.contextmanager
-def sigint_requests_cancel():
-    """Ctrl-C (SIGINT) during the block sets the returned flag instead of raising.
-
-    A KeyboardInterrupt raised in the middle of Blender's frame evaluation
-    could land inside a handler, where Blender swallows it; a flag checked
-    between frames always stops the bake cleanly after the current frame.
-    """
-    import signal
-    import threading
-
-    requested = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
-        yield requested
-        return
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: requested.set())
-    try:
-        yield requested
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 def bake_blocking(context, obj, frames: range, *, report=print, keep_existing: bool = False) -> tuple[int, bool]:
-    """Bakes in the foreground with one progress line per frame; Ctrl-C keeps the frames done.
-
-    Returns ``(frames written, cancelled)``.
-    """
+    """Bakes in the foreground (:func:`jobs.run_blocking`); returns ``(frames in the cache, cancelled)``."""
     job = BakeJob(context, obj, frames, keep_existing=keep_existing)
-    wm = context.window_manager
-    wm.progress_begin(0, len(frames))
-    try:
-        with sigint_requests_cancel() as cancel:
-            while not job.finished and not cancel.is_set():
-                frame = job.step()
-                wm.progress_update(job.done)
-                report(
-                    f"Tegument: {obj.name} frame {frame} ({job.done}/{len(frames)}) "
-                    f"{1000 * job.times[-1]:.1f} ms, ETA {job.eta_seconds():.1f} s"
-                )
-            cancelled = not job.finished
-    except BaseException:
-        job.abort()
-        raise
-    finally:
-        wm.progress_end()
-    if cancelled:
-        report(f"Tegument: bake of {obj.name} cancelled; keeping the {job.done} frames done")
-    job.commit()
+    cancelled = jobs.run_blocking(context, job, report=report)
     return job.writer.frames, cancelled

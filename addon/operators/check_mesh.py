@@ -8,6 +8,7 @@ import json
 import bpy
 
 from .. import mesh_arrays
+from . import polls
 
 
 def describe(report: dict) -> tuple[str, str]:
@@ -38,13 +39,7 @@ class TEGUMENT_OT_check_mesh(bpy.types.Operator):
     bl_label = "Check Mesh"
     bl_options = {"REGISTER", "UNDO"}
 
-    @classmethod
-    def poll(cls, context):
-        obj = context.active_object
-        if obj is None or obj.type != "MESH":
-            cls.poll_message_set("The active object must be a mesh")
-            return False
-        return True
+    poll = classmethod(polls.mesh)
 
     def execute(self, context):
         import tegument

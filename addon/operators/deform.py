@@ -7,64 +7,36 @@ cache and the mesh are left as they were.
 
 from __future__ import annotations
 
-import contextlib
 import os
-import traceback
 
 import bpy
 
-from .. import mesh_arrays, pc2
+from .. import jobs, mesh_arrays, pc2
 from ..deform import bake, colliders, evaluate
 from ..deform.evaluate import DeformError
 from ..deform.properties import MODIFIER_NAME
-
-_EXPECTED = (DeformError, pc2.CacheError)
-
-
-def _message(error: Exception) -> str:
-    """The status-bar text of a failure; anything unexpected is a bug, reported as one.
-
-    Operators catch every ``Exception`` so that a bug shows a message instead of
-    a traceback dialog, after the bake job has restored the modifiers and
-    removed its temporary file; the traceback still goes to the console.
-    """
-    if isinstance(error, _EXPECTED):
-        return str(error)
-    traceback.print_exception(error)
-    return f"Tegument internal error (please report it, the console has the details): {type(error).__name__}: {error}"
+from . import polls
 
 
-def _mesh_poll(cls, context) -> bool:
-    obj = context.active_object
-    if obj is None or obj.type != "MESH":
-        cls.poll_message_set("The active object must be a mesh")
-        return False
-    return True
-
-
-def _deformed_poll(cls, context) -> bool:
-    if not _mesh_poll(cls, context):
-        return False
-    if evaluate.tegument_modifier(context.active_object) is None:
-        cls.poll_message_set("The active object has no Tegument modifier (Add Pyramid Deform first)")
-        return False
-    return True
+def bind_pose(context, obj):
+    """The positions a bind stores (Bind Pose): the mesh's own, or what the modifiers above
+    Tegument make of them, which may have another vertex count (each caller says what to do)."""
+    if obj.tegument.bind_source == "EVALUATED":
+        with evaluate.upstream_only(obj):
+            return evaluate.evaluated_positions(obj, context.evaluated_depsgraph_get())[0]
+    return mesh_arrays.positions(obj.data)
 
 
 def bind(context, obj) -> str:
     """Stores the rest pose and checks it can be encoded; returns a status message."""
     import tegument
 
-    if obj.tegument.bind_source == "EVALUATED":
-        with evaluate.upstream_only(obj):
-            rest, _ = evaluate.evaluated_positions(obj, context.evaluated_depsgraph_get())
-        if len(rest) != len(obj.data.vertices):
-            raise DeformError(
-                f"{obj.name}: the modifier stack gives {len(rest)} vertices, the mesh has {len(obj.data.vertices)}; "
-                "bind to the original positions or move topology-changing modifiers below Tegument"
-            )
-    else:
-        rest = mesh_arrays.positions(obj.data)
+    rest = bind_pose(context, obj)
+    if len(rest) != len(obj.data.vertices):
+        raise DeformError(
+            f"{obj.name}: the modifier stack gives {len(rest)} vertices, the mesh has {len(obj.data.vertices)}; "
+            "bind to the original positions or move topology-changing modifiers below Tegument"
+        )
     corners = mesh_arrays.corner_verts(obj.data)
     sizes = mesh_arrays.polygon_sizes(obj.data)
     try:
@@ -91,8 +63,9 @@ class TEGUMENT_OT_deform_add(bpy.types.Operator):
     bl_label = "Add Pyramid Deform"
     bl_options = {"REGISTER", "UNDO"}
 
-    poll = classmethod(_mesh_poll)
+    poll = classmethod(polls.mesh)
 
+    @jobs.reports_errors
     def execute(self, context):
         obj = context.active_object
         if evaluate.tegument_modifier(obj) is not None:
@@ -102,11 +75,7 @@ class TEGUMENT_OT_deform_add(bpy.types.Operator):
         if settings.cache_path in ("", "//tegument/object.pc2"):
             settings.cache_path = f"//tegument/{bpy.path.clean_name(obj.name)}.pc2"
         settings.frame_start, settings.frame_end = context.scene.frame_start, context.scene.frame_end
-        try:
-            message = bind(context, obj)
-        except Exception as error:
-            self.report({"ERROR"}, _message(error))
-            return {"CANCELLED"}
+        message = bind(context, obj)
         modifier = obj.modifiers.new(MODIFIER_NAME, "MESH_CACHE")
         modifier.cache_format = "PC2"
         modifier.filepath = settings.cache_path
@@ -122,7 +91,7 @@ class TEGUMENT_OT_deform_remove(bpy.types.Operator):
     bl_label = "Remove Pyramid Deform"
     bl_options = {"REGISTER", "UNDO"}
 
-    poll = classmethod(_deformed_poll)
+    poll = classmethod(polls.deformed)
 
     def execute(self, context):
         obj = context.active_object
@@ -143,105 +112,25 @@ class TEGUMENT_OT_bind(bpy.types.Operator):
     bl_label = "Bind"
     bl_options = {"REGISTER", "UNDO"}
 
-    poll = classmethod(_mesh_poll)
+    poll = classmethod(polls.mesh)
 
+    @jobs.reports_errors
     def execute(self, context):
-        try:
-            self.report({"INFO"}, bind(context, context.active_object))
-        except Exception as error:
-            self.report({"ERROR"}, _message(error))
-            return {"CANCELLED"}
+        self.report({"INFO"}, bind(context, context.active_object))
         return {"FINISHED"}
 
 
-class TEGUMENT_OT_bake(bpy.types.Operator):
+class TEGUMENT_OT_bake(jobs.BakeOperator, bpy.types.Operator):
     """Bake Pyramid Deform over the frame range into the point cache (Esc cancels and keeps the frames done)"""
 
     bl_idname = "tegument.bake"
     bl_label = "Bake"
 
-    poll = classmethod(_deformed_poll)
+    poll = classmethod(polls.deformed)
 
-    def _frames(self, obj) -> range:
-        return range(obj.tegument.frame_start, obj.tegument.frame_end + 1)
-
-    def execute(self, context):
+    def make_job(self, context) -> bake.BakeJob:
         obj = context.active_object
-        try:
-            written, cancelled = bake.bake_blocking(context, obj, self._frames(obj))
-        except Exception as error:
-            self.report({"ERROR"}, _message(error))
-            return {"CANCELLED"}
-        self.report({"WARNING" if cancelled else "INFO"},
-                    f"{'Cancelled' if cancelled else 'Baked'} {obj.name}: {written} frames, "
-                    f"{obj.tegument.last_frame_ms:.1f} ms per frame")
-        return {"CANCELLED"} if cancelled else {"FINISHED"}
-
-    def invoke(self, context, event):
-        if bpy.app.background or context.window is None:
-            return self.execute(context)
-        obj = context.active_object
-        try:
-            self._job = bake.BakeJob(context, obj, self._frames(obj))
-        except Exception as error:
-            self.report({"ERROR"}, _message(error))
-            return {"CANCELLED"}
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(0.001, window=context.window)
-        wm.progress_begin(0, len(self._job.frames))
-        wm.modal_handler_add(self)
-        return {"RUNNING_MODAL"}
-
-    def modal(self, context, event):
-        job = self._job
-        if event.type == "ESC":
-            return self._end(context, cancelled=True)
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
-        try:
-            job.step()
-        except Exception as error:
-            job.abort()
-            self._end(context, cancelled=True, failed=True)
-            self.report({"ERROR"}, _message(error))
-            return {"CANCELLED"}
-        context.window_manager.progress_update(job.done)
-        context.workspace.status_text_set(
-            f"Tegument: baking {job.obj.name}, frame {job.done}/{len(job.frames)}, ETA {job.eta_seconds():.0f} s (Esc to cancel)"
-        )
-        if job.finished:
-            return self._end(context, cancelled=False)
-        return {"RUNNING_MODAL"}
-
-    def cancel(self, context):
-        """Blender ended the bake itself (a file load, the window closing): keep
-        the frames done as a valid cache, or failing that leave the old one."""
-        job = self._job
-        try:
-            context.window_manager.event_timer_remove(self._timer)
-            context.window_manager.progress_end()
-        except Exception:  # noqa: BLE001 - the window may already be gone
-            pass
-        try:
-            job.commit()
-        except Exception:  # noqa: BLE001 - e.g. the object was freed by a file load
-            with contextlib.suppress(Exception):
-                job.abort()
-
-    def _end(self, context, *, cancelled: bool, failed: bool = False):
-        wm = context.window_manager
-        wm.event_timer_remove(self._timer)
-        wm.progress_end()
-        context.workspace.status_text_set(None)
-        if not failed:
-            try:
-                self._job.commit()
-            except Exception as error:  # e.g. the disk filled up while finishing the cache
-                self.report({"ERROR"}, _message(error))
-                return {"CANCELLED"}
-            self.report({"WARNING" if cancelled else "INFO"},
-                        f"{'Cancelled' if cancelled else 'Baked'} {self._job.obj.name}: {self._job.writer.frames} frames")
-        return {"CANCELLED"} if cancelled else {"FINISHED"}
+        return bake.BakeJob(context, obj, range(obj.tegument.frame_start, obj.tegument.frame_end + 1))
 
 
 class TEGUMENT_OT_bake_frame(bpy.types.Operator):
@@ -250,8 +139,9 @@ class TEGUMENT_OT_bake_frame(bpy.types.Operator):
     bl_idname = "tegument.bake_frame"
     bl_label = "Bake Frame"
 
-    poll = classmethod(_deformed_poll)
+    poll = classmethod(polls.deformed)
 
+    @jobs.reports_errors
     def execute(self, context):
         obj = context.active_object
         settings = obj.tegument
@@ -261,12 +151,7 @@ class TEGUMENT_OT_bake_frame(bpy.types.Operator):
             return {"CANCELLED"}
         cached = pc2.frame_count(evaluate.cache_file(obj))
         first = min(settings.frame_start + cached, frame)
-        try:
-            bake.bake_blocking(context, obj, range(first, frame + 1), keep_existing=True,
-                               report=lambda line: None)
-        except Exception as error:
-            self.report({"ERROR"}, _message(error))
-            return {"CANCELLED"}
+        bake.bake_blocking(context, obj, range(first, frame + 1), keep_existing=True, report=lambda line: None)
         self.report({"INFO"}, f"Baked frame {frame} of {obj.name}")
         return {"FINISHED"}
 
@@ -278,7 +163,7 @@ class TEGUMENT_OT_free_bake(bpy.types.Operator):
     bl_label = "Free Bake"
     bl_options = {"REGISTER", "UNDO"}
 
-    poll = classmethod(_deformed_poll)
+    poll = classmethod(polls.deformed)
 
     def execute(self, context):
         obj = context.active_object

@@ -8,19 +8,16 @@ previous sequence stays as it was and nothing is half-written.
 from __future__ import annotations
 
 import bpy
-import numpy as np
 from bpy.props import StringProperty
 
-from .. import mesh_arrays
+from .. import jobs, mesh_arrays
 from ..deform import evaluate
-from ..deform.evaluate import DeformError
 from ..warp import bake
 from ..warp.inputs import WarpError
+from .deform import bind_pose
 
-_EXPECTED = (WarpError, DeformError)
 
-
-class TEGUMENT_OT_warp_bake(bpy.types.Operator):
+class TEGUMENT_OT_warp_bake(jobs.BakeOperator, bpy.types.Operator):
     """Bake the Tegument UV Warp node's redirection sequence over its frame range (Esc cancels and keeps the frames done)"""
 
     bl_idname = "tegument.warp_bake"
@@ -29,75 +26,8 @@ class TEGUMENT_OT_warp_bake(bpy.types.Operator):
     material: StringProperty(name="Material", description="Material holding the node (empty: the active object's active material)")
     node: StringProperty(name="Node", description="Name of the Tegument UV Warp node (empty: the active node)")
 
-    def _target(self, context):
-        try:
-            return bake.find_node(context, self.material, self.node)
-        except WarpError as error:
-            self.report({"ERROR"}, str(error))
-            return None
-
-    def execute(self, context):
-        target = self._target(context)
-        if target is None:
-            return {"CANCELLED"}
-        try:
-            _, cancelled, job = bake.bake_blocking(context, *target)
-        except _EXPECTED as error:
-            self.report({"ERROR"}, str(error))
-            return {"CANCELLED"}
-        self.report({"WARNING" if cancelled else "INFO"},
-                    f"{'Cancelled' if cancelled else 'Baked'} UV warp of {job.label}: {job.summary.text()}")
-        return {"CANCELLED"} if cancelled else {"FINISHED"}
-
-    def invoke(self, context, event):
-        if bpy.app.background or context.window is None:
-            return self.execute(context)
-        target = self._target(context)
-        if target is None:
-            return {"CANCELLED"}
-        try:
-            self._job = bake.WarpBakeJob(context, *target)
-        except _EXPECTED as error:
-            self.report({"ERROR"}, str(error))
-            return {"CANCELLED"}
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(0.001, window=context.window)
-        wm.progress_begin(0, len(self._job.frames))
-        wm.modal_handler_add(self)
-        return {"RUNNING_MODAL"}
-
-    def modal(self, context, event):
-        job = self._job
-        if event.type == "ESC":
-            return self._end(context, cancelled=True)
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
-        try:
-            job.step()
-        except _EXPECTED as error:
-            job.abort()
-            self._end(context, cancelled=True, failed=True)
-            self.report({"ERROR"}, str(error))
-            return {"CANCELLED"}
-        context.window_manager.progress_update(job.done)
-        context.workspace.status_text_set(
-            f"Tegument: baking UV warp of {job.label}, frame {job.done}/{len(job.frames)}, "
-            f"ETA {job.eta_seconds():.0f} s (Esc to cancel)"
-        )
-        if job.finished:
-            return self._end(context, cancelled=False)
-        return {"RUNNING_MODAL"}
-
-    def _end(self, context, *, cancelled: bool, failed: bool = False):
-        wm = context.window_manager
-        wm.event_timer_remove(self._timer)
-        wm.progress_end()
-        context.workspace.status_text_set(None)
-        if not failed:
-            self._job.commit()
-            self.report({"WARNING" if cancelled else "INFO"},
-                        f"{'Cancelled' if cancelled else 'Baked'} UV warp of {self._job.label}: {self._job.summary.text()}")
-        return {"CANCELLED"} if cancelled else {"FINISHED"}
+    def make_job(self, context) -> bake.WarpBakeJob:
+        return bake.WarpBakeJob(context, *bake.find_node(context, self.material, self.node))
 
 
 def bind_rest(context, obj) -> str:
@@ -107,16 +37,13 @@ def bind_rest(context, obj) -> str:
     warp needs only the positions, and a mesh the deformer cannot encode can
     still carry a warped texture.
     """
-    if obj.tegument.bind_source == "EVALUATED":
-        with evaluate.upstream_only(obj):
-            rest, _ = evaluate.evaluated_positions(obj, context.evaluated_depsgraph_get())
-        if len(rest) != len(obj.data.vertices):
-            raise WarpError(f"{obj.name}: the modifier stack gives {len(rest)} vertices, the mesh has "
-                            f"{len(obj.data.vertices)}; bind to the original positions (Bind Pose: Original)")
-    else:
-        rest = mesh_arrays.positions(obj.data)
-    if not np.isfinite(rest).all():
-        raise WarpError(f"{obj.name}: vertex {int(np.argwhere(~np.isfinite(rest))[0][0])} has a non-finite position")
+    rest = bind_pose(context, obj)
+    if len(rest) != len(obj.data.vertices):
+        raise WarpError(f"{obj.name}: the modifier stack gives {len(rest)} vertices, the mesh has "
+                        f"{len(obj.data.vertices)}; bind to the original positions (Bind Pose: Original)")
+    vertex = mesh_arrays.first_non_finite(rest)
+    if vertex is not None:
+        raise WarpError(f"{obj.name}: vertex {vertex} has a non-finite position")
     evaluate.store_rest(obj, rest)
     obj.tegument.bound_vertices = len(rest)
     return f"Bound {obj.name}: {len(rest)} vertices"
@@ -132,16 +59,12 @@ class TEGUMENT_OT_warp_bind(bpy.types.Operator):
     material: StringProperty(name="Material", description="Material holding the node (empty: the active object's active material)")
     node: StringProperty(name="Node", description="Name of the Tegument UV Warp node (empty: the active node)")
 
+    @jobs.reports_errors
     def execute(self, context):
-        try:
-            _, node = bake.find_node(context, self.material, self.node)
-            if node.object is None or node.object.type != "MESH":
-                raise WarpError(f"{node.name}: set the node's Object to a mesh first")
-            message = bind_rest(context, node.object)
-        except _EXPECTED as error:
-            self.report({"ERROR"}, str(error))
-            return {"CANCELLED"}
-        self.report({"INFO"}, message)
+        _, node = bake.find_node(context, self.material, self.node)
+        if node.object is None or node.object.type != "MESH":
+            raise WarpError(f"{node.name}: set the node's Object to a mesh first")
+        self.report({"INFO"}, bind_rest(context, node.object))
         return {"FINISHED"}
 
 

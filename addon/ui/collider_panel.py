@@ -3,18 +3,13 @@
 
 import bpy
 
+from .panel import MeshPropertiesPanel
 
-class TEGUMENT_PT_collider(bpy.types.Panel):
+
+class TEGUMENT_PT_collider(MeshPropertiesPanel, bpy.types.Panel):
     bl_label = "Tegument Collider"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
     bl_context = "physics"
     bl_options = {"DEFAULT_CLOSED"}
-
-    @classmethod
-    def poll(cls, context):
-        obj = context.object
-        return obj is not None and obj.type == "MESH"
 
     def draw(self, context):
         layout = self.layout

@@ -7,18 +7,12 @@ import bpy
 
 from .. import pc2
 from ..deform import evaluate
+from .panel import MeshPropertiesPanel, toggled
 
 
-class TEGUMENT_PT_modifier(bpy.types.Panel):
+class TEGUMENT_PT_modifier(MeshPropertiesPanel, bpy.types.Panel):
     bl_label = "Tegument"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
     bl_context = "modifier"
-
-    @classmethod
-    def poll(cls, context):
-        obj = context.object
-        return obj is not None and obj.type == "MESH"
 
     def draw(self, context):
         layout = self.layout
@@ -41,15 +35,12 @@ class TEGUMENT_PT_modifier(bpy.types.Panel):
             if settings.collider_collection is not None:
                 column.prop(settings, "audit")
             column.prop(settings, "substeps")
-            column.prop(settings, "dynamic")
-            if settings.dynamic:
-                dynamics = column.column(align=True)
-                dynamics.prop(settings, "mass")
-                dynamics.prop(settings, "damping")
-                dynamics.prop(settings, "use_gravity")
-            column.prop(settings, "limit_stretch")
-            if settings.limit_stretch:
-                strain = column.column(align=True)
+            dynamics = toggled(column, settings, "dynamic")
+            if dynamics is not None:
+                for name in ("mass", "damping", "use_gravity"):
+                    dynamics.prop(settings, name)
+            strain = toggled(column, settings, "limit_stretch")
+            if strain is not None:
                 strain.prop(settings, "max_stretch")
                 strain.prop_search(settings, "max_stretch_group", obj, "vertex_groups")
                 strain.prop(settings, "strain_mode")

@@ -23,8 +23,7 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from .. import mesh_arrays
-from ..deform.bake import sigint_requests_cancel
+from .. import jobs, mesh_arrays
 from . import heatmap, inputs
 from . import node as warp_node
 from .inputs import WarpError
@@ -78,7 +77,7 @@ def _stored_path(directory_setting: str, filename: str) -> str:
 
 
 class WarpBakeJob:
-    """Bakes ``frames`` of one UV Warp node, one frame per :meth:`step`."""
+    """Bakes ``frames`` of one UV Warp node, one frame per :meth:`step` (a :class:`jobs.Job`)."""
 
     def __init__(self, context, material, node, frames: range | None = None):
         import tegument
@@ -87,6 +86,8 @@ class WarpBakeJob:
         self.material = material
         self.node = node
         self.label = f"{material.name} › {node.name}"
+        self.title = f"UV warp of {self.label}"
+        self.log_prefix = "Tegument UV Warp"
         self.frames = frames if frames is not None else range(node.frame_start, node.frame_end + 1)
         if len(self.frames) == 0:
             raise WarpError(f"{self.label}: the frame range {self.frames.start}–{self.frames.stop - 1} is empty")
@@ -148,8 +149,8 @@ class WarpBakeJob:
                 f"with {len(self.inputs.rest)}: a modifier changes the topology (move it to the end of the stack, "
                 "or disable it in the viewport while baking)"
             )
-        if not np.isfinite(positions).all():
-            vertex = int(np.argwhere(~np.isfinite(positions))[0][0])
+        vertex = mesh_arrays.first_non_finite(positions)
+        if vertex is not None:
             raise WarpError(f"{self.label}: at frame {frame} the position of vertex {vertex} of {obj.name} is not finite")
         try:
             self.warp.solve(positions)
@@ -165,10 +166,14 @@ class WarpBakeJob:
         self.done += 1
         return stats
 
-    def progress_line(self, stats: FrameStats) -> str:
-        return (f"Tegument UV Warp: {self.label} frame {stats.frame} ({self.done}/{len(self.frames)}) "
+    def progress_line(self) -> str:
+        stats = self.summary.frames[-1]
+        return (f"{self.log_prefix}: {self.label} frame {stats.frame} ({self.done}/{len(self.frames)}) "
                 f"{1000 * stats.seconds:.1f} ms, rigid stretch {stats.identity_mean:.3f} → {stats.warped_mean:.3f}, "
                 f"fold-overs {stats.foldovers}, ETA {self.eta_seconds():.1f} s")
+
+    def outcome(self) -> str:
+        return self.summary.text()
 
     def _staged(self, udim: int, frame: int) -> str:
         return warp_node.frame_file(self.staging, self.stem, udim, frame)
@@ -180,9 +185,12 @@ class WarpBakeJob:
                 return
             directory = self.inputs.directory
             baked = self.frames[: self.done]
-            for udim in self.inputs.tiles:
-                for frame in baked:
-                    os.replace(self._staged(udim, frame), warp_node.frame_file(directory, self.stem, udim, frame))
+            try:
+                for udim in self.inputs.tiles:
+                    for frame in baked:
+                        os.replace(self._staged(udim, frame), warp_node.frame_file(directory, self.stem, udim, frame))
+            except OSError as error:
+                raise WarpError(f"{self.label}: cannot move the baked frames into {directory}: {error.strerror}") from None
             self._remove_stale(baked)
             if self.node.write_heatmap:
                 self._write_heatmaps(baked.stop - 1)
@@ -259,29 +267,9 @@ class WarpBakeJob:
 
 
 def bake_blocking(context, material, node, frames: range | None = None, *, report=print) -> tuple[int, bool, WarpBakeJob]:
-    """Bakes in the foreground with one progress line per frame; Ctrl-C keeps the frames done.
-
-    Returns ``(frames written, cancelled, job)``.
-    """
+    """Bakes in the foreground (:func:`jobs.run_blocking`); returns ``(frames written, cancelled, job)``."""
     job = WarpBakeJob(context, material, node, frames)
-    wm = context.window_manager
-    wm.progress_begin(0, len(job.frames))
-    try:
-        with sigint_requests_cancel() as cancel:
-            while not job.finished and not cancel.is_set():
-                stats = job.step()
-                wm.progress_update(job.done)
-                report(job.progress_line(stats))
-            cancelled = not job.finished
-    except BaseException:
-        job.abort()
-        raise
-    finally:
-        wm.progress_end()
-    if cancelled:
-        report(f"Tegument UV Warp: bake of {job.label} cancelled; keeping the {job.done} frames done")
-    job.commit()
-    report(f"Tegument UV Warp: {job.label}: {job.summary.text()}")
+    cancelled = jobs.run_blocking(context, job, report=report)
     return job.done, cancelled, job
 
 
