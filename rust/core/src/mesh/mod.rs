@@ -4,16 +4,19 @@
 //! every face corner ("corner verts", Blender's `loops`), and the corner count
 //! of every polygon. [`validate`] checks those arrays; [`Topology`] derives
 //! what the deformers need: unique edges, one-rings ordered with the face
-//! orientation, boundaries, and everything that is not a clean 2-manifold.
+//! orientation, boundaries, and everything that is not a clean 2-manifold;
+//! [`Weld`] joins the vertices an importer split at seams.
 
 pub mod shapes;
 mod topology;
 mod transform;
 mod validate;
+mod weld;
 
 pub use topology::{Topology, TopologyReport};
 pub use transform::transform_points;
 pub use validate::{all_finite, as_vec3, validate_positions, MeshInput};
+pub use weld::{Weld, WELD_TOLERANCE};
 
 #[cfg(test)]
 mod tests;
