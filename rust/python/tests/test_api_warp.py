@@ -6,13 +6,7 @@ import numpy as np
 import pytest
 
 import tegument
-from conftest import grid_arrays
-
-
-def uv_quad(offset=(0.0, 0.0)):
-    positions, corners, sizes = grid_arrays(2, 2)
-    uvs = ((positions[:, :2] + 1) / 2 * 0.8 + 0.1)[corners] + np.array(offset, np.float32)
-    return positions, corners, sizes, uvs.astype(np.float32)
+from test_robustness import uv_quad
 
 
 def two_tiles():
