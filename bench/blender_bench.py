@@ -222,7 +222,7 @@ def collisions(bpy, np, rows, threads, workdir, grid: int, frame_count: int) -> 
             times.append(1000 * (time.perf_counter() - started))
             found = audit_at(scene, skin, sphere, frame, positions)
             for key in totals:
-                totals[key] += found[key]
+                totals[key] += getattr(found, key)
         return times, totals
 
     def record(label, times, totals, note):

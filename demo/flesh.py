@@ -84,7 +84,7 @@ def independent_audit(tegument, skin, cache, colliders) -> dict[str, int]:
         bodies = [tegument.Collider(*world_mesh(c, k + 1)) for c in colliders]
         found = tegument.audit(world, corners, sizes, bodies)
         for key in totals:
-            totals[key] += int(found[key])
+            totals[key] += int(getattr(found, key))
     return totals
 
 

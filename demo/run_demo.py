@@ -144,7 +144,7 @@ def independent_audit(bpy, np, tegument, limb, body, cache, frames) -> dict:
         for label, positions in (("skinning", skinned), ("tegument", ours)):
             found = tegument.audit(positions, corners, sizes, [collider])
             for key in keys:
-                per_frame[label][key].append(int(found[key]))
+                per_frame[label][key].append(int(getattr(found, key)))
     totals = {label: {key: sum(values) for key, values in per_frame[label].items()} for label in ("skinning", "tegument")}
     return {"totals": totals, "per_frame": per_frame}
 

@@ -7,7 +7,11 @@ These names are Tegument's public interface for scripts; keep them stable.
 from __future__ import annotations
 
 import bpy
+import tegument
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+
+# Defaults come from the core (one source for each); min/max here are UI limits.
+_DEFAULTS = tegument.DEFAULTS
 
 MODIFIER_NAME = "Tegument"
 REST_ATTRIBUTE = "tegument_rest"
@@ -30,11 +34,11 @@ class TEGUMENT_PG_deform(bpy.types.PropertyGroup):
         description="Show Tegument's cached result (the Mesh Cache modifier named Tegument)",
     )
     iterations: IntProperty(
-        name="Iterations", default=10, min=1, max=500,
+        name="Iterations", default=_DEFAULTS.iterations, min=1, max=500,
         description="Solver iterations per frame: more keeps the rest shape better, at a higher cost",
     )
     closeness: FloatProperty(
-        name="Closeness", default=0.05, min=0.0, max=1.0, subtype="FACTOR",
+        name="Closeness", default=_DEFAULTS.closeness, min=0.0, max=1.0, subtype="FACTOR",
         description="How strongly each vertex is pulled towards the upstream (rig) position; "
         "1 follows the rig exactly, 0 keeps only the rest shape",
     )
@@ -43,7 +47,7 @@ class TEGUMENT_PG_deform(bpy.types.PropertyGroup):
         description="Vertex group whose weights scale Closeness per vertex (empty: the same everywhere)",
     )
     scale_safe: BoolProperty(
-        name="Scale Safe", default=True,
+        name="Scale Safe", default=_DEFAULTS.scale_safe,
         description="Encode the height of each vertex as angles so the shape survives uniform scaling",
     )
     bind_source: EnumProperty(
@@ -76,16 +80,16 @@ class TEGUMENT_PG_deform(bpy.types.PropertyGroup):
         "strength: low values jiggle, 1 follows the rig exactly",
     )
     substeps: IntProperty(
-        name="Substeps", default=1, min=1, max=64,
+        name="Substeps", default=_DEFAULTS.substeps, min=1, max=64,
         description="Solver steps per frame (the rig and colliders are interpolated between frames): "
         "more follow fast motion and stiff contacts more closely, at a proportional cost",
     )
     damping: FloatProperty(
-        name="Damping", default=1.0, min=0.0, soft_max=20.0,
+        name="Damping", default=_DEFAULTS.damping, min=0.0, soft_max=20.0,
         description="How fast motion dies out, per second (0: only the solver's own dissipation)",
     )
     mass: FloatProperty(
-        name="Mass", default=1.0, min=0.001, soft_max=10.0,
+        name="Mass", default=_DEFAULTS.mass, min=0.001, soft_max=10.0,
         description="Surface density: each vertex weighs this times the area around it. "
         "Heavier flesh swings slower and further",
     )
@@ -114,7 +118,7 @@ class TEGUMENT_PG_deform(bpy.types.PropertyGroup):
             ("POST", "After Contacts", "Limit stretch after the collision passes; can pull skin back "
              "into colliders (kept to show the difference)"),
         ),
-        default="UNIFIED",
+        default=_DEFAULTS.strain_mode.upper(),
     )
 
     audit: BoolProperty(

@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 
 import bpy
+import tegument
 from bpy.props import (
     BoolProperty,
     FloatProperty,
@@ -77,16 +78,16 @@ class TEGUMENT_NT_uv_warp(bpy.types.ShaderNodeCustomGroup):
         description="Warp grid size per side and UDIM tile: a power of two (8 to 16384)",
     )
     iterations: IntProperty(
-        name="Iterations", default=4, min=1, max=200,
+        name="Iterations", default=tegument.DEFAULTS.warp_iterations, min=1, max=200,
         description="Solver iterations on the finest grid level (coarser levels run more)",
     )
     orientation: FloatProperty(
-        name="Orientation", default=0.05, min=0.0, max=1.0, subtype="FACTOR",
+        name="Orientation", default=tegument.DEFAULTS.orientation, min=0.0, max=1.0, subtype="FACTOR",
         description="How strongly rigid detail turns back to its rest direction per iteration "
         "(0 for pure squash and stretch, higher where the surface twists)",
     )
     smoothing: FloatProperty(
-        name="Smoothing", default=0.1, min=0.0, max=1.0, subtype="FACTOR",
+        name="Smoothing", default=tegument.DEFAULTS.smoothing, min=0.0, max=1.0, subtype="FACTOR",
         description="Smoothing of the warp inside rigid regions",
     )
     frame_start: IntProperty(name="Start", default=1, min=0, description="First frame of the bake")

@@ -3,7 +3,7 @@
 
 use glam::Vec3;
 use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyArray2, PyArrayDyn, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
+use numpy::{IntoPyArray, PyArray2, PyUntypedArray, PyUntypedArrayMethods};
 use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 
 use pyo3::prelude::*;
@@ -13,26 +13,12 @@ use tegument_core::mesh::MeshInput;
 
 use crate::convert::{indices_to_py, int_array_arg, positions_arg, positions_to_py, rows_to_py, run_detached, TegumentError};
 
-/// `(T, 3)` int32 triangle indices, C-contiguous.
+/// `(T, 3)` triangle indices (int32; other integer types converted).
 fn triangles_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<Vec<[u32; 3]>> {
-    let describe = || match obj.cast::<PyUntypedArray>() {
-        Ok(a) => {
-            let dtype = a.dtype().str().map(|s| s.to_string()).unwrap_or_default();
-            let layout = if a.is_c_contiguous() { "" } else { ", not C-contiguous" };
-            format!("{dtype} {:?}{layout}", a.shape())
-        }
-        Err(_) => format!("a {}", obj.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into())),
-    };
-    let fail = || TegumentError::new_err(format!("{name}: expected int32 (T, 3), C-contiguous; got {}", describe()));
-    let array = obj.cast::<PyArrayDyn<i32>>().map_err(|_| fail())?;
-    if array.ndim() != 2 || array.shape()[1] != 3 || !array.is_c_contiguous() {
-        return Err(fail());
-    }
-    let readonly = array
-        .try_readonly()
-        .map_err(|e| TegumentError::new_err(format!("{name}: the array is being written elsewhere ({e})")))?;
-    let flat = readonly.as_slice().map_err(|e| TegumentError::new_err(format!("{name}: {e}")))?;
-    crate::convert::py_result(tegument_core::collide::collider::triangles_from_flat(flat))
+    // Messages say T (triangles), not the generic N.
+    let (_, flat) = crate::convert::int_grid_arg(name, obj, &[None, Some(3)])
+        .map_err(|e| TegumentError::new_err(e.to_string().replacen("TegumentError: ", "", 1).replacen("(N, 3)", "(T, 3)", 1)))?;
+    crate::convert::py_result(tegument_core::collide::collider::triangles_from_flat(&flat))
 }
 
 fn settings(thickness: f32, friction: f32, kinetic_friction: Option<f32>) -> ColliderSettings {
@@ -68,7 +54,7 @@ impl Collider {
 #[pymethods]
 impl Collider {
     #[new]
-    #[pyo3(signature = (positions, triangles, thickness=0.0, friction=0.0, kinetic_friction=None))]
+    #[pyo3(signature = (positions, triangles, thickness=ColliderSettings::default().thickness, friction=ColliderSettings::default().static_friction, kinetic_friction=None))]
     fn new(
         py: Python<'_>,
         positions: &Bound<'_, PyAny>,
@@ -86,9 +72,9 @@ impl Collider {
 
     /// Next frame: the current positions become the previous ones and
     /// ``positions`` (float32 ``(N, 3)``, same N) the current ones. The BVH is
-    /// refitted, and rebuilt when refitting has degraded it. Returns
-    /// ``{"cost_ratio": float, "rebuilt": bool}``.
-    fn update<'py>(&self, py: Python<'py>, positions: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyDict>> {
+    /// refitted, and rebuilt when refitting has degraded it. Returns a
+    /// :class:`tegument.results.ColliderUpdate` (``cost_ratio``, ``rebuilt``).
+    fn update<'py>(&self, py: Python<'py>, positions: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
         let count = self.read().vertex_count();
         let given = positions.cast::<PyUntypedArray>().ok().filter(|a| a.ndim() == 2).map(|a| a.shape()[0]);
         if let Some(given) = given {
@@ -101,7 +87,7 @@ impl Collider {
         let dict = PyDict::new(py);
         dict.set_item("cost_ratio", report.cost_ratio)?;
         dict.set_item("rebuilt", report.rebuilt)?;
-        Ok(dict)
+        crate::convert::report(py, "ColliderUpdate", &dict)
     }
 
     /// Puts the collider at ``positions`` (float32 ``(N, 3)``) without motion
@@ -217,9 +203,10 @@ impl Collider {
     }
 
     /// Unique edges, int32 ``(E, 2)``; the audit's ``collider_edges_crossing_indices``
-    /// refer to these rows.
-    fn edges<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<i32>> {
-        rows_to_py(py, self.read().edges())
+    /// refer to these rows. (A method in 0.1.0: ``edges()`` still works, deprecated.)
+    #[getter]
+    fn edges<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        crate::convert::property_array(py, rows_to_py(py, self.read().edges()).into_any(), "Collider.edges")
     }
 
     /// How many times the BVH was rebuilt because refitting had degraded it.
@@ -249,14 +236,14 @@ impl Collider {
 /// vertices inside a closed collider deeper than ``depth_tolerance``, mesh edges
 /// (with the diagonals of its fan-triangulated polygons) crossing a collider
 /// triangle, and collider edges crossing a mesh polygon.
-/// Returns a dict with the counts ``vertices_inside``, ``edges_crossing``,
+/// Returns a :class:`tegument.results.AuditReport` with the counts ``vertices_inside``, ``edges_crossing``,
 /// ``collider_edges_crossing``, the index arrays ``vertices_inside_indices``
 /// ``(K,)``, ``edges_crossing_indices`` ``(K, 2)`` (vertex pairs),
 /// ``collider_edges_crossing_indices`` ``(K, 2)`` (collider, edge row of
 /// :meth:`Collider.edges`), and ``open_colliders`` (colliders skipped by the
 /// inside test because they are not closed).
 #[pyfunction]
-#[pyo3(signature = (positions, corner_verts, polygon_sizes, colliders, depth_tolerance=1e-4))]
+#[pyo3(signature = (positions, corner_verts, polygon_sizes, colliders, depth_tolerance=AuditParams::default().depth_tolerance))]
 pub fn audit<'py>(
     py: Python<'py>,
     positions: &Bound<'py, PyAny>,
@@ -264,7 +251,7 @@ pub fn audit<'py>(
     polygon_sizes: &Bound<'py, PyAny>,
     colliders: &Bound<'py, PyAny>,
     depth_tolerance: f32,
-) -> PyResult<Bound<'py, PyDict>> {
+) -> PyResult<Bound<'py, PyAny>> {
     let positions = positions_arg("positions", positions, None)?;
     let corner_verts = int_array_arg("corner_verts", corner_verts, None)?;
     let polygon_sizes = int_array_arg("polygon_sizes", polygon_sizes, None)?;
@@ -287,7 +274,7 @@ pub fn audit<'py>(
         .map_err(|e| TegumentError::new_err(format!("internal error: {e}")))?;
     dict.set_item("collider_edges_crossing_indices", pairs.into_pyarray(py))?;
     dict.set_item("open_colliders", report.open_colliders.iter().map(|&c| c as usize).collect::<Vec<_>>())?;
-    Ok(dict)
+    crate::convert::report(py, "AuditReport", &dict)
 }
 
 /// Borrows every element of a sequence of `Collider`, naming the first that is not one.

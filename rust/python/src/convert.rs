@@ -10,7 +10,7 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use glam::Vec3;
 use numpy::ndarray::Array2;
 use numpy::{
-    Element, IntoPyArray, PyArray1, PyArray2, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn,
+    Element, IntoPyArray, PyArray1, PyArray2, PyArrayDescrMethods, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn,
     PyUntypedArray, PyUntypedArrayMethods,
 };
 use pyo3::exceptions::PyValueError;
@@ -76,80 +76,229 @@ fn shape_text(shape: &[Option<usize>]) -> String {
     }
 }
 
-/// Checks that `obj` is a C-contiguous numpy array of element `T` whose shape
-/// matches `shape` (`None` = any length), and returns it read-only.
-fn checked_array<'py, T: Element>(
+/// The element types arguments are read as, and which numpy arrays convert
+/// to them: any float dtype to a float, any integer dtype to `i32` (range
+/// checked). The wanted dtype in C order is read without conversion; anything
+/// else costs one converting pass, never a second copy.
+trait Wanted: Element + Copy {
+    /// The dtype named in messages.
+    const NAME: &'static str;
+    /// What else is converted, for messages.
+    const ALSO: &'static str;
+    /// Reads `array` (already known not to be of type `Self`) into `out`,
+    /// C order; `None` when its dtype is not one this type converts from.
+    fn convert(name: &str, array: &Bound<'_, PyUntypedArray>, shape: &[usize], out: &mut Vec<Self>) -> Option<PyResult<()>>;
+}
+
+/// Copies an array of element `S` in C order (any memory layout) through `f`.
+fn copy_as<S: Element + Copy, T>(
     name: &str,
-    obj: &Bound<'py, PyAny>,
-    dtype_name: &str,
-    shape: &[Option<usize>],
-) -> PyResult<Bound<'py, PyArrayDyn<T>>> {
+    array: &Bound<'_, PyUntypedArray>,
+    out: &mut Vec<T>,
+    mut f: impl FnMut(usize, S) -> PyResult<T>,
+) -> Option<PyResult<()>> {
+    let typed = array.cast::<PyArrayDyn<S>>().ok()?;
+    Some((|| {
+        let readonly = read(name, typed)?;
+        out.reserve(typed.len());
+        for (k, &v) in readonly.as_array().iter().enumerate() {
+            out.push(f(k, v)?);
+        }
+        Ok(())
+    })())
+}
+
+/// Converts any float dtype: float64 and float32 (any layout) directly,
+/// others (float16, longdouble) through numpy's own cast.
+fn convert_float<T: Element + Copy>(
+    name: &str,
+    array: &Bound<'_, PyUntypedArray>,
+    out: &mut Vec<T>,
+    from32: fn(f32) -> T,
+    from64: fn(f64) -> T,
+    numpy_name: &str,
+) -> Option<PyResult<()>> {
+    if array.dtype().kind() != b'f' {
+        return None;
+    }
+    if let Some(done) = copy_as::<f32, T>(name, array, out, |_, v| Ok(from32(v))) {
+        return Some(done);
+    }
+    if let Some(done) = copy_as::<f64, T>(name, array, out, |_, v| Ok(from64(v))) {
+        return Some(done);
+    }
+    Some((|| {
+        let cast = array.call_method1("astype", (numpy_name,))?;
+        let cast = cast.cast::<PyUntypedArray>().map_err(PyErr::from)?;
+        copy_as::<T, T>(name, cast, out, |_, v| Ok(v)).unwrap_or_else(|| Err(TegumentError::new_err(format!("{name}: numpy did not convert it to {numpy_name}"))))
+    })())
+}
+
+impl Wanted for f32 {
+    const NAME: &'static str = "float32";
+    const ALSO: &'static str = "other float types are converted";
+    fn convert(name: &str, array: &Bound<'_, PyUntypedArray>, _shape: &[usize], out: &mut Vec<Self>) -> Option<PyResult<()>> {
+        convert_float(name, array, out, |v| v, |v| v as f32, "float32")
+    }
+}
+
+impl Wanted for f64 {
+    const NAME: &'static str = "float64";
+    const ALSO: &'static str = "other float types are converted";
+    fn convert(name: &str, array: &Bound<'_, PyUntypedArray>, _shape: &[usize], out: &mut Vec<Self>) -> Option<PyResult<()>> {
+        convert_float(name, array, out, |v| v as f64, |v| v, "float64")
+    }
+}
+
+impl Wanted for i32 {
+    const NAME: &'static str = "int32";
+    const ALSO: &'static str = "other integer types are converted";
+    fn convert(name: &str, array: &Bound<'_, PyUntypedArray>, shape: &[usize], out: &mut Vec<Self>) -> Option<PyResult<()>> {
+        // Indices of another integer type: each must be a valid index, so
+        // that the core sees the same numbers the caller wrote.
+        let check = |k: usize, wide: i128| -> PyResult<i32> {
+            if (0..=i32::MAX as i128).contains(&wide) {
+                Ok(wide as i32)
+            } else {
+                Err(TegumentError::new_err(format!(
+                    "{name}: element {} is {wide}; indices must be between 0 and {} (int32)",
+                    element_text(k, shape),
+                    i32::MAX
+                )))
+            }
+        };
+        if let Some(done) = copy_as::<i32, i32>(name, array, out, |_, v| Ok(v)) {
+            return Some(done); // int32, not C-contiguous: as is
+        }
+        macro_rules! each {
+            ($($t:ty),*) => {$(
+                if let Some(done) = copy_as::<$t, i32>(name, array, out, |k, v| check(k, i128::from(v))) {
+                    return Some(done);
+                }
+            )*};
+        }
+        each!(i64, i16, i8, u64, u32, u16, u8);
+        None
+    }
+}
+
+/// Element `k` of a C-order array of `shape`, as numpy would index it.
+fn element_text(k: usize, shape: &[usize]) -> String {
+    if shape.len() <= 1 {
+        return k.to_string();
+    }
+    let mut index = vec![0; shape.len()];
+    let mut rest = k;
+    for (slot, &n) in index.iter_mut().zip(shape).rev() {
+        *slot = rest % n.max(1);
+        rest /= n.max(1);
+    }
+    format!("({})", index.iter().map(|i| i.to_string()).collect::<Vec<_>>().join(", "))
+}
+
+/// Reads `obj`, a numpy array whose shape matches `shape` (`None` = any
+/// length), as a flat C-order `Vec<T>` plus its shape. An array of `T` in C
+/// order is copied as is; another dtype of the same family (any float for a
+/// float, any integer for `i32`) or another layout is converted on the way
+/// (see [`Wanted`]); bool, complex, object arrays and non-arrays are refused.
+fn array_values<T: Wanted>(name: &str, obj: &Bound<'_, PyAny>, shape: &[Option<usize>]) -> PyResult<(Vec<usize>, Vec<T>)> {
     let fail = || {
         TegumentError::new_err(format!(
-            "{name}: expected {dtype_name} {}, C-contiguous; got {}",
+            "{name}: expected {} {} ({}); got {}",
+            T::NAME,
             shape_text(shape),
+            T::ALSO,
             describe(obj)
         ))
     };
-    let array = obj.cast::<PyArrayDyn<T>>().map_err(|_| fail())?;
-    let actual = array.shape();
-    let shape_ok = actual.len() == shape.len()
-        && actual.iter().zip(shape).all(|(&a, want)| want.is_none_or(|w| w == a));
-    if !shape_ok || !array.is_c_contiguous() {
+    let array = obj.cast::<PyUntypedArray>().map_err(|_| fail())?;
+    let actual = array.shape().to_vec();
+    let shape_ok = actual.len() == shape.len() && actual.iter().zip(shape).all(|(&a, want)| want.is_none_or(|w| w == a));
+    if !shape_ok {
         return Err(fail());
     }
-    Ok(array.clone())
+    if let Ok(typed) = array.cast::<PyArrayDyn<T>>() {
+        if typed.is_c_contiguous() {
+            let readonly = read(name, typed)?;
+            let flat = readonly.as_slice().map_err(|e| TegumentError::new_err(format!("{name}: {e}")))?;
+            return Ok((actual, flat.to_vec()));
+        }
+    }
+    let mut out = Vec::new();
+    match T::convert(name, array, &actual, &mut out) {
+        Some(done) => done.map(|()| (actual, out)),
+        None => Err(fail()),
+    }
 }
 
-/// `(N, 3)` float32 positions, checked finite. `expected_count` fixes N.
+/// `(N, 3)` positions (float32, other floats converted), checked finite.
+/// `expected_count` fixes N.
 pub fn positions_arg(name: &str, obj: &Bound<'_, PyAny>, expected_count: Option<usize>) -> PyResult<Vec<Vec3>> {
     let positions = points_arg(name, obj, expected_count)?;
     py_result(tegument_core::mesh::validate_positions(name, &positions))?;
     Ok(positions)
 }
 
-/// `(N, 3)` float32 points, values not checked (for pure transforms, which
+/// `(N, 3)` points, values not checked (for pure transforms, which
 /// carry a non-finite value through for the caller to report in its terms).
 pub fn points_arg(name: &str, obj: &Bound<'_, PyAny>, expected_count: Option<usize>) -> PyResult<Vec<Vec3>> {
-    let array = checked_array::<f32>(name, obj, "float32", &[expected_count, Some(3)])?;
-    let readonly = read(name, &array)?;
-    let flat = readonly.as_slice().map_err(|e| TegumentError::new_err(format!("{name}: {e}")))?;
-    Ok(bytemuck::cast_slice::<f32, Vec3>(flat).to_vec())
+    let (_, flat) = array_values::<f32>(name, obj, &[expected_count, Some(3)])?;
+    Ok(flat.chunks_exact(3).map(|c| Vec3::new(c[0], c[1], c[2])).collect())
 }
 
-/// A `(4, 4)` float64 matrix in row-major order (what `numpy.array` makes of a
-/// Blender `Matrix`), checked finite; returned as glam's column-major matrix.
+/// A `(4, 4)` matrix in row-major order (what `numpy.array` makes of a
+/// Blender `Matrix`; float64, other floats converted), checked finite;
+/// returned as glam's column-major matrix.
 pub fn matrix_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<glam::DMat4> {
-    let array = checked_array::<f64>(name, obj, "float64", &[Some(4), Some(4)])?;
-    let readonly = read(name, &array)?;
-    let flat = readonly.as_slice().map_err(|e| TegumentError::new_err(format!("{name}: {e}")))?;
+    let (_, flat) = array_values::<f64>(name, obj, &[Some(4), Some(4)])?;
     if let Some(k) = flat.iter().position(|v| !v.is_finite()) {
         return Err(TegumentError::new_err(format!("{name}: element ({}, {}) is {}, not finite", k / 4, k % 4, flat[k])));
     }
-    let rows: &[f64; 16] = flat.try_into().expect("shape checked: 16 elements");
+    let rows: &[f64; 16] = flat.as_slice().try_into().expect("shape checked: 16 elements");
     Ok(glam::DMat4::from_cols_array(rows).transpose())
 }
 
-/// A 1-D int32 array (any length unless `expected_len` is given).
+/// A 1-D index array (int32; other integer types converted and range
+/// checked), any length unless `expected_len` is given.
 pub fn int_array_arg(name: &str, obj: &Bound<'_, PyAny>, expected_len: Option<usize>) -> PyResult<Vec<i32>> {
-    let array = checked_array::<i32>(name, obj, "int32", &[expected_len])?;
-    let readonly = read(name, &array)?;
-    Ok(readonly.as_slice().map_err(|e| TegumentError::new_err(format!("{name}: {e}")))?.to_vec())
+    Ok(array_values::<i32>(name, obj, &[expected_len])?.1)
 }
 
-/// A 1-D float32 array (any length unless `expected_len` is given).
+/// An index array of the given shape (int32; other integer types converted
+/// and range checked), flattened in C order.
+pub fn int_grid_arg(name: &str, obj: &Bound<'_, PyAny>, shape: &[Option<usize>]) -> PyResult<(Vec<usize>, Vec<i32>)> {
+    array_values::<i32>(name, obj, shape)
+}
+
+/// A 1-D float32 array (other floats converted), any length unless
+/// `expected_len` is given.
 pub fn float_array_arg(name: &str, obj: &Bound<'_, PyAny>, expected_len: Option<usize>) -> PyResult<Vec<f32>> {
-    let array = checked_array::<f32>(name, obj, "float32", &[expected_len])?;
-    let readonly = read(name, &array)?;
-    Ok(readonly.as_slice().map_err(|e| TegumentError::new_err(format!("{name}: {e}")))?.to_vec())
+    Ok(array_values::<f32>(name, obj, &[expected_len])?.1)
 }
 
-/// A float32 array of the given shape, flattened in C order.
+/// A float32 array (other floats converted) of the given shape, flattened in C order.
 pub fn float_grid_arg(name: &str, obj: &Bound<'_, PyAny>, shape: &[Option<usize>]) -> PyResult<(Vec<usize>, Vec<f32>)> {
-    let array = checked_array::<f32>(name, obj, "float32", shape)?;
-    let readonly = read(name, &array)?;
-    let data = readonly.as_slice().map_err(|e| TegumentError::new_err(format!("{name}: {e}")))?.to_vec();
-    Ok((array.shape().to_vec(), data))
+    array_values::<f32>(name, obj, shape)
+}
+
+/// One of the report classes of `tegument.results`, built from its fields.
+/// The classes are Python dataclasses (frozen, `to_dict()`, the old dict
+/// spellings deprecated) so that scripts can read and type them like any
+/// Python object; the bindings only fill them in.
+pub fn report<'py>(py: Python<'py>, class: &str, fields: &Bound<'py, pyo3::types::PyDict>) -> PyResult<Bound<'py, PyAny>> {
+    py.import("tegument.results")?.getattr(class)?.call((), Some(fields))
+}
+
+/// An array returned by a property that was a method in 0.1.0: calling it
+/// still works, with a `DeprecationWarning` (see `tegument.results.PropertyArray`).
+pub fn property_array<'py>(py: Python<'py>, array: Bound<'py, PyAny>, spelling: &str) -> PyResult<Bound<'py, PyAny>> {
+    py.import("tegument.results")?.getattr("_property_array")?.call1((array, spelling))
+}
+
+/// Warns with a `DeprecationWarning` from the caller's line.
+pub fn deprecated(py: Python<'_>, message: &str) -> PyResult<()> {
+    let category = py.get_type::<pyo3::exceptions::PyDeprecationWarning>();
+    PyErr::warn(py, &category, &std::ffi::CString::new(message).unwrap_or_default(), 1)
 }
 
 /// `(N, 3)` float32 array from vectors.

@@ -4,7 +4,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use tegument_core::mesh::{MeshInput, Topology};
 
-use crate::convert::{indices_to_py, int_array_arg, matrix_arg, points_arg, positions_arg, rows_to_py, run_detached, TegumentError};
+use crate::convert::{indices_to_py, int_array_arg, matrix_arg, points_arg, positions_arg, property_array, rows_to_py, run_detached, TegumentError};
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
 
 /// The topology of a polygon mesh given in Blender's layout.
@@ -49,13 +49,17 @@ impl Mesh {
     }
 
     /// Unique edges as int32 ``(E, 2)``, each ``[low, high]``, sorted.
-    fn edges<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<i32>> {
-        rows_to_py(py, self.topology.edges())
+    /// (A method in 0.1.0: ``edges()`` still works, deprecated.)
+    #[getter]
+    fn edges<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        property_array(py, rows_to_py(py, self.topology.edges()).into_any(), "Mesh.edges")
     }
 
     /// Indices of the vertices on a boundary edge, int32 ``(B,)``.
-    fn boundary_vertices<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<i32>> {
-        indices_to_py(py, &self.topology.report().boundary_vertices)
+    /// (A method in 0.1.0: ``boundary_vertices()`` still works, deprecated.)
+    #[getter]
+    fn boundary_vertices<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        property_array(py, indices_to_py(py, &self.topology.report().boundary_vertices).into_any(), "Mesh.boundary_vertices")
     }
 
     /// The neighbours of vertex ``i``, counter-clockwise around the surface
@@ -74,8 +78,11 @@ impl Mesh {
         indices_to_py(py, &self.topology.problem_vertices())
     }
 
-    /// Counts of everything unusual, plus ``is_closed_manifold``.
-    fn report<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+    /// Counts of everything unusual, plus ``is_closed_manifold`` and
+    /// ``is_clean``: a :class:`tegument.results.MeshReport`. (A method in
+    /// 0.1.0: ``report()`` still works, deprecated.)
+    #[getter]
+    fn report<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         let report = self.topology.report();
         let dict = PyDict::new(py);
         dict.set_item("vertex_count", report.vertex_count)?;
@@ -90,7 +97,7 @@ impl Mesh {
         dict.set_item("isolated_vertices", report.isolated_vertices.len())?;
         dict.set_item("is_closed_manifold", report.is_closed_manifold())?;
         dict.set_item("is_clean", report.is_clean())?;
-        Ok(dict)
+        crate::convert::report(py, "MeshReport", &dict)
     }
 
     fn __repr__(&self) -> String {

@@ -6,6 +6,8 @@ use numpy::{PyArray1, PyArray2, PyArrayMethods, PyUntypedArray};
 use pyo3::prelude::*;
 use tegument_core::mesh::MeshInput;
 use pyo3::types::PyDict;
+use tegument_core::collide::{AuditParams, ColliderSettings};
+use tegument_core::warp::WarpSettings;
 use tegument_core::collide::Collider as CoreCollider;
 use tegument_core::pyramid::{
     Closeness, DeformerOptions, Dynamics as CoreDynamics, PyramidDeformer as Core, StepOptions, StepReport, StrainMode, StrainOptions,
@@ -66,7 +68,7 @@ impl PyramidDeformer {
 #[pymethods]
 impl PyramidDeformer {
     #[new]
-    #[pyo3(signature = (rest_positions, corner_verts, polygon_sizes, scale_safe = true))]
+    #[pyo3(signature = (rest_positions, corner_verts, polygon_sizes, scale_safe = DeformerOptions::default().scale_safe))]
     fn new(
         py: Python<'_>,
         rest_positions: &Bound<'_, PyAny>,
@@ -105,10 +107,11 @@ impl PyramidDeformer {
     ///
     /// ``positions`` is the deformed input, float32 ``(N, 3)``. ``closeness``
     /// pulls each vertex towards its input: ``None`` (the default weight,
-    /// 0.1), a float in ``[0, 1]``, or a float32 ``(N,)`` array of per-vertex
+    /// ``tegument.DEFAULTS.closeness``: 0.05; it was 0.1 in 0.1.0), a float in
+    /// ``[0, 1]``, or a float32 ``(N,)`` array of per-vertex
     /// weights in ``[0, 1]`` (1 = follow the input exactly, 0 = keep only the
     /// local shape). Deterministic whatever the thread count.
-    #[pyo3(signature = (positions, iterations = 10, closeness = None))]
+    #[pyo3(signature = (positions, iterations = StepOptions::default().iterations as i64, closeness = None))]
     fn solve<'py>(
         &self,
         py: Python<'py>,
@@ -156,7 +159,7 @@ impl PyramidDeformer {
     /// after the collision passes; can leave penetrations). Colliders with
     /// compliance (:meth:`Collider.set_compliance`) are solved too: their
     /// :attr:`Collider.positions` become where they receded.
-    #[pyo3(signature = (positions, colliders = None, iterations = 10, closeness = None, substeps = 1, dynamics = None, max_stretch = None, strain_mode = "unified"))]
+    #[pyo3(signature = (positions, colliders = None, iterations = StepOptions::default().iterations as i64, closeness = None, substeps = StepOptions::default().substeps as i64, dynamics = None, max_stretch = None, strain_mode = StrainMode::default().name()))]
     #[allow(clippy::too_many_arguments)]
     fn step<'py>(
         &self,
@@ -233,8 +236,8 @@ impl PyramidDeformer {
         })
     }
 
-    /// What the last :meth:`step` did, or ``None``: a dict with
-    /// ``first_pass_contacts`` (vertex, edge and collider-vertex contacts of
+    /// What the last :meth:`step` did, or ``None``: a
+    /// :class:`tegument.results.StepReport` with ``first_pass_contacts`` (vertex, edge and collider-vertex contacts of
     /// the first pass), ``first_pass_moved`` (vertices it moved),
     /// ``in_loop_contacts`` (over all iterations), ``max_in_loop_correction``,
     /// ``pinched`` (int32 array of the vertices left pinched),
@@ -245,7 +248,7 @@ impl PyramidDeformer {
     /// compliant colliders) and ``max_recession`` (largest distance of a
     /// compliant collider vertex from its animated position).
     #[getter]
-    fn last_step<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+    fn last_step<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
         let guard = self.last_step.lock().unwrap_or_else(|e| e.into_inner());
         let Some(report) = guard.as_ref() else { return Ok(None) };
         let first = &report.first_pass;
@@ -260,7 +263,7 @@ impl PyramidDeformer {
         dict.set_item("compliant_contacts", report.compliant_contacts)?;
         dict.set_item("compliant_skin_vertices", report.compliant_skin_vertices)?;
         dict.set_item("max_recession", report.max_recession)?;
-        Ok(Some(dict))
+        Ok(Some(crate::convert::report(py, "StepReport", &dict)?))
     }
 
     /// Mean pyramid residual of ``positions`` (float32 ``(N, 3)``): the mean
@@ -351,8 +354,8 @@ fn max_stretch_arg(obj: Option<&Bound<'_, PyAny>>, n: usize) -> PyResult<Option<
 /// rate); ``mass`` the surface density (vertex masses are density × the
 /// vertex's area); ``damping`` the rate (1/s) at which velocity decays;
 /// ``gravity`` an acceleration ``(x, y, z)`` in world units per second²
-/// (off by default). With closeness 0.1 and mass 1, flesh swings at about
-/// 1.7 Hz; higher mass or lower closeness swing slower and further.
+/// (off by default); defaults in ``tegument.DEFAULTS``. With closeness 0.1
+/// and mass 1, flesh swings at about 1.7 Hz; higher mass or lower closeness swing slower and further.
 #[pyclass(module = "tegument", name = "Dynamics", frozen)]
 pub struct Dynamics {
     inner: CoreDynamics,
@@ -361,7 +364,7 @@ pub struct Dynamics {
 #[pymethods]
 impl Dynamics {
     #[new]
-    #[pyo3(signature = (frame_time = 1.0 / 24.0, mass = 1.0, damping = 1.0, gravity = (0.0, 0.0, 0.0)))]
+    #[pyo3(signature = (frame_time = CoreDynamics::default().frame_time, mass = CoreDynamics::default().mass, damping = CoreDynamics::default().damping, gravity = CoreDynamics::default().gravity.into()))]
     fn new(frame_time: f32, mass: f32, damping: f32, gravity: (f32, f32, f32)) -> PyResult<Self> {
         let inner = CoreDynamics { frame_time, mass, damping, gravity: glam::Vec3::new(gravity.0, gravity.1, gravity.2) };
         crate::convert::py_result(inner.validate())?;
@@ -401,7 +404,47 @@ impl Dynamics {
     }
 }
 
+/// The default of every setting, from the core's `Default` impls: the
+/// fields of `tegument.results.Defaults` (the package exposes them as
+/// `tegument.DEFAULTS`). The keyword defaults of the bindings and the
+/// add-on's property defaults are these same values.
+#[pyfunction]
+fn _defaults<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    let step = StepOptions::default();
+    let dynamics = CoreDynamics::default();
+    let collider = ColliderSettings::default();
+    let warp = WarpSettings::default();
+    d.set_item("iterations", step.iterations)?;
+    d.set_item("closeness", decimal(tegument_core::pyramid::DEFAULT_CLOSENESS))?;
+    d.set_item("substeps", step.substeps)?;
+    d.set_item("scale_safe", DeformerOptions::default().scale_safe)?;
+    d.set_item("strain_mode", StrainMode::default().name())?;
+    d.set_item("frame_time", decimal(dynamics.frame_time))?;
+    d.set_item("mass", decimal(dynamics.mass))?;
+    d.set_item("damping", decimal(dynamics.damping))?;
+    d.set_item("gravity", (decimal(dynamics.gravity.x), decimal(dynamics.gravity.y), decimal(dynamics.gravity.z)))?;
+    d.set_item("thickness", decimal(collider.thickness))?;
+    d.set_item("friction", decimal(collider.static_friction))?;
+    d.set_item("kinetic_friction", decimal(collider.kinetic_friction))?;
+    d.set_item("depth_tolerance", decimal(AuditParams::default().depth_tolerance))?;
+    d.set_item("warp_iterations", warp.iterations)?;
+    d.set_item("orientation", decimal(warp.orientation))?;
+    d.set_item("smoothing", decimal(warp.smoothing))?;
+    d.set_item("warm_start", warp.warm_start)?;
+    d.set_item("memory_limit", warp.memory_limit)?;
+    d.set_item("sample_warped", warp.sample_warped)?;
+    Ok(d)
+}
+
+/// An f32 setting as the f64 Python shows with the same shortest decimal
+/// (0.05, not 0.05000000074505806); it rounds back to the same f32.
+fn decimal(x: f32) -> f64 {
+    x.to_string().parse().unwrap_or(x as f64)
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(_defaults, m)?)?;
     m.add_class::<PyramidDeformer>()?;
     m.add_class::<Dynamics>()
 }

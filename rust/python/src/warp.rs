@@ -14,7 +14,8 @@ use glam::Vec2;
 use numpy::ndarray::{Array2, Array3};
 use numpy::IntoPyArray;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use numpy::{PyUntypedArray, PyUntypedArrayMethods};
+use pyo3::types::{PyDict, PyTuple};
 use tegument_core::mesh::MeshInput;
 use tegument_core::warp::{self, TileMaps, WarpSettings};
 
@@ -23,14 +24,21 @@ use crate::convert::{float_grid_arg, int_array_arg, positions_arg, run_detached,
 /// Content-aware UV warp of one mesh (seed 001: hierarchical position-based
 /// dynamics on a UV-space grid).
 ///
-/// ``width``, ``height``: grid size per UDIM tile, powers of two in [8, 16384].
 /// ``rest_positions`` float32 ``(N, 3)``; ``corner_verts`` int32 ``(L,)``;
 /// ``polygon_sizes`` int32 ``(P,)``; ``corner_uvs`` float32 ``(L, 2)`` in
 /// Blender's corner order. ``rigidity`` and ``mask``: float32 ``(height,
 /// width)`` in [0, 1] (row 0 = lowest v), or a dict ``{udim: array}`` when the
 /// UVs span several UDIM tiles. Rigidity 1 keeps texture detail rigid, 0 lets
 /// it stretch with the surface; mask 0 fixes texels (the mask is also 0
-/// automatically outside UV charts and on chart borders).
+/// automatically outside UV charts and on chart borders). The grid of every
+/// tile has the shape of its rigidity map, ``(height, width)``, powers of two
+/// in [8, 16384]; ``shape=(height, width)`` checks it. (In 0.1.0 the grid
+/// size came first, width first: ``UvWarp(width, height, rest_positions, …)``
+/// still works, deprecated.)
+///
+/// Results per tile (:meth:`solve`, :meth:`redirection`, :meth:`validity`,
+/// :meth:`displacement`, :meth:`metrics`) are one array or report for one
+/// tile: ``udim`` names it, and may be left out when the warp has one tile.
 ///
 /// ``iterations``: PBD iterations on the finest level (coarser levels run
 /// more). ``orientation``: fraction in [0, 1] by which rigid segments turn back
@@ -75,7 +83,29 @@ fn size_arg(name: &str, v: i64) -> PyResult<usize> {
     Ok(v as usize)
 }
 
-fn metrics_dict<'py>(py: Python<'py>, m: &warp::WarpMetrics) -> PyResult<Bound<'py, PyDict>> {
+/// The `(height, width, 2)` redirection of one tile.
+fn redirection_array<'py>(py: Python<'py>, t: &warp::TileWarp, w: usize, h: usize) -> Bound<'py, PyAny> {
+    Array3::from_shape_vec((h, w, 2), t.redirection.clone()).expect("2·w·h floats").into_pyarray(py).into_any()
+}
+
+/// The `(height, width)` of a rigidity argument (one array or `{udim: array}`),
+/// which sets the grid size.
+fn rigidity_shape(obj: &Bound<'_, PyAny>) -> PyResult<(i64, i64)> {
+    let first = match obj.cast::<PyDict>() {
+        Ok(d) => d.values().iter().next(),
+        Err(_) => Some(obj.clone()),
+    };
+    let shape = first.as_ref().and_then(|a| a.cast::<PyUntypedArray>().ok()).map(|a| a.shape().to_vec());
+    match shape.as_deref() {
+        Some(&[h, w]) => Ok((h as i64, w as i64)),
+        _ => Err(TegumentError::new_err(format!(
+            "rigidity: expected a float32 (height, width) array (or {{udim: array}}), which sets the grid size; got {}",
+            obj.repr().map(|r| r.to_string()).unwrap_or_default().chars().take(80).collect::<String>()
+        ))),
+    }
+}
+
+fn metrics_report<'py>(py: Python<'py>, m: &warp::WarpMetrics) -> PyResult<Bound<'py, PyAny>> {
     let d = PyDict::new(py);
     d.set_item("udim", m.udim)?;
     d.set_item("rigid_texels", m.rigid_texels)?;
@@ -89,11 +119,10 @@ fn metrics_dict<'py>(py: Python<'py>, m: &warp::WarpMetrics) -> PyResult<Bound<'
     d.set_item("max_displacement", m.max_displacement)?;
     d.set_item("round_trip_max", m.round_trip_max)?;
     d.set_item("round_trip_mean", m.round_trip_mean)?;
-    Ok(d)
+    crate::convert::report(py, "WarpMetrics", &d)
 }
 
 impl UvWarp {
-    /// One result per tile: the array itself for a single-tile warp, else `{udim: array}`.
     fn read(&self) -> std::sync::RwLockReadGuard<'_, warp::UvWarp> {
         self.inner.read().unwrap_or_else(|e| e.into_inner())
     }
@@ -102,33 +131,70 @@ impl UvWarp {
         self.inner.write().unwrap_or_else(|e| e.into_inner())
     }
 
-    fn per_tile<'py>(&self, py: Python<'py>, make: impl Fn(&warp::TileWarp) -> Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
-        if !self.multi {
-            return Ok(make(&self.read().tiles[0]));
+    /// Checks that the warp has tile `udim` (before a solve, so that a typo
+    /// does not cost one).
+    fn tile_index(&self, udim: u32) -> PyResult<usize> {
+        let inner = self.read();
+        inner.tiles.iter().position(|t| t.udim() == udim).ok_or_else(|| {
+            TegumentError::new_err(format!(
+                "udim: this warp has no UDIM tile {udim}; its tiles are {:?}",
+                inner.tiles.iter().map(|t| t.udim()).collect::<Vec<_>>()
+            ))
+        })
+    }
+
+    /// The one result of tile `udim` (`None`: the only tile). In 0.1.0 a
+    /// warp over several tiles answered with `{udim: result}` instead: that
+    /// is still what `udim=None` gives there, deprecated.
+    fn per_tile<'py>(
+        &self,
+        py: Python<'py>,
+        what: &str,
+        udim: Option<u32>,
+        make: impl Fn(&warp::TileWarp) -> PyResult<Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let inner = self.read();
+        match udim {
+            Some(u) => match inner.tiles.iter().find(|t| t.udim() == u) {
+                Some(t) => make(t),
+                None => Err(TegumentError::new_err(format!(
+                    "udim: this warp has no UDIM tile {u}; its tiles are {:?}",
+                    inner.tiles.iter().map(|t| t.udim()).collect::<Vec<_>>()
+                ))),
+            },
+            None if !self.multi => make(&inner.tiles[0]),
+            None => {
+                crate::convert::deprecated(
+                    py,
+                    &format!(
+                        "UvWarp.{what} without udim= on a warp over several UDIM tiles returns {{udim: result}}; \
+                         this is deprecated and goes away in the next release: pass udim= (one of {:?}) for one tile",
+                        inner.tiles.iter().map(|t| t.udim()).collect::<Vec<_>>()
+                    ),
+                )?;
+                let d = PyDict::new(py);
+                for t in &inner.tiles {
+                    d.set_item(t.udim(), make(t)?)?;
+                }
+                Ok(d.into_any())
+            }
         }
-        let d = PyDict::new(py);
-        for t in &self.read().tiles {
-            d.set_item(t.udim(), make(t))?;
-        }
-        Ok(d.into_any())
     }
 }
 
 #[pymethods]
 impl UvWarp {
     #[new]
-    #[pyo3(signature = (width, height, rest_positions, corner_verts, polygon_sizes, corner_uvs, rigidity, mask=None, iterations=4, orientation=0.05, smoothing=0.1, warm_start=true, memory_limit=None, sample_warped=false))]
+    #[pyo3(
+        signature = (*args, mask=None, shape=None, iterations=WarpSettings::default().iterations as i64, orientation=WarpSettings::default().orientation, smoothing=WarpSettings::default().smoothing, warm_start=WarpSettings::default().warm_start, memory_limit=None, sample_warped=WarpSettings::default().sample_warped),
+        text_signature = "(rest_positions, corner_verts, polygon_sizes, corner_uvs, rigidity, /, mask=None, *, shape=None, iterations=..., orientation=..., smoothing=..., warm_start=..., memory_limit=None, sample_warped=...)"
+    )]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
-        width: i64,
-        height: i64,
-        rest_positions: &Bound<'_, PyAny>,
-        corner_verts: &Bound<'_, PyAny>,
-        polygon_sizes: &Bound<'_, PyAny>,
-        corner_uvs: &Bound<'_, PyAny>,
-        rigidity: &Bound<'_, PyAny>,
+        args: &Bound<'_, PyTuple>,
         mask: Option<&Bound<'_, PyAny>>,
+        shape: Option<(i64, i64)>,
         iterations: i64,
         orientation: f32,
         smoothing: f32,
@@ -136,7 +202,45 @@ impl UvWarp {
         memory_limit: Option<u64>,
         sample_warped: bool,
     ) -> PyResult<Self> {
-        let (w, h) = (size_arg("width", width)?, size_arg("height", height)?);
+        let args: Vec<Bound<'_, PyAny>> = args.iter().collect();
+        // 0.1.0: UvWarp(width, height, rest_positions, ...), width first
+        // although every array is (height, width).
+        let old_form = args.first().is_some_and(|a| a.extract::<i64>().is_ok() && !a.is_instance_of::<pyo3::types::PyBool>());
+        let (size, args) = if old_form {
+            crate::convert::deprecated(
+                py,
+                "UvWarp(width, height, rest_positions, ...) is deprecated and goes away in the next release: \
+                 drop width and height (the grid takes the shape of rigidity), or pass shape=(height, width)",
+            )?;
+            let height = args.get(1).map(|h| h.extract::<i64>()).transpose()?;
+            (Some((height.unwrap_or(0), args[0].extract::<i64>()?)), &args[2.min(args.len())..])
+        } else {
+            (None, &args[..])
+        };
+        if !(5..=6).contains(&args.len()) {
+            return Err(TegumentError::new_err(format!(
+                "UvWarp takes 5 or 6 positional arguments (rest_positions, corner_verts, polygon_sizes, corner_uvs, rigidity, mask); got {}",
+                args.len()
+            )));
+        }
+        let mask = match (args.get(5), mask) {
+            (Some(_), Some(_)) => return Err(TegumentError::new_err("UvWarp: mask given twice (positionally and as mask=)")),
+            (Some(m), None) => Some(m),
+            (None, m) => m,
+        };
+        let (rest_positions, corner_verts, polygon_sizes, corner_uvs, rigidity) = (&args[0], &args[1], &args[2], &args[3], &args[4]);
+        if let (Some(a), Some(b)) = (size, shape) {
+            if a != b {
+                return Err(TegumentError::new_err(format!("UvWarp: shape={b:?} disagrees with width and height ({}, {})", a.1, a.0)));
+            }
+        }
+        let (h, w) = match size.or(shape) {
+            Some((h, w)) => (size_arg("height", h)?, size_arg("width", w)?),
+            None => {
+                let (h, w) = rigidity_shape(rigidity)?;
+                (size_arg("height", h)?, size_arg("width", w)?)
+            }
+        };
         if !(1..=10_000).contains(&iterations) {
             return Err(TegumentError::new_err(format!("iterations must be between 1 and 10000, not {iterations}")));
         }
@@ -178,59 +282,70 @@ impl UvWarp {
         Ok(UvWarp { inner: RwLock::new(inner), multi })
     }
 
-    /// Solves the warp for this frame's ``deformed_positions`` (float32
-    /// ``(N, 3)``) and returns the UV redirection, float32 ``(height, width,
-    /// 2)``: for a surface point whose UV is ``t``, sample the texture at
-    /// ``redirection(t)`` (absolute UVs, UDIM offset included). For a warp
-    /// over several UDIM tiles, a dict ``{udim: array}``. Releases the GIL.
-    fn solve<'py>(&self, py: Python<'py>, deformed_positions: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+    /// Solves the warp of every tile for this frame's ``deformed_positions``
+    /// (float32 ``(N, 3)``) and returns the UV redirection of tile ``udim``,
+    /// float32 ``(height, width, 2)``: for a surface point whose UV is ``t``,
+    /// sample the texture at ``redirection(t)`` (absolute UVs, UDIM offset
+    /// included). Other tiles: :meth:`redirection`. Releases the GIL.
+    #[pyo3(signature = (deformed_positions, udim=None))]
+    fn solve<'py>(&self, py: Python<'py>, deformed_positions: &Bound<'py, PyAny>, udim: Option<u32>) -> PyResult<Bound<'py, PyAny>> {
         let positions = positions_arg("deformed_positions", deformed_positions, Some(self.read().mesh.vertex_count))?;
+        if let Some(u) = udim {
+            self.tile_index(u)?;
+        }
         run_detached(py, || self.write().solve(&positions))?;
-        self.redirection(py)
+        self.per_tile(py, "solve()", udim, |t| Ok(redirection_array(py, t, self.read().width, self.read().height)))
     }
 
-    /// The latest redirection (identity before the first solve), as ``solve`` returns it.
-    fn redirection<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+    /// The latest redirection of tile ``udim`` (identity before the first
+    /// solve), as :meth:`solve` returns it.
+    #[pyo3(signature = (udim=None))]
+    fn redirection<'py>(&self, py: Python<'py>, udim: Option<u32>) -> PyResult<Bound<'py, PyAny>> {
         let (w, h) = (self.read().width, self.read().height);
-        self.per_tile(py, |t| Array3::from_shape_vec((h, w, 2), t.redirection.clone()).expect("2·w·h floats").into_pyarray(py).into_any())
+        self.per_tile(py, "redirection()", udim, |t| Ok(redirection_array(py, t, w, h)))
     }
 
-    /// Validity, float32 ``(height, width)``: 1 inside UV charts, 0 outside.
-    fn validity<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+    /// Validity of tile ``udim``, float32 ``(height, width)``: 1 inside UV
+    /// charts, 0 outside.
+    #[pyo3(signature = (udim=None))]
+    fn validity<'py>(&self, py: Python<'py>, udim: Option<u32>) -> PyResult<Bound<'py, PyAny>> {
         let (w, h) = (self.read().width, self.read().height);
-        self.per_tile(py, |t| {
-            Array2::from_shape_vec((h, w), t.validity().iter().map(|&v| v as f32).collect()).expect("w·h values").into_pyarray(py).into_any()
+        self.per_tile(py, "validity()", udim, |t| {
+            Ok(Array2::from_shape_vec((h, w), t.validity().iter().map(|&v| v as f32).collect()).expect("w·h values").into_pyarray(py).into_any())
         })
     }
 
-    /// The forward warp as displacements in texels, float32 ``(height, width,
-    /// 2)``: the texture detail at texel centre ``t`` is drawn at ``t + d``.
-    fn displacement<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+    /// The forward warp of tile ``udim`` as displacements in texels, float32
+    /// ``(height, width, 2)``: the texture detail at texel centre ``t`` is
+    /// drawn at ``t + d``.
+    #[pyo3(signature = (udim=None))]
+    fn displacement<'py>(&self, py: Python<'py>, udim: Option<u32>) -> PyResult<Bound<'py, PyAny>> {
         let (w, h) = (self.read().width, self.read().height);
-        self.per_tile(py, |t| {
+        self.per_tile(py, "displacement()", udim, |t| {
             let (dx, dy) = t.displacement();
             let flat: Vec<f32> = dx.iter().zip(dy).flat_map(|(&x, &y)| [x, y]).collect();
-            Array3::from_shape_vec((h, w, 2), flat).expect("2·w·h floats").into_pyarray(py).into_any()
+            Ok(Array3::from_shape_vec((h, w, 2), flat).expect("2·w·h floats").into_pyarray(py).into_any())
         })
     }
 
-    /// Quality figures of the current warp (the last solve) measured against
-    /// ``deformed_positions``: rigid-region stretch error (mean, p95, max of
-    /// ``max(|log σ1|, |log σ2|)`` over texels with rigidity ≥ 0.5) for the
-    /// identity warp and the solved one, fold-overs, largest displacement of
-    /// masked texels, round-trip error in texels. A dict; for several tiles,
-    /// ``{udim: dict}``. Releases the GIL.
-    fn metrics<'py>(&self, py: Python<'py>, deformed_positions: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+    /// Quality figures of tile ``udim`` of the current warp (the last solve)
+    /// measured against ``deformed_positions``: a
+    /// :class:`tegument.results.WarpMetrics` with the rigid-region stretch
+    /// error (mean, p95, max of ``max(|log σ1|, |log σ2|)`` over texels with
+    /// rigidity ≥ 0.5) for the identity warp and the solved one, fold-overs,
+    /// largest displacement of masked texels, round-trip error in texels.
+    /// Releases the GIL.
+    #[pyo3(signature = (deformed_positions, udim=None))]
+    fn metrics<'py>(&self, py: Python<'py>, deformed_positions: &Bound<'py, PyAny>, udim: Option<u32>) -> PyResult<Bound<'py, PyAny>> {
         let positions = positions_arg("deformed_positions", deformed_positions, Some(self.read().mesh.vertex_count))?;
+        if let Some(u) = udim {
+            self.tile_index(u)?;
+        }
         let all = run_detached(py, || self.read().metrics(&positions))?;
-        if !self.multi {
-            return Ok(metrics_dict(py, &all[0])?.into_any());
-        }
-        let d = PyDict::new(py);
-        for m in &all {
-            d.set_item(m.udim, metrics_dict(py, m)?)?;
-        }
-        Ok(d.into_any())
+        self.per_tile(py, "metrics()", udim, |t| {
+            let m = all.iter().find(|m| m.udim == t.udim()).expect("one figure set per tile");
+            metrics_report(py, m)
+        })
     }
 
     /// Forgets the previous frame: the next ``solve`` starts from the identity.
@@ -305,7 +420,7 @@ fn write_exr(py: Python<'_>, path: PathBuf, array: &Bound<'_, PyAny>, metadata: 
     let (shape, data) = match float_grid_arg("array", array, &[None, None, None]) {
         Ok(v) => v,
         Err(_) => float_grid_arg("array", array, &[None, None])
-            .map_err(|_| TegumentError::new_err(format!("array: expected float32 (height, width) or (height, width, channels), C-contiguous; got {}", array.repr().map(|r| r.to_string()).unwrap_or_default().chars().take(80).collect::<String>())))?,
+            .map_err(|_| TegumentError::new_err(format!("array: expected float32 (height, width) or (height, width, channels) (other float types are converted); got {}", array.repr().map(|r| r.to_string()).unwrap_or_default().chars().take(80).collect::<String>())))?,
     };
     let channels = if shape.len() == 3 { shape[2] } else { 1 };
     let meta: Vec<(String, String)> = metadata.unwrap_or_default().into_iter().collect();

@@ -76,9 +76,9 @@ def test_topology_change_on_update_names_both_counts():
 @pytest.mark.parametrize(
     "make, message",
     [
-        (lambda p, t: (p.astype(np.float64), t), "positions: expected float32"),
-        (lambda p, t: (np.asfortranarray(p), t), "not C-contiguous"),
-        (lambda p, t: (p, t.astype(np.int64)), "triangles: expected int32 (T, 3)"),
+        (lambda p, t: (p.astype(np.complex64), t), "positions: expected float32"),
+        (lambda p, t: (p, t.astype(bool)), "triangles: expected int32 (T, 3)"),
+        (lambda p, t: (p, t.astype(np.float32)), "triangles: expected int32 (T, 3)"),
         (lambda p, t: (p, t[:, :2].copy()), "triangles: expected int32 (T, 3)"),
         (lambda p, t: (p, np.where(t == 5, 10_000, t).astype(np.int32)), "refers to vertex 10000"),
         (lambda p, t: (p, np.where(t == 5, -1, t).astype(np.int32)), "negative vertex index"),
@@ -155,7 +155,7 @@ def test_audit_refuses_bad_arguments():
     with pytest.raises(tegument.TegumentError, match="colliders: expected a sequence"):
         tegument.audit(positions, corner_verts, polygon_sizes, 3)
     with pytest.raises(tegument.TegumentError, match="corner_verts: expected int32"):
-        tegument.audit(positions, corner_verts.astype(np.int64), polygon_sizes, [sphere])
+        tegument.audit(positions, corner_verts.astype(np.float32), polygon_sizes, [sphere])
     with pytest.raises(tegument.TegumentError, match="refers to vertex 99"):
         tegument.audit(positions, np.where(corner_verts == 0, 99, corner_verts).astype(np.int32), polygon_sizes, [sphere])
     with pytest.raises(tegument.TegumentError, match="depth tolerance"):

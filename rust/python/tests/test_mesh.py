@@ -58,12 +58,11 @@ def test_defects_are_counted(grid):
 @pytest.mark.parametrize(
     "mutate, message",
     [
-        (lambda p, c, s: (p.astype(np.float64), c, s), r"positions: expected float32 \(N, 3\), C-contiguous; got float64 \(8, 3\)"),
+        (lambda p, c, s: (p.astype(np.complex64), c, s), r"positions: expected float32 \(N, 3\) \(other float types are converted\); got complex64 \(8, 3\)"),
         (lambda p, c, s: (np.zeros((8, 4), np.float32), c, s), r"got float32 \(8, 4\)"),
-        (lambda p, c, s: (np.asfortranarray(p), c, s), r"not C-contiguous"),
-        (lambda p, c, s: (p[::2], c, s), r"not C-contiguous"),
-        (lambda p, c, s: (p.tolist(), c, s), r"positions: expected float32 \(N, 3\), C-contiguous; got a list"),
-        (lambda p, c, s: (p, c.astype(np.int64), s), r"corner_verts: expected int32 \(N,\)"),
+        (lambda p, c, s: (p.astype(bool), c, s), r"got bool \(8, 3\)"),
+        (lambda p, c, s: (p.tolist(), c, s), r"positions: expected float32 \(N, 3\) \(other float types are converted\); got a list"),
+        (lambda p, c, s: (p, c.astype(np.float32), s), r"corner_verts: expected int32 \(N,\)"),
         (lambda p, c, s: (p, np.where(np.arange(24) == 17, 99, c).astype(np.int32), s), r"corner 17 refers to vertex 99, but the mesh has 8 vertices"),
         (lambda p, c, s: (p, np.where(np.arange(24) == 3, -5, c).astype(np.int32), s), r"corner 3 refers to vertex -5"),
         (lambda p, c, s: (np.where(np.arange(8)[:, None] == 3, np.nan, p).astype(np.float32), c, s), r"vertex 3 is not finite"),
@@ -162,10 +161,10 @@ def test_transform_points_applies_the_affine_part_of_an_object_matrix():
 @pytest.mark.parametrize(
     "points, matrix, message",
     [
-        (np.zeros((4, 3), np.float64), np.eye(4), r"points: expected float32 \(N, 3\)"),
+        (np.zeros((4, 3), np.complex64), np.eye(4), r"points: expected float32 \(N, 3\)"),
         (np.zeros((4, 2), np.float32), np.eye(4), r"points: expected float32 \(N, 3\)"),
         (np.zeros((4, 3), np.float32), np.eye(3), r"matrix: expected float64 \(4, 4\)"),
-        (np.zeros((4, 3), np.float32), np.eye(4, dtype=np.float32), r"matrix: expected float64 \(4, 4\)"),
+        (np.zeros((4, 3), np.float32), np.eye(4, dtype=np.int64), r"matrix: expected float64 \(4, 4\)"),
         (np.zeros((4, 3), np.float32), np.where(np.eye(4) == 1, np.inf, 0.0), r"matrix: element \(0, 0\) is inf"),
     ],
 )

@@ -95,10 +95,10 @@ def test_unusual_topology_is_reported_and_bindable(name):
         (lambda p, c, s: (p, np.where(c == 7, 8, c).astype(np.int32), s), r"corner 6 refers to vertex 8, but the mesh has 8 vertices"),
         (lambda p, c, s: (p, np.where(c == 7, -1, c).astype(np.int32), s), r"refers to vertex -1"),
         (lambda p, c, s: (np.where(np.arange(24).reshape(8, 3) == 10, np.nan, p).astype(np.float32), c, s), r"positions: vertex 3 is not finite"),
-        (lambda p, c, s: (p.astype(np.float64), c, s), r"positions: expected float32 \(N, 3\), C-contiguous; got float64 \(8, 3\)"),
-        (lambda p, c, s: (np.asfortranarray(p), c, s), r"not C-contiguous"),
-        (lambda p, c, s: (p, c.astype(np.int64), s), r"corner_verts: expected int32"),
-        (lambda p, c, s: (p, c.tolist(), s), r"corner_verts: expected int32 \(N,\), C-contiguous; got a list"),
+        (lambda p, c, s: (p.astype(np.complex64), c, s), r"positions: expected float32 \(N, 3\) \(other float types are converted\); got complex64 \(8, 3\)"),
+        (lambda p, c, s: (p, c.astype(bool), s), r"corner_verts: expected int32"),
+        (lambda p, c, s: (p, c.astype(np.float32), s), r"corner_verts: expected int32"),
+        (lambda p, c, s: (p, c.tolist(), s), r"corner_verts: expected int32 \(N,\) \(other integer types are converted\); got a list"),
     ],
 )
 def test_bad_mesh_arrays_name_the_problem(mutate, message):
@@ -239,9 +239,9 @@ def test_degenerate_uv_triangles_are_skipped_not_fatal():
 def test_bad_rigidity_and_mask_images():
     positions, corners, sizes, uvs = uv_quad()
     cases = [
-        (np.ones((8, 16), np.float32), r"rigidity: expected float32 \(8, 8\), C-contiguous; got float32 \(8, 16\)"),
+        (np.ones((8, 16), np.float32), r"rigidity: expected float32 \(8, 8\) \(other float types are converted\); got float32 \(8, 16\)"),
         (np.ones((8, 8, 3), np.float32), r"rigidity: expected float32 \(8, 8\)"),
-        (np.ones((8, 8), np.float64), r"rigidity: expected float32"),
+        (np.ones((8, 8), np.complex64), r"rigidity: expected float32"),
         (np.full((8, 8), np.nan, np.float32), r"rigidity"),
         ({}, r"rigidity: the dict is empty"),
         ({"1001": np.ones((8, 8), np.float32)}, r"dict keys must be UDIM tile numbers"),

@@ -162,7 +162,7 @@ def test_write_exr_validates_and_is_atomic(tmp_path):
     with pytest.raises(tegument.TegumentError, match="1 to 4 channels"):
         tegument.write_exr(path, np.zeros((4, 4, 5), np.float32))
     with pytest.raises(tegument.TegumentError, match="float32"):
-        tegument.write_exr(path, np.zeros((4, 4, 2), np.float64))
+        tegument.write_exr(path, np.zeros((4, 4, 2), np.complex64))
 
 
 def test_bad_input_names_the_problem(cylinder):

@@ -23,7 +23,7 @@ use crate::{Error, Result};
 /// Closeness used when the caller gives none. Low enough that the local shape
 /// wins against candy-wrapper collapse, high enough that the result stays
 /// anchored to the rig (see docs/design/pyramid-solver.md).
-pub const DEFAULT_CLOSENESS: f32 = 0.1;
+pub const DEFAULT_CLOSENESS: f32 = 0.05;
 
 /// Closeness weights are raised to at least this, so that the linearised
 /// global matrix (whose pyramid rows sum to zero) stays positive definite on
