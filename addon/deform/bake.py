@@ -198,8 +198,8 @@ class BakeJob:
         self.times.append(time.perf_counter() - started)
         step = self.deformer.last_step
         if step is not None and self.uses_step:
-            self.worst_stretch = max(self.worst_stretch, step["worst_stretch"])
-            self.max_recession = max(self.max_recession, step["max_recession"])
+            self.worst_stretch = max(self.worst_stretch, step.worst_stretch)
+            self.max_recession = max(self.max_recession, step.max_recession)
         if self.rig:
             self._audit(frame)
         self.done += 1
@@ -217,12 +217,12 @@ class BakeJob:
         import tegument
 
         step = self.deformer.last_step
-        self.most_pinched = max(self.most_pinched, len(step["pinched"]) if step else 0)
+        self.most_pinched = max(self.most_pinched, len(step.pinched) if step else 0)
         if not self.settings.audit:
             return
         found = tegument.audit(self._world, self.corners, self.sizes, self.rig.colliders)
         for key in self.audit_totals:
-            self.audit_totals[key] += found[key]
+            self.audit_totals[key] += getattr(found, key)
 
     def eta_seconds(self) -> float:
         if not self.times:

@@ -12,7 +12,7 @@ from . import polls
 
 
 def describe(report: dict) -> tuple[str, str]:
-    """The status-bar message and its level for a ``tegument.Mesh.report()``."""
+    """The status-bar message and its level for ``tegument.Mesh.report.to_dict()``."""
     size = f"{report['vertex_count']} vertices, {report['edge_count']} edges, {report['polygon_count']} faces"
     problems = [
         f"{report[key]} {label}"
@@ -57,7 +57,7 @@ class TEGUMENT_OT_check_mesh(bpy.types.Operator):
             except tegument.TegumentError as error:
                 self.report({"ERROR"}, f"{obj.name}: {error}")
                 return {"CANCELLED"}
-            report = checked.report()
+            report = checked.report.to_dict()
             problems = checked.problem_vertices()
             if len(problems):
                 mesh_arrays.set_vertex_selection(mesh, problems)

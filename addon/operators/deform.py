@@ -41,7 +41,7 @@ def bind(context, obj) -> str:
     sizes = mesh_arrays.polygon_sizes(obj.data)
     try:
         deformer = tegument.PyramidDeformer(rest, corners, sizes, scale_safe=obj.tegument.scale_safe)
-        report = tegument.Mesh(rest, corners, sizes).report()
+        report = tegument.Mesh(rest, corners, sizes).report
     except tegument.TegumentError as error:
         raise DeformError(f"{obj.name}: {error}") from None
     evaluate.store_rest(obj, rest)
@@ -50,7 +50,7 @@ def bind(context, obj) -> str:
     warnings = []
     if pinned:
         warnings.append(f"{pinned} vertices follow the rig (boundary or irregular one-ring)")
-    if not report["is_clean"]:
+    if not report.is_clean:
         warnings.append("the mesh has non-manifold parts (run Check Mesh)")
     obj.tegument.warnings = "; ".join(warnings)
     return f"Bound {obj.name}: {len(rest)} vertices" + (f" ({'; '.join(warnings)})" if warnings else "")

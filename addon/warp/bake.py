@@ -56,16 +56,15 @@ class BakeSummary:
                 f"(worst {worst:.3f}); fold-overs {folds}")
 
 
-def _combine(metrics: dict, tiles: list[int]) -> tuple[float, float, float, int]:
-    """Rigid-texel-weighted means over the tiles of one frame's metrics."""
-    per_tile = [metrics] if len(tiles) == 1 else [metrics[t] for t in tiles]
-    weights = np.array([m["rigid_texels"] for m in per_tile], dtype=np.float64)
+def _combine(per_tile: list) -> tuple[float, float, float, int]:
+    """Rigid-texel-weighted means over the tiles of one frame's metrics (``tegument.WarpMetrics``)."""
+    weights = np.array([m.rigid_texels for m in per_tile], dtype=np.float64)
     total = weights.sum()
     w = weights / total if total else np.full(len(per_tile), 1 / len(per_tile))
-    identity = float(sum(wi * m["stretch_identity_mean"] for wi, m in zip(w, per_tile)))
-    warped = float(sum(wi * m["stretch_warped_mean"] for wi, m in zip(w, per_tile)))
-    worst = float(max(m["stretch_warped_max"] for m in per_tile))
-    folds = int(sum(m["foldovers"] for m in per_tile))
+    identity = float(sum(wi * m.stretch_identity_mean for wi, m in zip(w, per_tile)))
+    warped = float(sum(wi * m.stretch_warped_mean for wi, m in zip(w, per_tile)))
+    worst = float(max(m.stretch_warped_max for m in per_tile))
+    folds = int(sum(m.foldovers for m in per_tile))
     return identity, warped, worst, folds
 
 
@@ -102,7 +101,7 @@ class WarpBakeJob:
             mask = mask[1001]
         try:
             self.warp = tegument.UvWarp(
-                data.resolution, data.resolution, data.rest, data.corner_verts, data.polygon_sizes,
+                data.rest, data.corner_verts, data.polygon_sizes,
                 data.corner_uvs, rigidity, mask=mask, iterations=node.iterations,
                 orientation=node.orientation, smoothing=node.smoothing, warm_start=True,
             )
@@ -153,14 +152,15 @@ class WarpBakeJob:
         if vertex is not None:
             raise WarpError(f"{self.label}: at frame {frame} the position of vertex {vertex} of {obj.name} is not finite")
         try:
-            self.warp.solve(positions)
-            metrics = self.warp.metrics(positions)
+            # One solve moves every tile; each tile's result and figures are read by its UDIM.
+            self.warp.solve(positions, udim=self.inputs.tiles[0])
+            metrics = [self.warp.metrics(positions, udim=udim) for udim in self.inputs.tiles]
             for udim in self.inputs.tiles:
                 self.warp.write_exr(self._staged(udim, frame), udim=udim)
         except tegument.TegumentError as error:
             raise WarpError(f"{self.label}, frame {frame}: {error}") from None
         self.last_positions = positions
-        identity, warped, worst, folds = _combine(metrics, self.inputs.tiles)
+        identity, warped, worst, folds = _combine(metrics)
         stats = FrameStats(frame, time.perf_counter() - started, identity, warped, worst, folds)
         self.summary.frames.append(stats)
         self.done += 1
@@ -212,10 +212,9 @@ class WarpBakeJob:
         import tegument
 
         data = self.inputs
-        displacement = self.warp.displacement()
         self.heatmaps = {}
         for udim in data.tiles:
-            d = displacement if len(data.tiles) == 1 else displacement[udim]
+            d = self.warp.displacement(udim=udim)
             error = heatmap.stretch_map(data.rest, self.last_positions, data.corner_verts, data.polygon_sizes,
                                         data.corner_uvs, udim, d)
             path = warp_node.heatmap_file(data.directory, self.stem, udim)
