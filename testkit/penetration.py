@@ -340,6 +340,14 @@ def read_pc2(path) -> np.ndarray:
     return np.frombuffer(data, "<f4", offset=PC2_HEADER).reshape(frames, vertices, 3)
 
 
+def write_pc2(path, frames, start: float = 1.0) -> None:
+    """Writes ``(frames, vertices, 3)`` positions as a PC2 cache (to plant penetrations in tests)."""
+    frames = np.ascontiguousarray(frames, dtype="<f4")
+    header = PC2_MAGIC + np.array([1, frames.shape[1]], "<i4").tobytes()
+    header += np.array([start, 1.0], "<f4").tobytes() + np.array([frames.shape[0]], "<i4").tobytes()
+    pathlib.Path(path).write_bytes(header + frames.tobytes())
+
+
 def check_cache(path, corner_verts, polygon_sizes, colliders_at, to_world=None, tolerance: float = 1e-5):
     """Penetrations of every frame of a baked skin cache: a list of :class:`Penetrations`.
 

@@ -243,13 +243,6 @@ def test_an_open_collider_is_checked_for_crossings_only():
     assert found.counts()["skin_edges_crossing"] + found.counts()["collider_edges_crossing"] > 0
 
 
-def write_pc2(path, frames: np.ndarray, start: float = 1.0):
-    frames = np.asarray(frames, dtype="<f4")
-    header = pen.PC2_MAGIC + np.array([1, frames.shape[1]], "<i4").tobytes()
-    header += np.array([start, 1.0], "<f4").tobytes() + np.array([frames.shape[0]], "<i4").tobytes()
-    path.write_bytes(header + frames.tobytes())
-
-
 def test_a_penetration_planted_in_a_cache_is_found_at_its_frame(tmp_path):
     sphere, tris = uv_sphere(0.3)
     positions, corners, sizes = grid(20, 2.0, z=0.0)
@@ -259,7 +252,7 @@ def test_a_penetration_planted_in_a_cache_is_found_at_its_frame(tmp_path):
     frames = np.repeat(positions[None], 4, axis=0)
     planted = np.argmin(np.linalg.norm(positions[:, :2], axis=1))
     frames[2, planted] = (0.0, 0.0, -0.6)  # 0.1 below the world origin: deep in the sphere
-    write_pc2(tmp_path / "skin.pc2", frames)
+    pen.write_pc2(tmp_path / "skin.pc2", frames)
     reports = pen.check_cache(tmp_path / "skin.pc2", corners, sizes, lambda k: [(sphere, tris)], to_world)
     assert [r.total for r in reports[:2] + reports[3:]] == [0, 0, 0]
     assert reports[2].vertices_inside.tolist() == [planted]
@@ -272,7 +265,7 @@ def test_a_cache_that_is_not_pc2_is_refused(tmp_path):
     (tmp_path / "bad.pc2").write_bytes(b"POINTCACHE3\0" + bytes(20))
     with pytest.raises(ValueError, match="not a PC2"):
         pen.read_pc2(tmp_path / "bad.pc2")
-    write_pc2(tmp_path / "short.pc2", np.zeros((2, 3, 3)))
+    pen.write_pc2(tmp_path / "short.pc2", np.zeros((2, 3, 3)))
     (tmp_path / "short.pc2").write_bytes((tmp_path / "short.pc2").read_bytes()[:-4])
     with pytest.raises(ValueError, match="length"):
         pen.read_pc2(tmp_path / "short.pc2")
