@@ -1,3 +1,0 @@
-import pathlib, sys
-
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
