@@ -49,7 +49,7 @@ test-rust:
 	cargo test -p tegument-core
 
 test-wheel: $(WHEEL_DIR)/.stamp
-	$(PY) -m pytest rust/python/tests
+	$(PY) -m pytest rust/python/tests testkit
 
 test-blender: $(EXTENSION_ZIP)
 	TEGUMENT_EXTENSION_ZIP=$(EXTENSION_ZIP) $(PY) -m pytest blender_tests

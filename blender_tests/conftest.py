@@ -27,6 +27,7 @@ import bpy  # noqa: E402  (must follow BLENDER_USER_RESOURCES)
 import pytest  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "demo"))  # the procedural scenes are shared with the demo
+sys.path.insert(0, str(ROOT / "testkit"))  # the independent penetration checker
 
 import extension  # noqa: E402  (demo/extension.py)
 

@@ -1,8 +1,12 @@
 """Collisions through the installed extension: colliders in a collection, baked and audited.
 
-Every bake is audited twice: by the add-on's own totals (``obj.tegument.audit_*``)
-and here, independently, from the PC2 cache and the colliders' evaluated
-triangles at each frame.
+The add-on's own audit totals (``obj.tegument.audit_*``) are the product's output
+under test; the verdict on penetrations comes from ``testkit/penetration.py``,
+which shares no code with the solver or ``tegument.audit``: it reads the PC2
+cache itself, takes the colliders' triangles from Blender at each frame, and
+checks every frame both ways (skin edges through collider triangles, collider
+edges through skin triangles) plus the inside of every closed collider, and,
+for the spheres of :func:`scene.add_sphere`, their analytic inradius.
 """
 
 from __future__ import annotations
@@ -10,8 +14,12 @@ from __future__ import annotations
 import bpy
 import numpy as np
 import pytest
+import penetration
 from scene import add_sphere, world_mesh
 from test_pyramid_deform import read_pc2
+
+# scene.add_sphere's UV sphere: 32 segments, 16 rings.
+SPHERE_SEGMENTS, SPHERE_RINGS = 32, 16
 
 
 def make_skin(tmp_path, frames: int, name: str = "Skin", location=(0.0, 0.0, 0.0)):
@@ -38,29 +46,47 @@ def bake(skin, frames: int, closeness: float = 0.02, collection: str = "Collider
     return cache
 
 
-def independent_audit(skin, cache, colliders) -> dict[str, int]:
-    """Totals of tegument.audit over the cached frames against the colliders at each frame."""
-    import tegument
-
+def skin_topology(skin) -> tuple[np.ndarray, np.ndarray]:
     mesh = skin.data
-    corners = np.array([l.vertex_index for l in mesh.loops], dtype=np.int32)
-    sizes = np.array([p.loop_total for p in mesh.polygons], dtype=np.int32)
-    m = np.array(skin.matrix_world)
-    totals = {"vertices_inside": 0, "edges_crossing": 0, "collider_edges_crossing": 0}
-    for k, frame_positions in enumerate(cache):
-        world = (frame_positions.astype(np.float64) @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
-        bodies = [tegument.Collider(*world_mesh(c, k + 1)) for c in colliders]
-        found = tegument.audit(world, corners, sizes, bodies)
-        for key in totals:
-            totals[key] += found[key]
-    return totals
+    corners = np.array([l.vertex_index for l in mesh.loops], dtype=np.int64)
+    sizes = np.array([p.loop_total for p in mesh.polygons], dtype=np.int64)
+    return corners, sizes
 
 
-def assert_clean(skin, cache, colliders):
+def penetrations(skin, colliders, spheres=(), path=None) -> list[dict[str, int]]:
+    """Per cached frame, what the independent checker finds: the counts of
+    :class:`penetration.Penetrations`, plus ``inside_sphere``: vertices nearer a sphere's
+    centre than its inradius. ``spheres`` are ``(centres per frame, radius)`` of colliders made
+    by :func:`scene.add_sphere`; ``path`` defaults to the skin's cache."""
+    path = bpy.path.abspath(skin.tegument.cache_path) if path is None else path
+    corners, sizes = skin_topology(skin)
+    to_world = np.array(skin.matrix_world)
+    reports = penetration.check_cache(path, corners, sizes, lambda k: [world_mesh(c, k + 1) for c in colliders], to_world)
+    cache = penetration.read_pc2(path).astype(np.float64)
+    found = []
+    for k, report in enumerate(reports):
+        counts = report.counts()
+        world = cache[k] @ to_world[:3, :3].T + to_world[:3, 3]
+        counts["inside_sphere"] = sum(
+            len(penetration.points_inside_sphere(world, centres[k], penetration.uv_sphere_inradius(radius, SPHERE_SEGMENTS, SPHERE_RINGS)))
+            for centres, radius in spheres
+        )
+        found.append(counts)
+    return found
+
+
+def assert_no_penetration(skin, colliders, spheres=()):
+    """The checker finds nothing at any frame, and the add-on's own audit agrees."""
+    found = penetrations(skin, colliders, spheres)
+    bad = {k + 1: counts for k, counts in enumerate(found) if any(counts.values())}
+    assert not bad, f"penetrations by frame: {bad}"
     settings = skin.tegument
     assert (settings.audit_vertices_inside, settings.audit_edges_crossing, settings.audit_collider_edges_crossing) == (0, 0, 0)
-    assert settings.pinched_vertices == 0
-    assert independent_audit(skin, cache, colliders) == {"vertices_inside": 0, "edges_crossing": 0, "collider_edges_crossing": 0}
+
+
+def assert_clean(skin, cache, colliders, spheres=()):
+    assert_no_penetration(skin, colliders, spheres)
+    assert skin.tegument.pinched_vertices == 0
 
 
 def slide_path(offset: float):
@@ -78,7 +104,7 @@ def test_sphere_pushed_in_and_slid_drags_the_skin_only_with_friction(tmp_path):
         skin = make_skin(tmp_path, len(centres), name=name, location=(offset, 0.0, 0.0))
         sphere = add_sphere(f"{name}Sphere", centres, friction=friction, collection=f"{name}Colliders")
         cache = bake(skin, len(centres), collection=f"{name}Colliders")
-        assert_clean(skin, cache, [sphere])
+        assert_clean(skin, cache, [sphere], [(centres, 0.3)])
         rest = np.array([v.co[:] for v in skin.data.vertices], dtype=np.float32)
         out = cache[-1]
         top = np.array(centres[-1]) - (offset, 0.0, 0.0)  # object space of the skin
@@ -94,10 +120,21 @@ def test_a_collider_fast_enough_to_cross_the_skin_in_one_frame_does_not_tunnel(t
     skin = make_skin(tmp_path, len(centres))
     sphere = add_sphere("Bullet", centres)
     cache = bake(skin, len(centres))
-    assert_clean(skin, cache, [sphere])
+    assert_clean(skin, cache, [sphere], [(centres, 0.3)])
     # The skin rides on top of the sphere instead of being left behind below it.
-    middle = cache[1][np.argmin(np.linalg.norm(cache[1][:, :2], axis=1))]
-    assert middle[2] > 0.5 + 0.3 - 0.05
+    middle = np.argmin(np.linalg.norm(cache[1][:, :2], axis=1))
+    assert cache[1][middle, 2] > 0.5 + 0.3 - 0.05
+
+    # Positive control: the same cache with that vertex put back where it was, in the sphere
+    # at frame 2, must be caught, by the mesh checks and by the analytic one.
+    planted = cache.copy()
+    planted[1, middle] = (0.0, 0.0, 0.5)
+    path = tmp_path / "planted.pc2"
+    penetration.write_pc2(path, planted)
+    found = penetrations(skin, [sphere], [(centres, 0.3)], path=path)
+    assert not any(found[0].values()) and not any(found[2].values()), found
+    assert found[1]["vertices_inside"] == 1 and found[1]["inside_sphere"] == 1, found[1]
+    assert found[1]["skin_edges_crossing"] > 0 and found[1]["collider_edges_crossing"] > 0, found[1]
 
 
 def test_skin_squeezed_between_two_colliders_reports_pinched_vertices(tmp_path):
@@ -161,12 +198,8 @@ def test_an_open_collider_collides_and_is_reported_as_open(tmp_path):
     collection.objects.link(plane)
     cache = bake(skin, 3)
     assert "collider Board is open: the audit cannot tell inside from outside" in skin.tegument.warnings
-    totals = independent_audit(skin, cache, [plane])
-    assert totals["edges_crossing"] == 0
-    # Known defect (issue 5): a few of the board's rim edges can end up through
-    # skin triangles in this one-frame rise; the core test that shows it is
-    # ignored with that reason. The add-on's own audit counts them the same way.
-    assert totals["collider_edges_crossing"] == skin.tegument.audit_collider_edges_crossing
+    # Neither way through: the open board has no inside, its edges and the skin's are checked.
+    assert_no_penetration(skin, [plane])
     # The board carried the skin up with it instead of passing through.
     middle = cache[1][np.argmin(np.linalg.norm(cache[1][:, :2], axis=1))]
     assert middle[2] > 0.3

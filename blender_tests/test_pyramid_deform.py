@@ -212,7 +212,9 @@ def test_save_reload_play_back_and_render(limb, tmp_path):
     scene.collection.objects.link(copy)
     reference = render("reference")
     assert with_tegument.sum() > 50
-    assert (with_tegument != reference).sum() <= (with_tegument != without).sum()
+    # The bake changes what the camera sees (52 of 2,304 pixels when written): were the cache
+    # plain skinning, the reference would render like it and this would fail.
+    assert (without != reference).sum() >= 20, "the baked frame renders like plain skinning"
     assert (with_tegument != reference).sum() <= 2
 
 

@@ -297,11 +297,46 @@ def cache_path_is_a_folder(obj, tmp_path):
     obj.tegument.cache_path = str(tmp_path / "folder.pc2")
 
 
+# Undone after each test (autouse fixture below): a folder left unwritable would
+# break the cleanup of pytest's temporary folders.
+_UNDO: list[Callable[[], None]] = []
+
+
+@pytest.fixture(autouse=True)
+def _undo_after_test():
+    yield
+    while _UNDO:
+        _UNDO.pop()()
+
+
 def cache_folder_read_only(obj, tmp_path):
-    if os.geteuid() == 0:
-        pytest.skip("root writes into read-only folders; covered by the other unwritable-path rows")
+    """The cache folder made unwritable. Root ignores permission bits, and CI runs as root: there
+    the folder is made immutable (``chattr +i``: not even root may create, rename or delete in
+    it), or failing that bind-mounted read-only over itself."""
     folder = pathlib.Path(bpy.path.abspath(obj.tegument.cache_path)).parent
-    folder.chmod(0o555)
+    if os.geteuid() != 0:
+        folder.chmod(0o555)
+        _UNDO.append(lambda: folder.chmod(0o755))
+        return
+    import subprocess
+
+    def run(*command) -> bool:
+        return subprocess.run(command, capture_output=True).returncode == 0
+
+    if run("chattr", "+i", str(folder)):
+        _UNDO.append(lambda: run("chattr", "-i", str(folder)))
+    elif run("mount", "--bind", str(folder), str(folder)):
+        _UNDO.append(lambda: run("umount", str(folder)))
+        assert run("mount", "-o", "remount,ro,bind", str(folder)), f"cannot remount {folder} read-only"
+    else:
+        message = f"as root, neither chattr +i nor a read-only bind mount could make {folder} unwritable"
+        if os.environ.get("CI") == "true":
+            pytest.fail(message + " (required under CI)")
+        pytest.skip(message)
+    # The folder really is unwritable now, even for root.
+    probe = folder / "probe"
+    with pytest.raises(OSError):
+        probe.write_bytes(b"")
 
 
 def unbind(obj, tmp_path):
@@ -325,7 +360,8 @@ BAKE_REFUSALS = [
     Refusal("NaN upstream (shape key)", nan_shape_key, r"Ball: at frame 1 the input position of vertex 5 is not finite"),
     Refusal("cache folder is a file", cache_parent_is_a_file, r"cannot write the cache in .*blocker: .*blocker is a file, not a folder"),
     Refusal("cache path is a folder", cache_path_is_a_folder, r"cannot write the cache .*folder\.pc2: Is a directory"),
-    Refusal("read-only cache folder", cache_folder_read_only, r"cannot write the cache in .*: Permission denied"),
+    Refusal("read-only cache folder", cache_folder_read_only,
+            r"cannot write the cache in .*: (Permission denied|Operation not permitted|Read-only file system)"),
     Refusal("mesh not bound", unbind, r"Ball is not bound: press Bind"),
     Refusal("empty frame range", empty_range, r"Ball: the frame range 1–0 is empty"),
     Refusal("Bake Frame outside the range", lambda obj, tmp: bpy.context.scene.frame_set(9),
@@ -360,9 +396,8 @@ def test_refused_actions_report_and_keep_everything(case, baked_ball, tmp_path, 
     try:
         outcome, text = run_operator(getattr(bpy.ops.tegument, case.action), capfd)
     finally:
-        folder = pathlib.Path(bpy.path.abspath(obj.tegument.cache_path)).parent
-        if folder.is_dir():
-            folder.chmod(0o755)
+        while _UNDO:  # a folder made unwritable by the setup becomes writable again
+            _UNDO.pop()()
     assert outcome in ("ERROR", "CANCELLED"), (outcome, text)
     import re
 

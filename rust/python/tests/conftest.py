@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import os
 import pathlib
+import sys
 
 import numpy as np
 import pytest
+
+# testkit/penetration.py, the independent penetration checker (no tegument import).
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[3] / "testkit"))
 
 SHARED_DATA = pathlib.Path(__file__).resolve().parents[4] / "shared" / "data"  # ../shared/data beside the checkout
 

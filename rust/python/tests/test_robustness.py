@@ -22,6 +22,7 @@ import pytest
 
 import tegument
 from conftest import cube_arrays, grid_arrays
+from test_collide import uv_sphere
 
 
 def frozen(*arrays):
@@ -286,7 +287,17 @@ def test_collider_problems_name_themselves():
     with pytest.raises(tegument.TegumentError, match="vertex 2 is not finite"):
         collider.update(moved)
     assert_unchanged(before, (collider.positions, collider.previous_positions))
-    assert collider.update(positions + np.float32(0.5))["rebuilt"] in (True, False)
+    # A rigid move leaves the refitted tree as good as new: no rebuild.
+    rebuilds = collider.bvh_rebuilds
+    report = collider.update(positions + np.float32(0.5))
+    assert report["rebuilt"] is False and report["cost_ratio"] == pytest.approx(1.0, abs=1e-6), report
+    assert collider.bvh_rebuilds == rebuilds
+    # Vertices shuffled among each other (each triangle now spans the mesh): the refitted
+    # tree degrades past the rebuild ratio and is rebuilt.
+    sphere, sphere_triangles = uv_sphere(1.0)
+    shuffled = tegument.Collider(sphere, sphere_triangles)
+    report = shuffled.update(np.ascontiguousarray(sphere[np.random.default_rng(0).permutation(len(sphere))]))
+    assert report["rebuilt"] is True and report["cost_ratio"] > 1.4 and shuffled.bvh_rebuilds == 1, report
     with pytest.raises(tegument.TegumentError, match=r"colliders\[1\]: expected a tegument.Collider, got str"):
         tegument.audit(positions, corners, np.full(6, 4, np.int32), [collider, "Cube"])
     assert tegument.audit(positions, corners, np.full(6, 4, np.int32), [])["vertices_inside"] == 0

@@ -6,7 +6,10 @@ lists instead of arrays, NaN, ±inf, huge finite values, negative, huge and
 out-of-range indices. The only acceptable outcomes are a result (checked for
 the shape and finiteness the API promises) or ``tegument.TegumentError`` with a
 non-empty message. A crash of the process fails the whole run; any other
-exception type fails the example.
+exception type fails the example. And the other way round: where every
+argument drawn is a valid one (an untouched copy of a known good input, a
+setting in its range), the call must succeed, so a library that refused
+everything with a message would fail here.
 
 The one documented exception to "only TegumentError": a *scalar* argument
 of the wrong Python type (a string where an int is expected) or an int that
@@ -17,11 +20,14 @@ of the wrong dtype, shape or layout are always ``TegumentError``.
 Reproducible: ``derandomize=True`` fixes the examples, so CI sees the same
 cases every run. ``TEGUMENT_HYPOTHESIS_SCALE`` multiplies the example counts
 (e.g. 10 for a long local run); at scale 1 the suite generates a little over
-10,000 cases.
+10,000 cases. Each test counts the examples it really ran and how many of them
+were valid and accepted; the last test checks the totals.
 """
 
 from __future__ import annotations
 
+import collections
+import math
 import os
 import pathlib
 
@@ -46,8 +52,8 @@ def budget(n: int):
     )
 
 
-# Counted by test_case_budget_reaches_ten_thousand so that a cut in one test's
-# budget cannot silently drop the suite below what the issue asks for.
+# The example budget of each test (hypothesis may run fewer where it runs out
+# of distinct cases; RAN counts what really ran).
 BUDGETS = {
     "mesh": 1800,
     "mesh_methods": 600,
@@ -69,14 +75,47 @@ HUGE_FLOATS = [np.nan, np.inf, -np.inf, 3.0e38, -3.0e38, 1.0e20, 1e-40, -0.0]
 BAD_INDICES = [-1, -(2**31), 2**31 - 1, 2**30, 9, 100, 65536]
 
 
-def expect_tegument_error(call, *args, **kwargs):
-    """Runs the call; returns its result, or None when it raised TegumentError (with a message)."""
+# Examples really run, and valid examples (all of whose arguments were valid) accepted, per test.
+RAN: collections.Counter = collections.Counter()
+VALID_ACCEPTED: collections.Counter = collections.Counter()
+
+
+def expect_tegument_error(call, *args, valid: bool = False, counted: str | None = None, **kwargs):
+    """Runs the call; returns its result, or None when it raised TegumentError (with a message).
+
+    ``valid``: every argument is valid, so the call must succeed. ``counted`` names the test
+    whose example this is, for the accounting (once per example, on its main call).
+    """
+    if counted:
+        RAN[counted] += 1
     try:
-        return call(*args, **kwargs)
+        result = call(*args, **kwargs)
     except tegument.TegumentError as error:
         assert str(error).strip(), f"{call!r} raised TegumentError without a message"
         assert "internal error" not in str(error), f"a Rust panic was caught: {error}"
+        assert not valid, f"{call!r} refused valid arguments: {error}"
         return None
+    if valid and counted:
+        VALID_ACCEPTED[counted] += 1
+    return result
+
+
+def pristine(value, valid: np.ndarray) -> bool:
+    """Is ``value`` an untouched copy of the valid array (same dtype, shape, C layout, values,
+    writable)? Anything :func:`corrupted` changed is not."""
+    return (
+        isinstance(value, np.ndarray)
+        and value.dtype == valid.dtype
+        and value.dtype.isnative
+        and value.shape == valid.shape
+        and value.flags.c_contiguous
+        and value.flags.writeable
+        and np.array_equal(value, valid)
+    )
+
+
+def valid_setting(value, low: float = 0.0, high: float = math.inf) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and low <= value <= high
 
 
 # ---------------------------------------------------------------- array corruptions
@@ -175,15 +214,24 @@ def pathological():
 MESHES = [cube_arrays(), grid_arrays(3, 2), tri_strip(), pathological()]
 
 
+class MeshArgs(tuple):
+    """(positions, corner_verts, polygon_sizes) as drawn, and whether all three are untouched."""
+
+    valid: bool
+
+
 @st.composite
 def mesh_args(draw):
-    positions, corners, sizes = MESHES[draw(st.integers(0, len(MESHES) - 1))]
+    source = MESHES[draw(st.integers(0, len(MESHES) - 1))]
+    positions, corners, sizes = source
     n = len(positions)
-    return (
+    args = MeshArgs((
         draw(corrupted(positions)),
         draw(corrupted(corners, index_bound=n)),
         draw(corrupted(sizes, index_bound=len(corners))),
-    )
+    ))
+    args.valid = all(pristine(a, v) for a, v in zip(args, source))
+    return args
 
 
 # ------------------------------------------------------------------------- Mesh
@@ -191,7 +239,7 @@ def mesh_args(draw):
 @budget(BUDGETS["mesh"])
 @given(args=mesh_args())
 def test_mesh_constructor(args):
-    mesh = expect_tegument_error(tegument.Mesh, *args)
+    mesh = expect_tegument_error(tegument.Mesh, *args, valid=args.valid, counted="mesh")
     if mesh is None:
         return
     positions, corners, sizes = (np.asarray(a) for a in args)
@@ -211,7 +259,7 @@ def test_mesh_constructor(args):
        i=st.one_of(st.integers(-(2**63), 2**63 - 1), st.sampled_from([-1, 0, 1, 7, 8, 10, 11, 2**31, -(2**31)])))
 def test_mesh_one_ring_any_index(which, i):
     mesh = tegument.Mesh(*MESHES[which])
-    ring = expect_tegument_error(mesh.one_ring, i)
+    ring = expect_tegument_error(mesh.one_ring, i, valid=0 <= i < mesh.vertex_count, counted="mesh_methods")
     if ring is None:
         assert not 0 <= i < mesh.vertex_count
         return
@@ -225,13 +273,15 @@ def test_mesh_one_ring_any_index(which, i):
 @budget(BUDGETS["deformer_bind"])
 @given(args=mesh_args(), scale_safe=st.booleans())
 def test_deformer_bind(args, scale_safe):
-    deformer = expect_tegument_error(tegument.PyramidDeformer, *args, scale_safe=scale_safe)
+    deformer = expect_tegument_error(tegument.PyramidDeformer, *args, scale_safe=scale_safe, valid=args.valid,
+                                     counted="deformer_bind")
     if deformer is None:
         return
     n = deformer.vertex_count
     pinned = deformer.pinned_vertices
     assert ((pinned >= 0) & (pinned < n)).all()
-    out = expect_tegument_error(deformer.solve, np.ascontiguousarray(np.asarray(args[0], dtype=np.float32)), iterations=2)
+    out = expect_tegument_error(deformer.solve, np.ascontiguousarray(np.asarray(args[0], dtype=np.float32)), iterations=2,
+                                valid=args.valid)
     if out is not None:
         assert_positions(out, n)
         assert np.isfinite(out).all()
@@ -253,6 +303,14 @@ def closeness_args(draw, n):
     return draw(corrupted(np.full(n, draw(st.floats(0, 1, width=32)), np.float32)))
 
 
+def valid_closeness_array(value, n: int) -> bool:
+    """One value in [0, 1] per vertex, untouched by :func:`corrupted` apart from its values."""
+    if not isinstance(value, np.ndarray) or value.size == 0:
+        return False
+    flat = value.reshape(-1)
+    return pristine(value, np.full(n, flat[0], np.float32)) and valid_setting(float(flat[0]), 0.0, 1.0)
+
+
 @budget(BUDGETS["deformer_solve"])
 @given(data=st.data(), which=st.integers(0, len(MESHES) - 1))
 def test_deformer_solve(data, which):
@@ -262,8 +320,14 @@ def test_deformer_solve(data, which):
     positions = data.draw(corrupted(base.astype(np.float32)))
     iterations = data.draw(st.one_of(st.integers(0, 12), st.sampled_from([-1, -(2**63), 2**63 - 1, 10**6])))
     closeness = data.draw(closeness_args(n))
+    valid = (
+        pristine(positions, base.astype(np.float32))
+        and 0 <= iterations <= 12
+        and (closeness is None or valid_setting(closeness, 0.0, 1.0) or valid_closeness_array(closeness, n))
+    )
     try:
-        out = expect_tegument_error(deformer.solve, positions, iterations=iterations, closeness=closeness)
+        out = expect_tegument_error(deformer.solve, positions, iterations=iterations, closeness=closeness, valid=valid,
+                                    counted="deformer_solve")
     except ACCEPTED_SCALAR_ERRORS:
         return
     if out is None:
@@ -276,8 +340,9 @@ def test_deformer_solve(data, which):
 @given(data=st.data(), which=st.integers(0, len(MESHES) - 1))
 def test_deformer_residual(data, which):
     deformer = _DEFORMERS[which]
-    positions = data.draw(corrupted(MESHES[which][0] * data.draw(st.floats(0.25, 64, width=32))))
-    value = expect_tegument_error(deformer.residual, positions)
+    scaled = MESHES[which][0] * data.draw(st.floats(0.25, 64, width=32))
+    positions = data.draw(corrupted(scaled))
+    value = expect_tegument_error(deformer.residual, positions, valid=pristine(positions, scaled), counted="deformer_residual")
     if value is not None:
         assert isinstance(value, float) and not np.isnan(value)
 
@@ -301,8 +366,12 @@ def test_collider_constructor(data):
     triangles = data.draw(corrupted(CUBE_TRIS, index_bound=8))
     thickness, friction = data.draw(SCALARS), data.draw(SCALARS)
     kinetic = data.draw(st.one_of(st.none(), SCALARS))
+    valid = (
+        pristine(positions, cube_arrays()[0]) and pristine(triangles, CUBE_TRIS)
+        and valid_setting(thickness) and valid_setting(friction) and (kinetic is None or valid_setting(kinetic))
+    )
     collider = expect_tegument_error(tegument.Collider, positions, triangles, thickness=thickness, friction=friction,
-                                     kinetic_friction=kinetic)
+                                     kinetic_friction=kinetic, valid=valid, counted="collider_new")
     if collider is None:
         return
     assert collider.thickness >= 0 and np.isfinite(collider.thickness)
@@ -317,9 +386,13 @@ def test_collider_constructor(data):
 @given(data=st.data())
 def test_collider_update_hold(data):
     collider = tegument.Collider(cube_arrays()[0], CUBE_TRIS, thickness=0.01)
+    RAN["collider_update"] += 1
     for _ in range(data.draw(st.integers(1, 3))):
         moved = (cube_arrays()[0] * data.draw(st.floats(0.5, 8, width=32))).astype(np.float32)
-        report = expect_tegument_error(collider.update, data.draw(corrupted(moved)))
+        positions = data.draw(corrupted(moved))
+        valid = pristine(positions, moved)
+        report = expect_tegument_error(collider.update, positions, valid=valid)
+        VALID_ACCEPTED["collider_update"] += valid
         if report is not None:
             assert set(report) == {"cost_ratio", "rebuilt"}
         if data.draw(st.booleans()):
@@ -337,7 +410,8 @@ def test_audit(data):
     collider = tegument.Collider(cube_arrays()[0] * 0.5, CUBE_TRIS)
     colliders = [[], [collider], [collider, collider], [collider, "not a collider"], "colliders", None][kind]
     depth = data.draw(SCALARS)
-    report = expect_tegument_error(tegument.audit, *args, colliders, depth_tolerance=depth)
+    valid = args.valid and kind <= 2 and valid_setting(depth)
+    report = expect_tegument_error(tegument.audit, *args, colliders, depth_tolerance=depth, valid=valid, counted="audit")
     if report is None:
         return
     n = len(np.asarray(args[0]))
@@ -399,12 +473,25 @@ def test_uvwarp_constructor(data):
         memory_limit=data.draw(st.one_of(st.none(), st.sampled_from([0, 1, 1000, 2**62]))),
         sample_warped=data.draw(st.booleans()),
     )
+    mesh = (data.draw(corrupted(positions)), data.draw(corrupted(corners, index_bound=len(positions))),
+            data.draw(corrupted(sizes, index_bound=len(corners))), data.draw(uv_corruption(uvs)))
+    if data.draw(st.integers(0, 3)) == 0:
+        # A quarter of the examples valid throughout (by chance they almost never are).
+        w = h = data.draw(st.sampled_from([8, 16]))
+        rigidity, mesh = np.full((h, w), 0.5, np.float32), tuple(a.copy() for a in UV_MESH)
+        kwargs.update(mask=None, iterations=data.draw(st.integers(1, 3)), orientation=data.draw(st.floats(0, 1)),
+                      smoothing=data.draw(st.floats(0, 1)), memory_limit=None)
+    valid = (
+        w in (8, 16) and h in (8, 16)
+        and all(pristine(a, v) for a, v in zip(mesh, UV_MESH))
+        and pristine(rigidity, np.full((h, w), 0.5, np.float32))
+        and mask is None
+        and kwargs["iterations"] in (1, 2, 3)
+        and valid_setting(kwargs["orientation"], 0.0, 1.0) and valid_setting(kwargs["smoothing"], 0.0, 1.0)
+        and kwargs["memory_limit"] in (None, 2**62)
+    )
     try:
-        warp = expect_tegument_error(
-            tegument.UvWarp, w, h,
-            data.draw(corrupted(positions)), data.draw(corrupted(corners, index_bound=len(positions))),
-            data.draw(corrupted(sizes, index_bound=len(corners))), data.draw(uv_corruption(uvs)), rigidity, **kwargs,
-        )
+        warp = expect_tegument_error(tegument.UvWarp, w, h, *mesh, rigidity, **kwargs, valid=valid, counted="uvwarp_new")
     except ACCEPTED_SCALAR_ERRORS:
         return
     if warp is None:
@@ -423,10 +510,11 @@ _WARP = tegument.UvWarp(16, 16, *UV_MESH, np.full((16, 16), 1.0, np.float32), it
 def test_uvwarp_methods(data, tmp_path_factory):
     positions = UV_MESH[0] * np.float32(data.draw(st.floats(0.2, 3)))
     deformed = data.draw(corrupted(positions.astype(np.float32)))
-    out = expect_tegument_error(_WARP.solve, deformed)
+    valid = pristine(deformed, positions.astype(np.float32))
+    out = expect_tegument_error(_WARP.solve, deformed, valid=valid, counted="uvwarp_methods")
     if out is not None:
         assert out.shape == (16, 16, 2) and np.isfinite(out).all()
-    metrics = expect_tegument_error(_WARP.metrics, deformed)
+    metrics = expect_tegument_error(_WARP.metrics, deformed, valid=valid)
     if metrics is not None:
         assert metrics["udim"] == 1001
     assert np.isfinite(_WARP.displacement()).all() and _WARP.validity().shape == (16, 16)
@@ -452,9 +540,15 @@ def test_write_and_read_exr(data, tmp_path_factory):
     shape = data.draw(st.sampled_from([(h, w), (h, w, c), (h,), (h, w, c, 1)]))
     array = data.draw(corrupted(np.arange(int(np.prod(shape)), dtype=np.float32).reshape(shape)))
     metadata = data.draw(st.one_of(st.none(), st.dictionaries(st.text(max_size=8), st.text(max_size=8), max_size=3)))
-    path = tmp_path_factory.mktemp("w") / data.draw(st.sampled_from(["a.exr", "no/such/dir/a.exr"]))
+    name = data.draw(st.sampled_from(["a.exr", "no/such/dir/a.exr"]))
+    path = tmp_path_factory.mktemp("w") / name
+    valid = (
+        name == "a.exr" and metadata is None and h >= 1 and w >= 1 and (len(shape) == 2 or (len(shape) == 3 and 1 <= c <= 4))
+        and pristine(array, np.arange(int(np.prod(shape)), dtype=np.float32).reshape(shape))
+    )
     try:
-        written = expect_tegument_error(lambda: tegument.write_exr(str(path), array, metadata) or "written")
+        written = expect_tegument_error(lambda: tegument.write_exr(str(path), array, metadata) or "written", valid=valid,
+                                        counted="write_exr")
     except ACCEPTED_SCALAR_ERRORS:
         return
     if written is None:
@@ -480,8 +574,10 @@ def _valid_exr_bytes(tmp: pathlib.Path) -> bytes:
 def test_read_exr_of_damaged_files(data, tmp_path_factory):
     directory = tmp_path_factory.mktemp("r")
     valid = _valid_exr_bytes(directory)
-    kind = data.draw(st.integers(0, 3))
-    if kind == 0:
+    kind = 4 if data.draw(st.integers(0, 3)) == 0 else data.draw(st.integers(0, 3))
+    if kind == 4:  # the file intact: it must read
+        blob = valid
+    elif kind == 0:
         blob = valid[: data.draw(st.integers(0, len(valid) - 1))]
     elif kind == 1:
         blob = bytearray(valid)
@@ -495,7 +591,8 @@ def test_read_exr_of_damaged_files(data, tmp_path_factory):
     path = directory / "damaged.exr"
     if blob is not None:
         path.write_bytes(blob)
-    result = expect_tegument_error(tegument.read_exr, str(path if blob is not None else directory / "absent.exr"))
+    result = expect_tegument_error(tegument.read_exr, str(path if blob is not None else directory / "absent.exr"),
+                                   valid=kind == 4, counted="read_exr")
     if result is not None:
         array, meta = result
         assert array.dtype == np.float32 and array.ndim == 3
@@ -503,5 +600,14 @@ def test_read_exr_of_damaged_files(data, tmp_path_factory):
 
 # ---------------------------------------------------------------------- accounting
 
-def test_case_budget_reaches_ten_thousand():
-    assert sum(BUDGETS.values()) >= 10_000, sum(BUDGETS.values())
+def test_cases_run_reach_ten_thousand_and_valid_ones_were_accepted():
+    """Runs last (pytest keeps the file's order): counts what the tests above really ran."""
+    missing = sorted(set(BUDGETS) - set(RAN))
+    if missing:
+        pytest.skip(f"run the whole file to count its cases (not run: {', '.join(missing)})")
+    assert sum(RAN.values()) >= 10_000 * min(SCALE, 1.0), dict(RAN)
+    # Every test met valid inputs and accepted them (test_read_exr has a single valid case,
+    # its intact file: hypothesis runs a given case once), and overall a fair share.
+    counts = {name: (VALID_ACCEPTED[name], RAN[name]) for name in BUDGETS}
+    assert all(accepted > 0 for accepted, _ in counts.values()), f"valid examples accepted, of those run: {counts}"
+    assert sum(VALID_ACCEPTED.values()) >= 0.1 * sum(RAN.values()), f"valid examples accepted, of those run: {counts}"

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import penetration
 import tegument
 
 from conftest import grid_arrays
@@ -17,8 +18,22 @@ def _skin(n: int):
 
 
 def _audit(positions, corner_verts, polygon_sizes, colliders):
+    """The product's own audit: its output, checked against the independent checker below."""
     found = tegument.audit(positions, corner_verts, polygon_sizes, colliders)
     return found["vertices_inside"], found["edges_crossing"], found["collider_edges_crossing"]
+
+
+def _penetrations(positions, corner_verts, polygon_sizes, colliders, spheres=()):
+    """The verdict: testkit/penetration.py (no code shared with tegument) on ``colliders``
+    ``[(positions, triangles)]``, plus vertices within the inradius of ``spheres``
+    ``[(centre, radius)]`` (test_collide.uv_sphere's 24 segments, 12 rings)."""
+    triangles = penetration.fan_triangles(corner_verts, polygon_sizes)
+    counts = penetration.find_penetrations(positions, triangles, colliders).counts()
+    counts["inside_sphere"] = sum(
+        len(penetration.points_inside_sphere(positions, centre, penetration.uv_sphere_inradius(radius, 24, 12)))
+        for centre, radius in spheres
+    )
+    return counts
 
 
 def test_dynamics_overshoot_then_settle_and_energy_is_reported():
@@ -70,29 +85,32 @@ def _drag(strain_mode: str | None):
     sphere, tris = uv_sphere(0.3, center=(-0.3, 0.0, -0.32))
     collider = tegument.Collider(sphere, tris, thickness=0.01, friction=2.0)
     path = [np.float32([0, 0, 0.03 * k]) for k in range(6)] + [np.float32([0.05 * k, 0, 0.15]) for k in range(1, 9)]
-    audits, out = [], positions
+    audits, found, out = [], [], positions
     for offset in path:
         collider.update(sphere + offset)
         kwargs = {} if strain_mode is None else {"max_stretch": 0.1, "strain_mode": strain_mode}
         out = deformer.step(positions, [collider], closeness=0.5, **kwargs)
         audits.append(_audit(out, corner_verts, polygon_sizes, [collider]))
+        found.append(_penetrations(out, corner_verts, polygon_sizes, [(collider.positions, tris)], [((-0.3, 0.0, -0.32) + offset, 0.3)]))
     starts = corner_verts.reshape(-1, 4)
     edges = np.concatenate([starts[:, [0, 1]], starts[:, [1, 2]], starts[:, [2, 3]], starts[:, [3, 0]]])
     rest = np.linalg.norm(positions[edges[:, 0]] - positions[edges[:, 1]], axis=1)
     now = np.linalg.norm(out[edges[:, 0]] - out[edges[:, 1]], axis=1)
-    return audits, float((now / rest).max()), deformer.last_step
+    return audits, found, float((now / rest).max()), deformer.last_step
 
 
 def test_strain_limits_unified_hold_with_no_penetration_and_post_leaves_some():
-    free_audits, free_stretch, _ = _drag(None)
+    _, _, free_stretch, _ = _drag(None)
     assert free_stretch > 1.15, f"the scenario should stretch edges: {free_stretch}"
-    audits, stretch, report = _drag("unified")
+    audits, found, stretch, report = _drag("unified")
+    assert all(not any(counts.values()) for counts in found), found
     assert all(a == (0, 0, 0) for a in audits), audits
     assert stretch <= 1.1 * 1.01
     assert report["worst_stretch"] == pytest.approx(stretch, abs=1e-4)
-    post_audits, post_stretch, _ = _drag("post")
+    post_audits, post_found, post_stretch, _ = _drag("post")
     assert post_stretch <= 1.1 * 1.01
-    assert any(a != (0, 0, 0) for a in post_audits), "post-collision limiting left no penetration"
+    assert any(any(counts.values()) for counts in post_found), "post-collision limiting left no penetration"
+    assert any(a != (0, 0, 0) for a in post_audits), "the audit missed the penetrations the checker found"
 
 
 def test_a_compliant_collider_recedes_instead_of_pinching_the_skin():
@@ -118,7 +136,11 @@ def test_a_compliant_collider_recedes_instead_of_pinching_the_skin():
     assert pinched > 0
     out, arm, pinched, report = run(100.0)
     assert arm.is_compliant and pinched == 0
-    assert _audit(out, corner_verts, polygon_sizes, [arm]) == (0, 0, 0)
+    # Neither the torso the skin is pressed on nor the receded arm is penetrated.
+    found = _penetrations(out, corner_verts, polygon_sizes, [(torso_mesh, tris), (arm.positions, tris)], [((0.0, 0.0, -0.32), 0.3)])
+    assert not any(found.values()), found
+    torso = tegument.Collider(torso_mesh, tris, thickness=0.01)
+    assert _audit(out, corner_verts, polygon_sizes, [torso, arm]) == (0, 0, 0)
     recession = np.linalg.norm(arm.positions - arm.goal_positions, axis=1).max()
     assert recession > 0.1 and report["max_recession"] == pytest.approx(recession, rel=1e-4)
     np.testing.assert_array_equal(arm.goal_positions, arm_mesh + np.float32([0, 0, 0.1]))

@@ -97,8 +97,9 @@ fn edge_edge(x0: &[DVec3], x1: &[DVec3], edges: &[[u32; 2]], params: &CcdParams)
 }
 
 #[test]
+#[cfg_attr(not(any(shared_data, require_shared_data)), ignore = "../shared/data is absent: the shared test data sits beside the checkout (or set $TEGUMENT_DATA_DIR)")]
 fn cloth_funnel_end_to_end_finds_every_true_pair() {
-    let Some(root) = require("ccd/scalable-ccd-cloth-funnel/cloth-funnel") else { return };
+    let root = require("ccd/scalable-ccd-cloth-funnel/cloth-funnel");
     let (x0, faces) = read_ply(&root.join("frames/227.ply"));
     let (x1, faces1) = read_ply(&root.join("frames/228.ply"));
     assert_eq!(faces, faces1, "topology changes between frames");
@@ -159,6 +160,22 @@ fn cloth_funnel_end_to_end_finds_every_true_pair() {
             );
             assert!(missed.is_empty(), "{stem}: true pairs missed: {missed:?}");
             assert!(!truth_set.is_empty());
+            // False positives among all narrow-phase candidates: at most what was measured on
+            // 2026-11-25 (vf 64 / 7,292 and ee 155 / 33,663 at 1e-6; 0 and 6 at 1e-8) plus a
+            // tenth of a percent of the candidates; a CCD reporting every candidate fails.
+            let false_positives = outcome.found.len() - (truth_set.len() - missed.len());
+            let measured = match (stem, tolerance) {
+                ("227vf", t) if t == 1e-6 => 64,
+                ("227ee", t) if t == 1e-6 => 155,
+                ("227ee", _) => 6,
+                _ => 0,
+            };
+            let allowed = measured + negatives / 1000;
+            assert!(
+                false_positives <= allowed,
+                "{stem}, tolerance {tolerance:.0e}: {false_positives} false positives among {negatives} negative candidates, \
+                 measured {measured} (at most {allowed} allowed)"
+            );
         }
     }
 }
