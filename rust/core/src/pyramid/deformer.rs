@@ -294,6 +294,12 @@ impl PyramidDeformer {
         Ok(())
     }
 
+    /// Accelerates the solver's iterations with Anderson's method over the
+    /// last `window` iterates (0: plain iterations).
+    pub fn set_anderson_window(&mut self, window: usize) {
+        self.solver.set_anderson_window(window);
+    }
+
     /// Solves one frame starting from `input` and returns the result.
     pub fn solve(
         &mut self,

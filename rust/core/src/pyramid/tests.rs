@@ -713,3 +713,23 @@ fn fused_step_equals_the_general_step_to_the_bit() {
         assert!(bits(&fused) == bits(&general), "{n} vertices: the fused step differs from the general one");
     }
 }
+
+#[test]
+fn anderson_acceleration_reaches_the_same_solution_in_far_fewer_iterations() {
+    // Issue 28: the slow modes of a low-closeness solve. Anderson's method must
+    // converge to the plain iteration's fixed point, much sooner.
+    let length = 4.0;
+    let mesh = cylinder(48, 60, 0.5, length);
+    let input = candy_wrapper(&mesh, length, 90f32.to_radians(), 80f32.to_radians());
+    let mut deformer = bind(&mesh, true, Formulation::VertexTargets);
+    let converged = deformer.solve(&input, 4000, Closeness::Uniform(0.05)).unwrap();
+    let scale = max_distance(&converged, &input);
+    deformer.set_anderson_window(5);
+    let accelerated = deformer.solve(&input, 400, Closeness::Uniform(0.05)).unwrap();
+    assert!(max_distance(&accelerated, &converged) < 1e-3 * scale, "a different fixed point");
+    let error = |out: &[Vec3]| max_distance(out, &converged) / scale;
+    let fast = error(&deformer.solve(&input, 15, Closeness::Uniform(0.05)).unwrap());
+    deformer.set_anderson_window(0);
+    let plain = error(&deformer.solve(&input, 15, Closeness::Uniform(0.05)).unwrap());
+    assert!(fast < 0.05 && fast < 0.25 * plain, "15 iterations: accelerated {fast}, plain {plain}");
+}

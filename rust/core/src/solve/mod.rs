@@ -19,6 +19,7 @@
 //! Results do not depend on the number of threads: every parallel loop writes
 //! disjoint outputs and every sum runs in a fixed order.
 
+mod anderson;
 mod closeness;
 mod constraint;
 mod solver;

@@ -5,6 +5,7 @@ use std::sync::Arc;
 use faer::sparse::linalg::cholesky::SymbolicCholesky;
 use glam::Vec3;
 
+use super::anderson::Anderson;
 use super::constraint::{Constraint, Context};
 use super::system::{RowBlock, System, SystemKind};
 use crate::mesh::validate_positions;
@@ -61,6 +62,9 @@ pub struct Solver {
     constant_projections: Vec<Vec3>,
     rhs_constant: Vec<Vec3>,
     work: Vec<Vec3>,
+    /// Anderson window (0: plain iterations) and its history buffers.
+    anderson_window: usize,
+    anderson: Option<Anderson>,
 }
 
 impl Solver {
@@ -74,6 +78,17 @@ impl Solver {
             constant_projections: Vec::new(),
             rhs_constant: Vec::new(),
             work: Vec::new(),
+            anderson_window: 0,
+            anderson: None,
+        }
+    }
+
+    /// Accelerates the iterations with Anderson's method over the last
+    /// `window` iterates (0 turns it off). See [`super::anderson`].
+    pub fn set_anderson_window(&mut self, window: usize) {
+        if window != self.anderson_window {
+            self.anderson_window = window;
+            self.anderson = None;
         }
     }
 
@@ -248,6 +263,15 @@ impl Solver {
             start += entry.constraint.rows().len();
         }
 
+        let mut anderson = match self.anderson_window {
+            0 => None,
+            window => {
+                let history = self.anderson.get_or_insert_with(|| Anderson::new(window, self.vertex_count));
+                history.restart();
+                Some(history)
+            }
+        };
+
         // Ping-pong between the caller's buffer and our own, copying at most once.
         let mut in_work = false;
         for iteration in 0..iterations {
@@ -263,6 +287,9 @@ impl Solver {
                     constraint.project(&context, &mut self.variable_projections[start..start + rows]);
                 }
                 system.solve(&self.rhs_constant, &self.variable_projections, next);
+            }
+            if let Some(history) = anderson.as_deref_mut() {
+                history.accelerate(current, next);
             }
             if let Some(hook) = hook.as_deref_mut() {
                 hook.after_iteration(iteration, current, next)?;
