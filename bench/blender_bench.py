@@ -202,7 +202,7 @@ def collisions(bpy, np, rows, threads, workdir, grid: int, frame_count: int) -> 
     def audit_at(scene, skin, sphere, frame, positions=None):
         scene.frame_set(frame)
         body_positions, body_mesh = world(sphere)
-        collider = tegument.Collider(body_positions, triangles(body_mesh))
+        collider = tegument.Collider(body_positions, triangles(body_mesh), thickness=0.0, friction=0.0)
         if positions is None:
             positions, _ = world(skin)
         mesh = skin.data

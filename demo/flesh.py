@@ -81,7 +81,7 @@ def independent_audit(tegument, skin, cache, colliders) -> dict[str, int]:
     totals = dict.fromkeys(AUDIT_KEYS, 0)
     for k, frame_positions in enumerate(cache):
         world = (frame_positions.astype(np.float64) @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
-        bodies = [tegument.Collider(*world_mesh(c, k + 1)) for c in colliders]
+        bodies = [tegument.Collider(*world_mesh(c, k + 1), thickness=0.0, friction=0.0) for c in colliders]
         found = tegument.audit(world, corners, sizes, bodies)
         for key in totals:
             totals[key] += int(getattr(found, key))

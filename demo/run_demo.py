@@ -135,7 +135,7 @@ def independent_audit(bpy, np, tegument, limb, body, cache, frames) -> dict:
     scene = bpy.context.scene
     for k, frame in enumerate(frames):
         scene.frame_set(frame)
-        collider = tegument.Collider(*world_triangles(bpy, np, body))
+        collider = tegument.Collider(*world_triangles(bpy, np, body), thickness=0.0, friction=0.0)
         with evaluate.upstream_only(limb):
             skinned, _ = world_triangles(bpy, np, limb)
         m = np.array(limb.matrix_world)

@@ -41,7 +41,8 @@ method takes arguments or computes something (`Mesh.one_ring(i)`, `Mesh.problem_
 
 **Defaults.** `tegument.DEFAULTS` holds the default of every setting as the core defines it; the
 keyword defaults shown as `...` below are these values (the add-on's settings start from them too).
-After 0.1.0 the default closeness became 0.05 (it was 0.1), the add-on's long-standing value.
+After 0.1.0 the default closeness became 0.05 (it was 0.1), and a `Collider` built without settings
+keeps 0.005 of thickness with friction 0.3 (kinetic 0.2) (it had none): the add-on's long-standing values.
 
 *This page is generated from the docstrings by `tools/gen_api_docs.py`; a test keeps it in step.*
 """

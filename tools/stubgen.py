@@ -75,7 +75,7 @@ PARAMS = {
     "damping": "float",
     "gravity": "tuple[float, float, float]",
     "thickness": "float",
-    "friction": "float",
+    "friction": "float | None",
     "kinetic_friction": "float | None",
     "stiffness": "float | Floats | None",
     "depth_tolerance": "float",

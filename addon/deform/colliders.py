@@ -15,10 +15,14 @@ import contextlib
 
 import bpy
 import numpy as np
+import tegument
 from bpy.props import FloatProperty, PointerProperty, StringProperty
 
 from .. import mesh_arrays
 from .evaluate import DeformError, hidden_in_viewport, to_local, to_world
+
+# One source for every default: the core's (see tegument.DEFAULTS).
+_DEFAULTS = tegument.DEFAULTS
 
 # The Mesh Cache modifier that plays a compliant collider's solved positions back.
 COMPLIANCE_MODIFIER_NAME = "Tegument Compliance"
@@ -66,15 +70,15 @@ def compliant_stiffness(collider, vertex_count: int) -> np.ndarray:
 
 class TEGUMENT_PG_collider(bpy.types.PropertyGroup):
     thickness: FloatProperty(
-        name="Thickness", default=0.005, min=0.0, soft_max=0.1, subtype="DISTANCE", unit="LENGTH",
+        name="Thickness", default=_DEFAULTS.thickness, min=0.0, soft_max=0.1, subtype="DISTANCE", unit="LENGTH",
         description="Distance kept between the skin and this collider's surface",
     )
     friction: FloatProperty(
-        name="Static Friction", default=0.3, min=0.0, soft_max=2.0,
+        name="Static Friction", default=_DEFAULTS.friction, min=0.0, soft_max=2.0,
         description="Skin in contact sticks to the surface while its slip stays below this times the contact depth",
     )
     kinetic_friction: FloatProperty(
-        name="Kinetic Friction", default=0.2, min=0.0, soft_max=2.0,
+        name="Kinetic Friction", default=_DEFAULTS.kinetic_friction, min=0.0, soft_max=2.0,
         description="Once slipping, the slip is reduced by this times the contact depth",
     )
     compliant_group: StringProperty(

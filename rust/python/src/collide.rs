@@ -21,8 +21,17 @@ fn triangles_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<Vec<[u32; 3]>> 
     crate::convert::py_result(tegument_core::collide::collider::triangles_from_flat(&flat))
 }
 
-fn settings(thickness: f32, friction: f32, kinetic_friction: Option<f32>) -> ColliderSettings {
-    ColliderSettings { thickness, static_friction: friction, kinetic_friction: kinetic_friction.unwrap_or(friction) }
+/// The core's defaults where an argument is left out; a given `friction`
+/// without `kinetic_friction` is both coefficients, as it always was.
+fn settings(thickness: f32, friction: Option<f32>, kinetic_friction: Option<f32>) -> ColliderSettings {
+    let default = ColliderSettings::default();
+    let static_friction = friction.unwrap_or(default.static_friction);
+    let kinetic_friction = match (friction, kinetic_friction) {
+        (_, Some(kinetic)) => kinetic,
+        (Some(given), None) => given,
+        (None, None) => default.kinetic_friction,
+    };
+    ColliderSettings { thickness, static_friction, kinetic_friction }
 }
 
 /// A kinematic triangle-mesh collider that keeps last frame's positions.
@@ -30,7 +39,8 @@ fn settings(thickness: f32, friction: f32, kinetic_friction: Option<f32>) -> Col
 /// ``positions`` is float32 ``(N, 3)`` in world space, ``triangles`` int32
 /// ``(T, 3)``. ``thickness`` is the distance kept between skin and surface;
 /// ``friction`` the static friction coefficient (and the kinetic one unless
-/// ``kinetic_friction`` is given). Call :meth:`update` once per frame with the
+/// ``kinetic_friction`` is given). Left out, each takes its default from
+/// ``tegument.DEFAULTS`` (the add-on's defaults too). Call :meth:`update` once per frame with the
 /// new world positions: the collider then moves from the previous positions
 /// to these over the frame, which is what continuous collision detection sees.
 #[pyclass(module = "tegument", name = "Collider", frozen)]
@@ -54,13 +64,13 @@ impl Collider {
 #[pymethods]
 impl Collider {
     #[new]
-    #[pyo3(signature = (positions, triangles, thickness=ColliderSettings::default().thickness, friction=ColliderSettings::default().static_friction, kinetic_friction=None))]
+    #[pyo3(signature = (positions, triangles, thickness=ColliderSettings::default().thickness, friction=None, kinetic_friction=None))]
     fn new(
         py: Python<'_>,
         positions: &Bound<'_, PyAny>,
         triangles: &Bound<'_, PyAny>,
         thickness: f32,
-        friction: f32,
+        friction: Option<f32>,
         kinetic_friction: Option<f32>,
     ) -> PyResult<Self> {
         let positions = positions_arg("positions", positions, None)?;

@@ -56,7 +56,7 @@ def test_triangles_of_any_integer_dtype():
     quads = corners.reshape(-1, 4)
     triangles = np.concatenate([quads[:, :3], quads[:, [0, 2, 3]]])
     for dtype in (np.int64, np.uint16):
-        collider = tegument.Collider(positions.astype(np.float64), triangles.astype(dtype))
+        collider = tegument.Collider(positions.astype(np.float64), triangles.astype(dtype), thickness=0.0, friction=0.0)
         assert collider.triangle_count == 12 and collider.triangles.dtype == np.int32
 
 
@@ -82,7 +82,7 @@ def test_negative_converted_index_is_refused():
     triangles = np.concatenate([quads[:, :3], quads[:, [0, 2, 3]]]).astype(np.int64)
     triangles[2, 1] = -7
     with pytest.raises(tegument.TegumentError, match=r"triangles: element \(2, 1\) is -7"):
-        tegument.Collider(positions, triangles)
+        tegument.Collider(positions, triangles, thickness=0.0, friction=0.0)
 
 
 @pytest.mark.parametrize(

@@ -19,7 +19,7 @@ def _triangles(corners):
 def _stepped():
     skin, corners, sizes = grid_arrays(6, 6)
     box, box_corners, _ = cube_arrays()
-    collider = tegument.Collider(box * np.float32(0.3) - np.float32([0, 0, 0.5]), _triangles(box_corners))
+    collider = tegument.Collider(box * np.float32(0.3) - np.float32([0, 0, 0.5]), _triangles(box_corners), thickness=0.0, friction=0.0)
     deformer = tegument.PyramidDeformer(skin, corners, sizes)
     deformer.step(skin, [collider], iterations=2)
     collider.update(collider.positions + np.float32([0, 0, 0.6]))
@@ -80,7 +80,7 @@ def test_properties_hold_state_methods_compute():
     Mesh.report and Collider.edges were methods: calling them still works, deprecated."""
     positions, corners, sizes = cube_arrays()
     mesh = tegument.Mesh(positions, corners, sizes)
-    collider = tegument.Collider(positions, _triangles(corners))
+    collider = tegument.Collider(positions, _triangles(corners), thickness=0.0, friction=0.0)
     for owner, name in ((mesh, "edges"), (mesh, "boundary_vertices"), (collider, "edges")):
         value = getattr(owner, name)
         assert isinstance(value, np.ndarray) and value.dtype == np.int32
@@ -110,7 +110,7 @@ def test_defaults_come_from_the_core_and_are_the_keyword_defaults():
     assert (dynamics.frame_time, dynamics.mass, dynamics.damping) == pytest.approx((d.frame_time, d.mass, d.damping))
     assert dynamics.gravity == pytest.approx(d.gravity)
     positions, corners, _ = cube_arrays()
-    collider = tegument.Collider(positions, _triangles(corners))
+    collider = tegument.Collider(positions, _triangles(corners), thickness=0.0, friction=0.0)
     assert (collider.thickness, collider.friction) == (d.thickness, d.friction)
     skin, corners, sizes = grid_arrays(4, 4)
     deformer = tegument.PyramidDeformer(skin, corners, sizes)

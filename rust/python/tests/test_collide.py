@@ -57,7 +57,7 @@ def test_collider_properties_and_update_keeps_last_frame():
 
 def test_bvh_is_rebuilt_when_refitting_degrades_it():
     positions, triangles = uv_sphere()
-    collider = tegument.Collider(positions, triangles)
+    collider = tegument.Collider(positions, triangles, thickness=0.0, friction=0.0)
     rng = np.random.default_rng(1)
     scrambled = rng.permutation(positions).astype(np.float32) * np.float32(5.0)
     report = collider.update(np.ascontiguousarray(scrambled))
@@ -67,7 +67,7 @@ def test_bvh_is_rebuilt_when_refitting_degrades_it():
 
 def test_topology_change_on_update_names_both_counts():
     positions, triangles = uv_sphere()
-    collider = tegument.Collider(positions, triangles)
+    collider = tegument.Collider(positions, triangles, thickness=0.0, friction=0.0)
     n = len(positions)
     with pytest.raises(tegument.TegumentError, match=f"collider had {n} vertices, update gave {n - 2}"):
         collider.update(positions[:-2].copy())
@@ -88,7 +88,7 @@ def test_bad_collider_input_is_refused_with_a_message(make, message):
     positions, triangles = uv_sphere()
     p, t = make(positions, triangles)
     with pytest.raises(tegument.TegumentError) as info:
-        tegument.Collider(p, t)
+        tegument.Collider(p, t, thickness=0.0, friction=0.0)
     assert message in str(info.value)
 
 
@@ -100,7 +100,7 @@ def test_bad_settings_and_nan_positions_are_refused():
         tegument.Collider(positions, triangles, friction=float("nan"))
     bad = positions.copy()
     bad[7, 1] = np.nan
-    collider = tegument.Collider(positions, triangles)
+    collider = tegument.Collider(positions, triangles, thickness=0.0, friction=0.0)
     with pytest.raises(tegument.TegumentError, match="vertex 7"):
         collider.update(bad)
     # The failed update left the collider untouched.
@@ -109,7 +109,7 @@ def test_bad_settings_and_nan_positions_are_refused():
 
 def test_audit_counts_vertices_inside_and_edges_crossing_both_ways():
     sphere_p, sphere_t = uv_sphere(radius=1.0)
-    sphere = tegument.Collider(sphere_p, sphere_t)
+    sphere = tegument.Collider(sphere_p, sphere_t, thickness=0.0, friction=0.0)
     positions, corner_verts, polygon_sizes = grid_arrays(10, 10)
     positions = positions * np.float32(2.0)
     positions[:, 2] = 0.05
@@ -136,8 +136,8 @@ def test_audit_counts_vertices_inside_and_edges_crossing_both_ways():
 
 def test_audit_sees_colliders_after_update_and_skips_open_ones_for_inside():
     sphere_p, sphere_t = uv_sphere(radius=0.5)
-    sphere = tegument.Collider(sphere_p, sphere_t)
-    open_cap = tegument.Collider(sphere_p, sphere_t[:-10].copy())
+    sphere = tegument.Collider(sphere_p, sphere_t, thickness=0.0, friction=0.0)
+    open_cap = tegument.Collider(sphere_p, sphere_t[:-10].copy(), thickness=0.0, friction=0.0)
     positions, corner_verts, polygon_sizes = grid_arrays(6, 6)
     positions[:, 2] = 3.0
     assert tegument.audit(positions, corner_verts, polygon_sizes, [sphere])["vertices_inside"] == 0
@@ -149,7 +149,7 @@ def test_audit_sees_colliders_after_update_and_skips_open_ones_for_inside():
 
 def test_audit_refuses_bad_arguments():
     positions, corner_verts, polygon_sizes = grid_arrays(2, 2)
-    sphere = tegument.Collider(*uv_sphere())
+    sphere = tegument.Collider(*uv_sphere(), thickness=0.0, friction=0.0)
     with pytest.raises(tegument.TegumentError, match=r"colliders\[1\]: expected a tegument.Collider"):
         tegument.audit(positions, corner_verts, polygon_sizes, [sphere, "sphere"])
     with pytest.raises(tegument.TegumentError, match="colliders: expected a sequence"):
@@ -221,8 +221,22 @@ def test_step_refuses_the_same_collider_twice_instead_of_waiting_on_itself():
     # by it): one object listed twice must be an error, not a deadlock.
     positions, _, _, deformer = _skin(4)
     sphere, tris = uv_sphere(0.2, center=(0.0, 0.0, -0.5))
-    collider = tegument.Collider(sphere, tris)
+    collider = tegument.Collider(sphere, tris, thickness=0.0, friction=0.0)
     with pytest.raises(tegument.TegumentError, match="item 1 is the same Collider"):
         deformer.step(positions, [collider, collider])
     out = deformer.step(positions, [collider])
     assert np.isfinite(out).all()
+
+
+def test_collider_settings_left_out_come_from_the_core_defaults():
+    positions, triangles = uv_sphere()
+    bare = tegument.Collider(positions, triangles)
+    defaults = tegument.DEFAULTS
+    assert (bare.thickness, bare.friction, bare.kinetic_friction) == pytest.approx(
+        (defaults.thickness, defaults.friction, defaults.kinetic_friction))
+    assert defaults.thickness > 0 and defaults.friction > defaults.kinetic_friction > 0
+    # A friction given alone is both coefficients, as before.
+    rough = tegument.Collider(positions, triangles, friction=0.9)
+    assert (rough.friction, rough.kinetic_friction) == pytest.approx((0.9, 0.9))
+    split = tegument.Collider(positions, triangles, friction=0.9, kinetic_friction=0.4)
+    assert split.kinetic_friction == pytest.approx(0.4)

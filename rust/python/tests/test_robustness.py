@@ -263,21 +263,21 @@ def test_collider_problems_name_themselves():
     quads = corners.reshape(-1, 4)
     triangles = np.ascontiguousarray(np.concatenate([quads[:, :3], quads[:, [0, 2, 3]]]), dtype=np.int32)
     with pytest.raises(tegument.TegumentError, match=r"triangles: expected int32 \(T, 3\)"):
-        tegument.Collider(positions, triangles.ravel())
+        tegument.Collider(positions, triangles.ravel(), thickness=0.0, friction=0.0)
     bad = triangles.copy()
     bad[3, 1] = 8
     with pytest.raises(tegument.TegumentError, match="8"):
-        tegument.Collider(positions, bad)
+        tegument.Collider(positions, bad, thickness=0.0, friction=0.0)
     for kwargs in (dict(thickness=np.nan), dict(thickness=-1.0), dict(friction=np.inf), dict(kinetic_friction=-0.5)):
         with pytest.raises(tegument.TegumentError):
             tegument.Collider(positions, triangles, **kwargs)
 
-    open_collider = tegument.Collider(positions, triangles[:-2])  # one face missing
+    open_collider = tegument.Collider(positions, triangles[:-2], thickness=0.0, friction=0.0)  # one face missing
     assert not open_collider.is_closed
     report = tegument.audit(positions * np.float32(0.1), corners, np.full(6, 4, np.int32), [open_collider])
     assert report["open_colliders"] == [0] and report["vertices_inside"] == 0
 
-    collider = tegument.Collider(positions, triangles)
+    collider = tegument.Collider(positions, triangles, thickness=0.0, friction=0.0)
     before = frozen(collider.positions, collider.previous_positions)
     # A collider whose topology changes over time: refused, the collider keeps its state.
     with pytest.raises(tegument.TegumentError, match="collider had 8 vertices, update gave 9"):
@@ -295,7 +295,7 @@ def test_collider_problems_name_themselves():
     # Vertices shuffled among each other (each triangle now spans the mesh): the refitted
     # tree degrades past the rebuild ratio and is rebuilt.
     sphere, sphere_triangles = uv_sphere(1.0)
-    shuffled = tegument.Collider(sphere, sphere_triangles)
+    shuffled = tegument.Collider(sphere, sphere_triangles, thickness=0.0, friction=0.0)
     report = shuffled.update(np.ascontiguousarray(sphere[np.random.default_rng(0).permutation(len(sphere))]))
     assert report["rebuilt"] is True and report["cost_ratio"] > 1.4 and shuffled.bvh_rebuilds == 1, report
     with pytest.raises(tegument.TegumentError, match=r"colliders\[1\]: expected a tegument.Collider, got str"):
@@ -363,7 +363,7 @@ def test_calls_from_several_threads_equal_serial_results():
         deformer = tegument.PyramidDeformer(positions, corners, sizes)
         mesh = tegument.Mesh(inputs[k], corners, sizes)
         warp = tegument.UvWarp(8, 8, *warp_args, uvs, np.ones((8, 8), np.float32), warm_start=False)
-        collider = tegument.Collider(*cube_arrays()[:1], np.array([[0, 1, 2], [1, 3, 2]], np.int32))
+        collider = tegument.Collider(*cube_arrays()[:1], np.array([[0, 1, 2], [1, 3, 2]], np.int32), thickness=0.0, friction=0.0)
         return (
             deformer.solve(inputs[k], iterations=4),
             shared.solve(inputs[k], iterations=4),  # one object from many threads: serialised, same result
@@ -417,7 +417,7 @@ def test_one_collider_and_one_warp_shared_by_threads_serialise_instead_of_failin
     positions, corners, sizes = grid_arrays(12, 10)
     cube, _, _ = cube_arrays()
     triangles = np.array([[0, 1, 2], [1, 3, 2]], np.int32)
-    collider = tegument.Collider(cube, triangles)
+    collider = tegument.Collider(cube, triangles, thickness=0.0, friction=0.0)
     warp_args = uv_quad()[:3]
     uvs = uv_quad()[3]
     warp = tegument.UvWarp(8, 8, *warp_args, uvs, np.ones((8, 8), np.float32), warm_start=False)

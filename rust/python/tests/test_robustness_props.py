@@ -407,7 +407,7 @@ def test_collider_update_hold(data):
 def test_audit(data):
     args = data.draw(mesh_args())
     kind = data.draw(st.integers(0, 4))
-    collider = tegument.Collider(cube_arrays()[0] * 0.5, CUBE_TRIS)
+    collider = tegument.Collider(cube_arrays()[0] * 0.5, CUBE_TRIS, thickness=0.0, friction=0.0)
     colliders = [[], [collider], [collider, collider], [collider, "not a collider"], "colliders", None][kind]
     depth = data.draw(SCALARS)
     valid = args.valid and kind <= 2 and valid_setting(depth)

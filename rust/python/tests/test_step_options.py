@@ -148,7 +148,7 @@ def test_a_compliant_collider_recedes_instead_of_pinching_the_skin():
 
 def test_bad_compliance_is_refused_and_none_turns_it_off():
     sphere, tris = uv_sphere(0.3)
-    collider = tegument.Collider(sphere, tris)
+    collider = tegument.Collider(sphere, tris, thickness=0.0, friction=0.0)
     stiffness = np.full(len(sphere), 10.0, np.float32)
     stiffness[5] = -1.0
     with pytest.raises(tegument.TegumentError, match="vertex 5"):
@@ -167,7 +167,7 @@ def test_bad_compliance_is_refused_and_none_turns_it_off():
 
 def test_place_moves_a_compliant_collider_without_touching_its_goals():
     sphere, tris = uv_sphere(0.3)
-    collider = tegument.Collider(sphere, tris)
+    collider = tegument.Collider(sphere, tris, thickness=0.0, friction=0.0)
     collider.set_compliance(10.0)
     collider.update(sphere + np.float32([0, 0, 1]))
     collider.place(sphere + np.float32([0, 0, 0.5]))

@@ -24,9 +24,12 @@ pub struct ColliderSettings {
     pub kinetic_friction: f32,
 }
 
+/// What an artist gets before touching anything, in the add-on and the wheel
+/// alike: skin kept 5 mm (in metres) off the surface, and the friction of skin
+/// on skin or cloth, sticking a little and sliding a little less.
 impl Default for ColliderSettings {
     fn default() -> Self {
-        ColliderSettings { thickness: 0.0, static_friction: 0.0, kinetic_friction: 0.0 }
+        ColliderSettings { thickness: 0.005, static_friction: 0.3, kinetic_friction: 0.2 }
     }
 }
 
@@ -728,7 +731,7 @@ mod tests {
     #[test]
     fn edges_and_closedness() {
         let (p, t) = tetra();
-        let c = Collider::new(&p, &t, ColliderSettings::default()).unwrap();
+        let c = Collider::new(&p, &t, ColliderSettings::new(0.0, 0.0)).unwrap();
         assert_eq!(c.edges().len(), 6);
         assert!(c.is_closed());
         for (tri, ids) in c.triangles().iter().zip(c.triangle_edges()) {
@@ -738,7 +741,7 @@ mod tests {
                 assert_eq!(e, [a.min(b), a.max(b)]);
             }
         }
-        let open = Collider::new(&p, &t[..3], ColliderSettings::default()).unwrap();
+        let open = Collider::new(&p, &t[..3], ColliderSettings::new(0.0, 0.0)).unwrap();
         assert!(!open.is_closed());
     }
 
@@ -773,12 +776,12 @@ mod tests {
     #[test]
     fn bad_input_is_named() {
         let (mut p, t) = tetra();
-        let err = Collider::new(&p, &[[0, 1, 9]], ColliderSettings::default()).unwrap_err().to_string();
+        let err = Collider::new(&p, &[[0, 1, 9]], ColliderSettings::new(0.0, 0.0)).unwrap_err().to_string();
         assert!(err.contains("triangle 0 refers to vertex 9"), "{err}");
         let err = Collider::new(&p, &t, ColliderSettings::new(-1.0, 0.0)).unwrap_err().to_string();
         assert!(err.contains("thickness"), "{err}");
         p[2].y = f32::NAN;
-        let err = Collider::new(&p, &t, ColliderSettings::default()).unwrap_err().to_string();
+        let err = Collider::new(&p, &t, ColliderSettings::new(0.0, 0.0)).unwrap_err().to_string();
         assert!(err.contains("vertex 2"), "{err}");
         assert!(triangles_from_flat(&[0, 1]).is_err());
         assert!(triangles_from_flat(&[0, -1, 2]).unwrap_err().to_string().contains("negative"));

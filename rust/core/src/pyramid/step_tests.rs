@@ -233,7 +233,7 @@ mod compliance {
     #[test]
     fn bad_stiffness_is_named() {
         let (ball, tris) = sphere(0.3);
-        let mut arm = Collider::new(&ball.positions, &tris, ColliderSettings::default()).unwrap();
+        let mut arm = Collider::new(&ball.positions, &tris, ColliderSettings::new(0.0, 0.0)).unwrap();
         let mut k = vec![1.0; ball.positions.len()];
         k[3] = f32::NAN;
         let err = arm.set_compliance(Some(&k)).unwrap_err().to_string();

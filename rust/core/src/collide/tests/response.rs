@@ -174,7 +174,7 @@ fn pinched_vertices_are_reported_finite_and_bounded() {
 
 #[test]
 fn bad_input_is_refused_with_a_message() {
-    let c = floor(ColliderSettings::default());
+    let c = floor(ColliderSettings::new(0.0, 0.0));
     let set = ColliderSet::new([&c]);
     let mut end = [Vec3::ZERO];
     let err = set.resolve_path(&[Vec3::ZERO, Vec3::ONE], &mut end, &Skin::vertices_only(2), &ResolveParams::first_pass()).unwrap_err();
@@ -189,7 +189,7 @@ fn bad_input_is_refused_with_a_message() {
 
 #[test]
 fn audit_counts_each_kind_of_penetration() {
-    let sphere = collider_of(&quad_sphere(6, 1.0), Vec3::ZERO, ColliderSettings::default());
+    let sphere = collider_of(&quad_sphere(6, 1.0), Vec3::ZERO, ColliderSettings::new(0.0, 0.0));
     // A skin grid through the sphere's equator: centre vertices inside, edges
     // crossing nothing (they lie in the equator plane inside) but the sphere's
     // edges cross the grid's quads.
@@ -215,7 +215,7 @@ fn audit_counts_each_kind_of_penetration() {
 
 #[test]
 fn audit_inside_test_matches_distance_on_a_sphere() {
-    let sphere = collider_of(&quad_sphere(10, 1.0), Vec3::new(0.1, -0.2, 0.3), ColliderSettings::default());
+    let sphere = collider_of(&quad_sphere(10, 1.0), Vec3::new(0.1, -0.2, 0.3), ColliderSettings::new(0.0, 0.0));
     let mut points = Vec::new();
     let mut seed = 12345u64;
     let mut rnd = || {
