@@ -134,18 +134,21 @@ def _bend_rig(obj, name: str, head, joint, tail, axis: str, degrees: float, blen
 
 
 def open_sleeve(segments: int = 32, rings: int = 40, radius: float = 0.1, length: float = 1.0):
-    """A tube along +X open at both ends, bent 100° at its middle: ``(mesh object, armature)``."""
+    """A tube along +X open at both ends, bent 100° at 4/5 of its length: ``(mesh object, armature)``."""
     angle = np.linspace(0, 2 * np.pi, segments, endpoint=False)
     x = np.linspace(0, length, rings)
     positions = np.stack([np.repeat(x, segments), np.tile(radius * np.cos(angle), rings),
                           np.tile(radius * np.sin(angle), rings)], axis=1)
     obj = _mesh_object("Sleeve", positions, _grid_polygons(rings, segments, wrap=True))
-    rig = _bend_rig(obj, "SleeveRig", (0, 0, 0), (length / 2, 0, 0), (length, 0, 0), "z", 100.0, 3 * radius, (1, 0, 0))
+    # The joint near the far end, the weights blending up to it: that open end bends with the
+    # sleeve (as a cuff at a wrist does), where a pinned end and a shape-kept one differ.
+    rig = _bend_rig(obj, "SleeveRig", (0, 0, 0), (0.8 * length, 0, 0), (1.2 * length, 0, 0), "z", 100.0, 0.5 * length, (1, 0, 0))
     return obj, rig
 
 
 def holed_disc(segments: int = 64, rings: int = 16, inner: float = 0.15, outer: float = 0.5):
-    """A flat annulus in the XY plane, folded 90° along the line x = 0: ``(mesh object, armature)``."""
+    """A flat annulus in the XY plane, folded 90° about the line x = 0, the hole's border inside the
+    fold: ``(mesh object, armature)``."""
     angle = np.linspace(0, 2 * np.pi, segments, endpoint=False)
     radii = np.linspace(inner, outer, rings)
     positions = np.stack([np.outer(radii, np.cos(angle)).ravel(), np.outer(radii, np.sin(angle)).ravel(),
@@ -349,10 +352,12 @@ def run(out: pathlib.Path, stage) -> dict:
         world = bpy.data.worlds.new("World")
         world.color = (0.35, 0.35, 0.38)
         scene.world = world
-        sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
-        sun.data.energy = 3.0
-        sun.rotation_euler = (math.radians(50), math.radians(10), math.radians(-30))
-        bpy.context.collection.objects.link(sun)
+        # A key light and a fill from the cameras' side: few samples leave no noisy dark shadows.
+        for name, energy, rotation in (("Key", 3.0, (50, 10, -30)), ("Fill", 1.2, (70, 0, 40))):
+            sun = bpy.data.objects.new(name, bpy.data.lights.new(name, "SUN"))
+            sun.data.energy = energy
+            sun.rotation_euler = tuple(math.radians(a) for a in rotation)
+            bpy.context.collection.objects.link(sun)
         obj.data.materials.append(_skin_material())
         bones = rig.pose.bones
         elbow = rig.matrix_world @ bones["lowerarm01.L"].head
@@ -360,9 +365,10 @@ def run(out: pathlib.Path, stage) -> dict:
         centre = np.asarray(ours).mean(axis=0)
         low, high = ours.min(axis=0), ours.max(axis=0)
         # MakeHuman's left is Blender's +X; the character faces -Y.
-        whole = _camera("Whole", (centre[0] + 1.6, centre[1] - 3.6, centre[2] + 0.4), centre, 50.0)
-        elbow_cam = _camera("Elbow", (elbow.x + 0.55, elbow.y - 0.35, elbow.z + 0.1), elbow, 50.0)
-        knee_cam = _camera("Knee", (knee.x + 0.6, knee.y - 0.25, knee.z + 0.05), knee, 50.0)
+        whole = _camera("Whole", (centre[0] + 1.0, centre[1] - 2.6, centre[2] + 0.5), centre, 60.0)
+        # The left elbow and knee from outside and in front, close enough for the crease to show.
+        elbow_cam = _camera("Elbow", (elbow.x + 0.75, elbow.y - 0.45, elbow.z + 0.15), elbow, 50.0)
+        knee_cam = _camera("Knee", (knee.x + 0.8, knee.y - 0.3, knee.z + 0.15), knee, 50.0)
         info["cameras"] = {"elbow": list(elbow), "knee": list(knee), "bounds": [low.tolist(), high.tolist()]}
         modifier = obj.modifiers["Tegument"]
         shots = {}
