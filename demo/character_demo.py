@@ -223,13 +223,15 @@ def add_and_bake(obj, cache_path: str, frames=POSE_FRAMES) -> dict:
     if bpy.ops.tegument.deform_add() != {"FINISHED"}:
         raise RuntimeError(f"Add Pyramid Deform failed on {obj.name}: {obj.tegument.warnings}")
     settings = obj.tegument
+    # Read now: the bake replaces the warnings with its own (collider notes).
+    pinned, warnings = pinned_count(obj), settings.warnings
     settings.cache_path = cache_path
     settings.frame_start, settings.frame_end = frames
     started = time.perf_counter()
     if bpy.ops.tegument.bake() != {"FINISHED"}:
         raise RuntimeError(f"the bake of {obj.name} failed (its message is above)")
     wall = time.perf_counter() - started
-    return {"vertices": len(obj.data.vertices), "pinned": pinned_count(obj), "warnings": settings.warnings,
+    return {"vertices": len(obj.data.vertices), "pinned": pinned, "warnings": warnings,
             "iterations": settings.iterations, "closeness": round(settings.closeness, 4),
             "ms_per_frame": settings.last_frame_ms,
             "ms_per_frame_wall": 1000 * wall / (frames[1] - frames[0] + 1)}
