@@ -143,6 +143,7 @@ def main() -> int:
     rows.add(case, "Tegument frame / Corrective Smooth frame", tegument_frame / corrective, "x", threads, "target ≤ 0.5")
 
     collisions(bpy, np, rows, threads, workdir, args.collide_grid, args.collide_frames)
+    character(bpy, np, rows, threads, workdir)
 
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "blender.json").write_text(json.dumps(rows.rows, indent=1))
@@ -279,6 +280,81 @@ def collisions(bpy, np, rows, threads, workdir, grid: int, frame_count: int) -> 
     smooth.rest_source = "ORCO"
     times, totals = play_and_audit(scene, skin, sphere)
     record("Shrinkwrap (Outside) + Corrective Smooth", times, totals, "frame_set + both modifiers + read positions")
+
+
+CHARACTER_CASES = {"obj": "MakeHuman character (OBJ, welded)", "gltf": "MakeHuman character (glTF round trip, split seams)"}
+
+
+def character(bpy, np, rows, threads, workdir) -> None:
+    """The hard-posed MakeHuman character (demo/character_demo.py), welded and after a glTF round
+    trip: per frame, the armature alone, Corrective Smooth (10 it.) and Tegument's bake; then at the
+    pose's last frame what bind pinned, the spike maximum and the self-intersecting face pairs of
+    skinning, Corrective Smooth and Pyramid Deform (demo/measures.py, independent of the solver).
+
+    Without the shared MakeHuman data there is one row, "character: shared data" = 0, and
+    bench/collect.py says so instead of the character's lines."""
+    import character as makehuman
+    import character_demo
+    import measures
+    from bl_ext.user_default.tegument.deform import bake
+
+    try:
+        makehuman.data_folder()
+    except makehuman.CharacterDataMissing as error:
+        print(f"character rows skipped: {error}")
+        rows.add("MakeHuman character", "character: shared data", 0, "", threads, str(error))
+        return
+    rows.add("MakeHuman character", "character: shared data", 1, "", threads, "../shared/data/makehuman")
+    last = character_demo.POSE_FRAMES[1]
+    frames = [2 + (i * 5) % (last - 1) for i in range(2 * (last - 1))]  # each frame twice, never two in a row
+    for variant, label in CHARACTER_CASES.items():
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.preferences.addon_enable(module="bl_ext.user_default.tegument")
+        bpy.ops.wm.save_as_mainfile(filepath=str(workdir / f"character-{variant}.blend"))
+        obj, _ = character_demo.build(variant, workdir)
+        scene = bpy.context.scene
+        case = f"{label}, {len(obj.data.vertices) / 1000:.1f}k vertices"
+        rest, corners, sizes = character_demo.topology(obj.data)
+        groups = measures.coincident_groups(rest)
+
+        def evaluate(frame):
+            scene.frame_set(frame)
+            evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+            positions = np.empty(len(evaluated.data.vertices) * 3, dtype=np.float32)
+            evaluated.data.attributes["position"].data.foreach_get("vector", positions)
+            return positions.reshape(-1, 3)
+
+        armature_only = time_frames(scene, frames, evaluate)
+        rows.add(case, "armature only: frame", armature_only, "ms", threads, "frame_set + depsgraph + read positions")
+        skinning = evaluate(last)
+        smooth = obj.modifiers.new("CorrectiveSmooth", "CORRECTIVE_SMOOTH")
+        smooth.iterations = 10
+        smooth.rest_source = "ORCO"
+        corrective = time_frames(scene, frames, evaluate)
+        rows.add(case, "Corrective Smooth (10 it.): frame", corrective, "ms", threads, "armature + Corrective Smooth, whole frame")
+        smoothed = evaluate(last)
+        obj.modifiers.remove(smooth)
+
+        bpy.context.view_layer.objects.active = obj
+        assert bpy.ops.tegument.deform_add() == {"FINISHED"}
+        pinned = character_demo.pinned_count(obj)  # before the bake, which replaces the warnings
+        obj.tegument.frame_start, obj.tegument.frame_end = character_demo.POSE_FRAMES
+        job = bake.BakeJob(bpy.context, obj, range(character_demo.POSE_FRAMES[0], last + 1))
+        while not job.finished:
+            job.step()
+        job.commit()
+        times = sorted(1000 * t for t in job.times[1:])
+        tegument_frame = times[len(times) // 2]
+        rows.add(case, f"Tegument ({obj.tegument.iterations} it.): frame", tegument_frame, "ms", threads, "input evaluation + solve + cache write")
+        rows.add(case, "Tegument frame / Corrective Smooth frame", tegument_frame / corrective, "x", threads)
+        rows.add(case, "pinned by bind", pinned, "", threads, "vertices that follow the input")
+        rows.add(case, "split vertices", int((groups != np.arange(len(groups))).sum()), "", threads, "coincident with another at rest")
+        ours = character_demo.read_cache(obj)[-1]
+        for method, positions in (("skinning", skinning), ("Corrective Smooth", smoothed), ("Tegument", ours)):
+            figures = character_demo.frame_figures(positions, rest, corners, sizes, groups)
+            rows.add(case, f"{method}: spike max", figures["spike_max"], "", threads, f"frame {last}")
+            rows.add(case, f"{method}: self-intersecting pairs", figures["self_intersections"], "", threads, f"frame {last}")
+            rows.add(case, f"{method}: seam gap", 1000 * figures["seam_gap"], "mm", threads, f"frame {last}")
 
 
 if __name__ == "__main__":

@@ -115,6 +115,8 @@ def summary(rows: Rows) -> list[Line]:
         added = rows.value("flesh", flesh, f"added by {feature}")
         lines.append(Line(comparison, case, f"+ {feature}", total, note=f"adds {added:+.0f} ms"))
 
+    lines.extend(character_lines(rows))
+
     # UV warp: each grid size against the seed's GPU figure.
     comparison = "UV warp, per frame (warm)"
     for n in WARP_SIZES:
@@ -152,6 +154,41 @@ def summary(rows: Rows) -> list[Line]:
         for metric, label in (("level 0 (finest) + prolong", "UV warp finest level (4 iterations)"), ("inversion", "UV warp inversion")):
             ms = rows.value("warp", grid, metric)
             lines.append(Line(comparison, f"{n}² grid", label, ms, times_bandwidth=ms / reference, note=f"reference {reference:.2f} ms"))
+    return lines
+
+
+CHARACTER_CASES = {"OBJ, welded": r"MakeHuman character \(OBJ, welded\), .*",
+                   "glTF round trip": r"MakeHuman character \(glTF round trip, split seams\), .*"}
+
+
+def character_lines(rows: Rows) -> list[Line]:
+    """The hard-posed MakeHuman character (bench/blender_bench.py `character`): time per frame of
+    Corrective Smooth and Tegument, and at the pose's last frame the spike maximum and the
+    self-intersecting face pairs of each method. One line saying why when the shared data was absent."""
+    comparison = "real character, hard pose (per frame; shape figures at the last frame)"
+    if not rows.value("blender", "MakeHuman character", "character: shared data"):
+        note = rows.find("blender", "MakeHuman character", "character: shared data")["note"]
+        return [Line(comparison, "MakeHuman character", "not measured", note=note)]
+    lines = []
+    for case in CHARACTER_CASES.values():
+        name = rows.find("blender", case, "armature only: frame")["case"]
+        tegument = next(r for r in rows.rows if r["benchmark"] == "blender" and re.fullmatch(case, r["case"])
+                        and re.fullmatch(r"Tegument \(\d+ it\.\): frame", r["metric"]))
+
+        def shape(method: str) -> str:
+            return (f"spike max {rows.value('blender', case, f'{method}: spike max'):.2f}, "
+                    f"{rows.value('blender', case, f'{method}: self-intersecting pairs'):.0f} self-intersecting face pairs, "
+                    f"seam gap {rows.value('blender', case, f'{method}: seam gap'):.2f} mm")
+
+        lines.append(Line(comparison, name, "armature only (skinning)", rows.value("blender", case, "armature only: frame"),
+                          note=shape("skinning")))
+        lines.append(Line(comparison, name, "Blender Corrective Smooth (10 it.)",
+                          rows.value("blender", case, "Corrective Smooth (10 it.): frame"), note=shape("Corrective Smooth")))
+        lines.append(Line(comparison, name, f"Tegument Pyramid Deform ({tegument['metric'].split(':')[0].split('(')[1]}",
+                          tegument["value"],
+                          note=f"{rows.value('blender', case, 'Tegument frame / Corrective Smooth frame'):.2f}× Corrective Smooth's frame; "
+                               f"{rows.value('blender', case, 'pinned by bind'):.0f} vertices pinned by bind "
+                               f"({rows.value('blender', case, 'split vertices'):.0f} split at seams); " + shape("Tegument")))
     return lines
 
 

@@ -20,6 +20,22 @@ TUBE = "armature-bent tube, 100k vertices"
 SKIN = "skin 100k vertices vs sphere 20k triangles"
 CORE_SKIN = "skin 100489 v / 199712 tri vs collider 20172 tri"
 FLESH = "skin 100489 v vs collider 20172 tri, step"
+CHARACTERS = ("MakeHuman character (OBJ, welded), 13.4k vertices", "MakeHuman character (glTF round trip, split seams), 14.5k vertices")
+
+
+def character_rows() -> list[dict]:
+    """The character rows of bench/blender_bench.py `character`, distinct values per case."""
+    rows = [row("blender", "MakeHuman character", "character: shared data", 1, unit="")]
+    for k, case in enumerate(CHARACTERS):
+        rows += [row("blender", case, "armature only: frame", 6.0 + k), row("blender", case, "Corrective Smooth (10 it.): frame", 30.0 + k),
+                 row("blender", case, "Tegument (10 it.): frame", 15.0 + k),
+                 row("blender", case, "Tegument frame / Corrective Smooth frame", 0.5, unit="x"),
+                 row("blender", case, "pinned by bind", 6 + k, unit=""), row("blender", case, "split vertices", 1137 * k, unit="")]
+        for m, method in enumerate(("skinning", "Corrective Smooth", "Tegument")):
+            rows += [row("blender", case, f"{method}: spike max", 0.6 - 0.2 * m, unit=""),
+                     row("blender", case, f"{method}: self-intersecting pairs", 150 - 10 * m, unit=""),
+                     row("blender", case, f"{method}: seam gap", 40.0 * k * (m == 1), unit="mm")]
+    return rows
 
 
 def row(benchmark, case, metric, value, threads=2, unit="ms"):
@@ -63,7 +79,7 @@ def run_rows() -> list[dict]:
                  row("warp", case, "bandwidth reference (1 pass)", 2.0 * scale),
                  row("warp", case, "rigid stretch error, identity", 0.3, unit=""),
                  row("warp", case, "rigid stretch error, warped", 0.1, unit="")]
-    return rows
+    return rows + character_rows()
 
 
 def test_summary_puts_each_comparison_side_by_side():
@@ -85,6 +101,23 @@ def test_summary_puts_each_comparison_side_by_side():
     loops = [line for line in lines if line.comparison.startswith("hot loops")]
     assert len(loops) == 6 + 2 + 6
     assert loops[6].times_bandwidth == 200.0 and loops[7].times_bandwidth == 800.0  # in-loop and pass 1 ÷ 0.5 ms
+
+
+def test_the_character_lines_compare_corrective_smooth_and_tegument_on_each_variant():
+    lines = [line for line in collect.summary(collect.Rows(run_rows())) if line.comparison.startswith("real character")]
+    assert [(line.case, line.method, line.ms_per_frame) for line in lines] == [
+        (case, method, ms + k) for k, case in enumerate(CHARACTERS)
+        for method, ms in (("armature only (skinning)", 6.0), ("Blender Corrective Smooth (10 it.)", 30.0),
+                           ("Tegument Pyramid Deform (10 it.)", 15.0))]
+    assert lines[4].note == "spike max 0.40, 140 self-intersecting face pairs, seam gap 40.00 mm"
+    assert lines[5].note.startswith("0.50× Corrective Smooth's frame; 7 vertices pinned by bind (1137 split at seams); spike max 0.20, 130")
+
+
+def test_without_the_shared_data_the_character_line_says_why():
+    rows = [r for r in run_rows() if not r["case"].startswith("MakeHuman")]
+    rows.append(dict(row("blender", "MakeHuman character", "character: shared data", 0, unit=""), note="/x/makehuman: missing base.obj"))
+    lines = [line for line in collect.summary(collect.Rows(rows)) if line.comparison.startswith("real character")]
+    assert [(line.method, line.note) for line in lines] == [("not measured", "/x/makehuman: missing base.obj")]
 
 
 def test_a_missing_figure_is_named():

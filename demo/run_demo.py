@@ -412,6 +412,9 @@ def run(args, out: pathlib.Path, user: str) -> int:
     bpy.ops.wm.save_as_mainfile(filepath=str(out / "demo.blend"))
     # Last: each flesh scene replaces the open file with one of its own.
     report.data["flesh"] = flesh.run(out, tegument, stage)
+    import character_demo  # the MakeHuman character; also replaces the open file
+
+    report.data["character"] = character_demo.run(out, stage)
     data = report.data
     data["outputs"] = {
         "blend": str(out / "demo.blend"),

@@ -26,6 +26,9 @@ PICTURES = {
     "flesh_dynamics.png": ("flesh_dynamics.png", 64),
     "flesh_compliance.png": ("flesh_compliance.png", 64),
     "flesh_strain.png": ("flesh_strain.png", 128),
+    # The MakeHuman character (demo/character_demo.py): renders in matplotlib frames, and the heat map.
+    "character_before_after.png": ("character_before_after.png", 128),
+    "character_spike_heat_map.png": ("character_spike_heat_map.png", 128),
 }
 
 
