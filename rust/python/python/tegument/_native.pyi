@@ -27,11 +27,12 @@ class Collider:
     ``positions`` is float32 ``(N, 3)`` in world space, ``triangles`` int32
     ``(T, 3)``. ``thickness`` is the distance kept between skin and surface;
     ``friction`` the static friction coefficient (and the kinetic one unless
-    ``kinetic_friction`` is given). Call :meth:`update` once per frame with the
+    ``kinetic_friction`` is given). Left out, each takes its default from
+    ``tegument.DEFAULTS`` (the add-on's defaults too). Call :meth:`update` once per frame with the
     new world positions: the collider then moves from the previous positions
     to these over the frame, which is what continuous collision detection sees.
     """
-    def __init__(self, positions: Floats, triangles: Indices, thickness: float = ..., friction: float = ..., kinetic_friction: float | None = None) -> None: ...
+    def __init__(self, positions: Floats, triangles: Indices, thickness: float = ..., friction: float | None = None, kinetic_friction: float | None = None) -> None: ...
     @property
     def bvh_rebuilds(self) -> int:
         """How many times the BVH was rebuilt because refitting had degraded it."""
