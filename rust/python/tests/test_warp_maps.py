@@ -171,6 +171,7 @@ def test_corner_values_match_the_numpy_reference():
     # edges, so which triangle owns an edge texel does not matter: only float rounding differs.
     np.testing.assert_allclose(got, want, atol=2e-6)
     assert (got[want == 0] == 0).all() and (got > 0).sum() > 0.5 * N * N
+    assert got.min() >= 0 and got.max() <= 1  # within the corner values' range, as a rigidity must be
 
 
 def test_corner_values_of_ngons_in_another_tile_and_other_dtypes():

@@ -15,7 +15,7 @@ use rayon::prelude::*;
 
 use super::metrics::stretch_error;
 use super::raster::{barycentric, Prepared};
-use super::tiles::udim_offset;
+use super::tiles::{check_corner_uvs, udim_offset};
 use crate::error::{check_allocation, memory_limit};
 use crate::mesh::{validate_positions, MeshInput};
 use crate::{Error, Result};
@@ -46,19 +46,6 @@ fn fan(offsets: &[u32]) -> Vec<[u32; 3]> {
 fn polygon_offsets(polygon_sizes: &[i32], corners: usize) -> Result<Vec<u32>> {
     let stand_in = vec![0i32; corners];
     MeshInput { positions: &[Vec3::ZERO], corner_verts: &stand_in, polygon_sizes }.validate()
-}
-
-fn check_uvs(corner_uvs: &[Vec2], corners: usize) -> Result<()> {
-    if corner_uvs.len() != corners {
-        return Err(Error::invalid(format!(
-            "corner_uvs has {} UVs but the mesh has {corners} face corners (one UV per corner, in Blender's corner order)",
-            corner_uvs.len()
-        )));
-    }
-    if let Some(c) = corner_uvs.iter().position(|uv| !uv.is_finite()) {
-        return Err(Error::invalid(format!("corner_uvs: the UV of corner {c} is not finite ({:?})", corner_uvs[c].to_array())));
-    }
-    Ok(())
 }
 
 fn check_image_size(width: usize, height: usize) -> Result<()> {
@@ -96,10 +83,11 @@ pub fn triangle_ids(corner_uvs: &[Vec2], tris: &[[u32; 3]], udim: u32, width: us
 /// Coverage comes from the watertight fixed-point rasteriser; the weights are
 /// recomputed in `f64` from the unsnapped corners, so a value is the exact
 /// linear interpolation at the texel centre (the snapping only decides, to
-/// 1/4096 texel, which triangle owns a texel on an edge).
+/// 1/4096 texel, which triangle owns a texel on an edge), and never leaves
+/// the range of its triangle's corner values.
 pub fn rasterise_corner_values(corner_uvs: &[Vec2], polygon_sizes: &[i32], values: &[f32], udim: u32, width: usize, height: usize) -> Result<Vec<f32>> {
     let corners = values.len();
-    check_uvs(corner_uvs, corners)?;
+    check_corner_uvs(corner_uvs, corners)?;
     if let Some(c) = values.iter().position(|v| !v.is_finite()) {
         return Err(Error::invalid(format!("corner_values: the value of corner {c} is not finite ({})", values[c])));
     }
@@ -120,7 +108,12 @@ pub fn rasterise_corner_values(corner_uvs: &[Vec2], polygon_sizes: &[i32], value
             let tri = tris[t as usize];
             let corners = texel_triangle(corner_uvs, tri, udim, width, height);
             if let Some(w) = barycentric(corners, [i as f64 + 0.5, j as f64 + 0.5]) {
-                *o = (0..3).map(|k| w[k] * values[tri[k] as usize] as f64).sum::<f64>() as f32;
+                // A texel the snapped triangle covers may lie a hair outside
+                // the exact one: clamped weights keep its value between the
+                // corners' values (a rigidity of 1 stays ≤ 1).
+                let w = w.map(|x| x.max(0.0));
+                let sum = w[0] + w[1] + w[2];
+                *o = ((0..3).map(|k| w[k] * values[tri[k] as usize] as f64).sum::<f64>() / sum) as f32;
             }
         }
     });
@@ -247,7 +240,7 @@ pub fn stretch_map(s: &StretchInput<'_>) -> Result<Vec<f32>> {
         )));
     }
     validate_positions("deformed_positions", s.deformed)?;
-    check_uvs(s.corner_uvs, s.corner_verts.len())?;
+    check_corner_uvs(s.corner_uvs, s.corner_verts.len())?;
     check_image_size(s.width, s.height)?;
     let (w, h) = (s.width, s.height);
     if s.displacement.len() != 2 * w * h {
@@ -334,6 +327,19 @@ mod tests {
                 assert!((img[j * w + i] - want).abs() < 1e-6, "texel ({i}, {j}): {} vs {want}", img[j * w + i]);
             }
         }
+    }
+
+    #[test]
+    fn a_texel_a_hair_outside_the_exact_triangle_keeps_the_corner_range() {
+        // The hypotenuse x + y = t lies 1/10000 texel beyond the centres of the texels on
+        // x + y = 7 (texel units); snapped, it passes through them and owns them (top-left
+        // rule), so they are covered while their exact weights extrapolate past the corners.
+        let (w, h) = (8, 8);
+        let t = 7.0001f32;
+        let uvs = [[t, 0.0], [t, t], [0.0, t]].map(|[x, y]| Vec2::new(x / w as f32, y / h as f32));
+        let img = rasterise_corner_values(&uvs, &[3], &[1.0, 0.0, 1.0], 1001, w, h).unwrap();
+        assert!(img[3 * w + 3] > 0.99, "texel (3, 3) is covered: {img:?}");
+        assert!(img.iter().all(|&v| (0.0..=1.0).contains(&v)), "{img:?}");
     }
 
     #[test]
