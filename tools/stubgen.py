@@ -90,6 +90,12 @@ PARAMS = {
     "path": "str | os.PathLike[str]",
     "array": "Floats",
     "metadata": "dict[str, str] | None",
+    "corner_values": "Floats",
+    "pixels": "Floats",
+    "displacement": "Floats",
+    "rasterise_corner_values.udim": "int",
+    "rasterise_corner_values.shape": "tuple[int, int]",
+    "resample_image.shape": "tuple[int, int]",
 }
 
 # Return types of functions and methods, and types of properties.
@@ -98,6 +104,9 @@ RETURNS = {
     "audit": "AuditReport",
     "write_exr": "None",
     "read_exr": "tuple[Float32, dict[str, str]]",
+    "rasterise_corner_values": "Float32",
+    "resample_image": "Float32",
+    "stretch_map": "Float32",
     "_defaults": "dict[str, Any]",
     "Mesh.vertex_count": "int",
     "Mesh.polygon_count": "int",

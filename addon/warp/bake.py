@@ -24,7 +24,7 @@ import bpy
 import numpy as np
 
 from .. import jobs, mesh_arrays
-from . import heatmap, inputs
+from . import inputs
 from . import node as warp_node
 from .inputs import WarpError
 
@@ -215,8 +215,8 @@ class WarpBakeJob:
         self.heatmaps = {}
         for udim in data.tiles:
             d = self.warp.displacement(udim=udim)
-            error = heatmap.stretch_map(data.rest, self.last_positions, data.corner_verts, data.polygon_sizes,
-                                        data.corner_uvs, udim, d)
+            error = tegument.stretch_map(data.rest, self.last_positions, data.corner_verts, data.polygon_sizes,
+                                         data.corner_uvs, d, udim=udim)
             path = warp_node.heatmap_file(data.directory, self.stem, udim)
             staged = warp_node.heatmap_file(self.staging, self.stem, udim)
             tegument.write_exr(staged, np.ascontiguousarray(error), {

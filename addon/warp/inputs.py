@@ -117,6 +117,8 @@ def without_trailing_subdivision(obj):
 
 def read(node, label: str) -> WarpInputs:
     """Reads and checks the node's inputs; raises WarpError before any file is touched."""
+    import tegument
+
     obj = node.object
     if obj is None:
         raise WarpError(f"{label}: no object: set the node's Object to the deforming mesh")
@@ -145,22 +147,23 @@ def read(node, label: str) -> WarpInputs:
     if not np.isfinite(uvs).all():
         raise WarpError(f"{label}: the UV map \"{uv_map}\" of {obj.name} has non-finite coordinates")
     tiles = raster.udim_tiles(uvs, sizes)
+    shape = (resolution, resolution)
     if node.rigidity_image is not None:
         if len(tiles) > 1:
             raise WarpError(f"{label}: the UVs span UDIM tiles {', '.join(map(str, tiles))}: a rigidity image covers "
                             "one tile; use a Rigidity Group for several")
         grey = image_pixels(node.rigidity_image, "rigidity", label)
-        rigidity = {tiles[0]: raster.resample(grey, resolution, resolution)}
+        rigidity = {tiles[0]: tegument.resample_image(grey, shape)}
     else:
         group = obj.vertex_groups.get(node.rigidity_group)
         if group is None:
             raise WarpError(f"{label}: {obj.name} has no vertex group \"{node.rigidity_group}\"")
         weights = mesh_arrays.vertex_group_weights(mesh, group.index)
-        rigidity = {t: raster.rasterise(uvs, sizes, weights[corners], t, resolution, resolution) for t in tiles}
+        rigidity = {t: tegument.rasterise_corner_values(uvs, sizes, weights[corners], t, shape) for t in tiles}
     mask = None
     if node.mask_image is not None:
         if len(tiles) > 1:
             raise WarpError(f"{label}: the UVs span UDIM tiles {', '.join(map(str, tiles))}: a mask image covers one tile")
-        mask = {tiles[0]: raster.resample(image_pixels(node.mask_image, "mask", label), resolution, resolution)}
+        mask = {tiles[0]: tegument.resample_image(image_pixels(node.mask_image, "mask", label), shape)}
     directory = output_directory(node.directory, label)
     return WarpInputs(obj, uv_map, rest, corners, sizes, uvs, tiles, rigidity, mask, resolution, directory)

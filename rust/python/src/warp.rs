@@ -19,7 +19,7 @@ use pyo3::types::{PyDict, PyTuple};
 use tegument_core::mesh::MeshInput;
 use tegument_core::warp::{self, TileMaps, WarpSettings};
 
-use crate::convert::{float_grid_arg, int_array_arg, positions_arg, run_detached, TegumentError};
+use crate::convert::{float_array_arg, float_grid_arg, int_array_arg, positions_arg, run_detached, TegumentError};
 
 /// Content-aware UV warp of one mesh (seed 001: hierarchical position-based
 /// dynamics on a UV-space grid).
@@ -460,9 +460,107 @@ fn read_exr<'py>(py: Python<'py>, path: PathBuf) -> PyResult<(Bound<'py, PyAny>,
     Ok((array, meta.into_iter().collect()))
 }
 
+/// A UDIM tile number argument (1001 + u + 10·v, u in [0, 10), v in [0, 1000)).
+fn udim_arg(udim: i64) -> PyResult<u32> {
+    if !(1001..=11_000).contains(&udim) {
+        return Err(TegumentError::new_err(format!("udim must be a UDIM tile number between 1001 and 11000, not {udim}")));
+    }
+    Ok(udim as u32)
+}
+
+/// `corner_uvs` as `(C, 2)` UVs.
+fn uvs_arg(obj: &Bound<'_, PyAny>) -> PyResult<Vec<Vec2>> {
+    let (_, flat) = float_grid_arg("corner_uvs", obj, &[None, Some(2)])?;
+    Ok(flat.chunks(2).map(|c| Vec2::new(c[0], c[1])).collect())
+}
+
+/// Interpolates per-corner values (float ``(C,)``, one per face corner)
+/// linearly over the fan-triangulated UV polygons and samples them at the
+/// texel centres of UDIM tile ``udim``: float32 ``shape = (height, width)``,
+/// 0 where no UV triangle covers a texel centre. Turns a vertex group into a
+/// rigidity map. Releases the GIL.
+#[pyfunction]
+#[pyo3(signature = (corner_uvs, polygon_sizes, corner_values, udim, shape))]
+fn rasterise_corner_values<'py>(
+    py: Python<'py>,
+    corner_uvs: &Bound<'py, PyAny>,
+    polygon_sizes: &Bound<'py, PyAny>,
+    corner_values: &Bound<'py, PyAny>,
+    udim: i64,
+    shape: (i64, i64),
+) -> PyResult<Bound<'py, PyAny>> {
+    let uvs = uvs_arg(corner_uvs)?;
+    let sizes = int_array_arg("polygon_sizes", polygon_sizes, None)?;
+    let values = float_array_arg("corner_values", corner_values, Some(uvs.len()))?;
+    let udim = udim_arg(udim)?;
+    let (h, w) = (size_arg("height", shape.0)?, size_arg("width", shape.1)?);
+    let image = run_detached(py, || warp::images::rasterise_corner_values(&uvs, &sizes, &values, udim, w, h))?;
+    Ok(Array2::from_shape_vec((h, w), image).expect("w·h floats").into_pyarray(py).into_any())
+}
+
+/// Bilinear resample of an image ``pixels`` (float ``(h, w)``, row 0 at the
+/// bottom) to the texel centres of a grid of ``shape = (height, width)``
+/// covering the same square; float32. Samples beyond the outer pixel centres
+/// take the edge pixels. Releases the GIL.
+#[pyfunction]
+#[pyo3(signature = (pixels, shape))]
+fn resample_image<'py>(py: Python<'py>, pixels: &Bound<'py, PyAny>, shape: (i64, i64)) -> PyResult<Bound<'py, PyAny>> {
+    let (src, data) = float_grid_arg("pixels", pixels, &[None, None])?;
+    let (h, w) = (size_arg("height", shape.0)?, size_arg("width", shape.1)?);
+    let image = run_detached(py, || warp::images::resample_bilinear(&data, src[1], src[0], w, h))?;
+    Ok(Array2::from_shape_vec((h, w), image).expect("w·h floats").into_pyarray(py).into_any())
+}
+
+/// Per-texel stretch error of texture detail under a warp, float32
+/// ``(height, width)`` for UDIM tile ``udim``: ``max(|ln σ1|, |ln σ2|)`` of
+/// the detail's deformation gradient from the rest to the deformed surface
+/// (the measure :meth:`UvWarp.metrics` aggregates), 0 outside the UV charts,
+/// capped at 34.5 where the warp folds or collapses. ``displacement`` is the
+/// tile's float ``(height, width, 2)`` displacement in texels
+/// (:meth:`UvWarp.displacement`) and sets the grid size. Releases the GIL.
+#[pyfunction]
+#[pyo3(signature = (rest_positions, deformed_positions, corner_verts, polygon_sizes, corner_uvs, displacement, udim=None))]
+#[allow(clippy::too_many_arguments)]
+fn stretch_map<'py>(
+    py: Python<'py>,
+    rest_positions: &Bound<'py, PyAny>,
+    deformed_positions: &Bound<'py, PyAny>,
+    corner_verts: &Bound<'py, PyAny>,
+    polygon_sizes: &Bound<'py, PyAny>,
+    corner_uvs: &Bound<'py, PyAny>,
+    displacement: &Bound<'py, PyAny>,
+    udim: Option<i64>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let rest = positions_arg("rest_positions", rest_positions, None)?;
+    let deformed = positions_arg("deformed_positions", deformed_positions, Some(rest.len()))?;
+    let corner_verts = int_array_arg("corner_verts", corner_verts, None)?;
+    let polygon_sizes = int_array_arg("polygon_sizes", polygon_sizes, None)?;
+    let uvs = uvs_arg(corner_uvs)?;
+    let (shape, disp) = float_grid_arg("displacement", displacement, &[None, None, Some(2)])?;
+    let udim = udim_arg(udim.unwrap_or(1001))?;
+    let (h, w) = (shape[0], shape[1]);
+    let image = run_detached(py, || {
+        warp::images::stretch_map(&warp::images::StretchInput {
+            rest: &rest,
+            deformed: &deformed,
+            corner_verts: &corner_verts,
+            polygon_sizes: &polygon_sizes,
+            corner_uvs: &uvs,
+            udim,
+            width: w,
+            height: h,
+            displacement: &disp,
+        })
+    })?;
+    Ok(Array2::from_shape_vec((h, w), image).expect("w·h floats").into_pyarray(py).into_any())
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<UvWarp>()?;
     m.add_function(wrap_pyfunction!(write_exr, m)?)?;
     m.add_function(wrap_pyfunction!(read_exr, m)?)?;
+    m.add_function(wrap_pyfunction!(rasterise_corner_values, m)?)?;
+    m.add_function(wrap_pyfunction!(resample_image, m)?)?;
+    m.add_function(wrap_pyfunction!(stretch_map, m)?)?;
     Ok(())
 }

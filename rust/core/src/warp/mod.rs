@@ -18,12 +18,14 @@
 //!
 //! Modules: [`raster`] (watertight fixed-point rasteriser), [`tiles`] (UDIM
 //! split, charts), [`layout`] (the UV layout rasterised per tile, automatic
-//! mask, surface metrics), [`maps`] (rigidity/mask hierarchies), [`solver`]
+//! mask, surface metrics), [`maps`] (rigidity/mask hierarchies), [`images`]
+//! (per-texel images for the add-on: corner values, resampling, stretch), [`solver`]
 //! (the PBD hierarchy), [`invert`] (redirection), [`metrics`], [`exr`].
 //!
 //! The method is the subject of US patent 9,959,662 (Disney).
 
 pub mod exr;
+pub mod images;
 pub mod fixtures;
 pub mod invert;
 pub mod layout;

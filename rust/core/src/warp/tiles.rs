@@ -45,15 +45,7 @@ impl UvMesh {
     pub fn new(input: MeshInput<'_>, corner_uvs: &[Vec2]) -> Result<Self> {
         let offsets = input.validate()?;
         let corners = input.corner_verts.len();
-        if corner_uvs.len() != corners {
-            return Err(Error::invalid(format!(
-                "corner_uvs has {} UVs but the mesh has {corners} face corners (one UV per corner, in Blender's corner order)",
-                corner_uvs.len()
-            )));
-        }
-        if let Some(c) = corner_uvs.iter().position(|uv| !uv.is_finite()) {
-            return Err(Error::invalid(format!("corner_uvs: the UV of corner {c} is not finite ({:?})", corner_uvs[c].to_array())));
-        }
+        check_corner_uvs(corner_uvs, corners)?;
         let mut tris = Vec::with_capacity(corners);
         for p in 0..input.polygon_sizes.len() {
             let (s, e) = (offsets[p], offsets[p + 1]);
@@ -100,6 +92,20 @@ impl UvMesh {
         }
         crate::mesh::validate_positions(what, positions)
     }
+}
+
+/// One finite UV per face corner.
+pub(crate) fn check_corner_uvs(corner_uvs: &[Vec2], corners: usize) -> Result<()> {
+    if corner_uvs.len() != corners {
+        return Err(Error::invalid(format!(
+            "corner_uvs has {} UVs but the mesh has {corners} face corners (one UV per corner, in Blender's corner order)",
+            corner_uvs.len()
+        )));
+    }
+    if let Some(c) = corner_uvs.iter().position(|uv| !uv.is_finite()) {
+        return Err(Error::invalid(format!("corner_uvs: the UV of corner {c} is not finite ({:?})", corner_uvs[c].to_array())));
+    }
+    Ok(())
 }
 
 fn find(parent: &mut [u32], mut x: u32) -> u32 {

@@ -19,7 +19,10 @@ from ._native import (
     UvWarp,
     __version__,
     audit,
+    rasterise_corner_values,
     read_exr,
+    resample_image,
+    stretch_map,
     transform_points,
     write_exr,
 )
@@ -45,7 +48,10 @@ __all__ = [
     "UvWarp",
     "__version__",
     "audit",
+    "rasterise_corner_values",
     "read_exr",
+    "resample_image",
+    "stretch_map",
     "transform_points",
     "write_exr",
 ]

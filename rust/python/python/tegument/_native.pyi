@@ -361,10 +361,35 @@ def audit(positions: Floats, corner_verts: Indices, polygon_sizes: Indices, coll
     inside test because they are not closed).
     """
 
+def rasterise_corner_values(corner_uvs: Floats, polygon_sizes: Indices, corner_values: Floats, udim: int, shape: tuple[int, int]) -> Float32:
+    """Interpolates per-corner values (float ``(C,)``, one per face corner)
+    linearly over the fan-triangulated UV polygons and samples them at the
+    texel centres of UDIM tile ``udim``: float32 ``shape = (height, width)``,
+    0 where no UV triangle covers a texel centre. Turns a vertex group into a
+    rigidity map. Releases the GIL.
+    """
+
 def read_exr(path: str | os.PathLike[str]) -> tuple[Float32, dict[str, str]]:
     """Reads an OpenEXR image: returns ``(array, metadata)`` with ``array``
     float32 ``(height, width, C)`` (channels R, G, B, A first; row 0 = lowest
     v) and ``metadata`` the file's text attributes.
+    """
+
+def resample_image(pixels: Floats, shape: tuple[int, int]) -> Float32:
+    """Bilinear resample of an image ``pixels`` (float ``(h, w)``, row 0 at the
+    bottom) to the texel centres of a grid of ``shape = (height, width)``
+    covering the same square; float32. Samples beyond the outer pixel centres
+    take the edge pixels. Releases the GIL.
+    """
+
+def stretch_map(rest_positions: Floats, deformed_positions: Floats, corner_verts: Indices, polygon_sizes: Indices, corner_uvs: Floats, displacement: Floats, udim: int | None = None) -> Float32:
+    """Per-texel stretch error of texture detail under a warp, float32
+    ``(height, width)`` for UDIM tile ``udim``: ``max(|ln σ1|, |ln σ2|)`` of
+    the detail's deformation gradient from the rest to the deformed surface
+    (the measure :meth:`UvWarp.metrics` aggregates), 0 outside the UV charts,
+    capped at 34.5 where the warp folds or collapses. ``displacement`` is the
+    tile's float ``(height, width, 2)`` displacement in texels
+    (:meth:`UvWarp.displacement`) and sets the grid size. Releases the GIL.
     """
 
 def transform_points(points: Floats, matrix: Floats) -> Float32:
