@@ -6,11 +6,13 @@
 //! what the deformers need: unique edges, one-rings ordered with the face
 //! orientation, boundaries, and everything that is not a clean 2-manifold.
 
+mod elements;
 pub mod shapes;
 mod topology;
 mod transform;
 mod validate;
 
+pub use elements::{fan_triangles, polygon_edges, triangle_edges};
 pub use topology::{Topology, TopologyReport};
 pub use transform::transform_points;
 pub use validate::{all_finite, as_vec3, validate_positions, MeshInput};
