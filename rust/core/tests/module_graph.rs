@@ -379,6 +379,29 @@ fn the_core_has_no_module_cycle() {
     }
 }
 
+/// The frame stepper is the one place that drives both the collision passes
+/// and the solver (docs/architecture.md): every other top-level module uses
+/// at most one of them.
+#[test]
+fn only_the_stepper_uses_both_collide_and_solve() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut sources = BTreeMap::new();
+    read_sources(&src, &src, &mut sources);
+    let graph = Crate::new(&sources).edges();
+    let mut uses: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for (from, targets) in &graph {
+        let Some(top) = from.first() else { continue };
+        for target in targets {
+            if let Some(other) = target.first().filter(|t| *t != top) {
+                uses.entry(top.clone()).or_default().insert(other.clone());
+            }
+        }
+    }
+    let both: Vec<&String> =
+        uses.iter().filter(|(_, u)| u.contains("collide") && u.contains("solve")).map(|(m, _)| m).collect();
+    assert_eq!(both, ["sequence"], "top-level modules using both collide and solve");
+}
+
 #[test]
 fn the_check_sees_a_cycle_through_a_reexport_and_an_inline_path() {
     let sources = files(&[
