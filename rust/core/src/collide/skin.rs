@@ -2,7 +2,7 @@
 //! against collider edges, the triangles tested against collider vertices,
 //! and which of them touch each vertex.
 
-use crate::mesh::{fan_triangles, triangle_edges, MeshInput};
+use crate::mesh::{fan_triangles, triangle_edges, vertex_incidence, MeshInput};
 use crate::{Error, Result};
 
 /// The skin's connectivity as the collision passes need it. Build it once
@@ -36,8 +36,8 @@ impl Skin {
                 t.iter().max().copied().unwrap_or(0)
             )));
         }
-        let vertex_edges = incidence(vertex_count, edges.iter().map(|e| &e[..]));
-        let vertex_triangles = incidence(vertex_count, triangles.iter().map(|t| &t[..]));
+        let vertex_edges = vertex_incidence(vertex_count, edges.iter().map(|e| &e[..]));
+        let vertex_triangles = vertex_incidence(vertex_count, triangles.iter().map(|t| &t[..]));
         Ok(Skin { vertex_count, edges, triangles, vertex_edges, vertex_triangles, inverse_mass: None })
     }
 
@@ -109,28 +109,6 @@ impl Skin {
             ascending_unique(also.1.iter().copied().chain(vertices.iter().flat_map(|&v| self.triangles_of(v).iter().copied())), self.triangles.len()),
         )
     }
-}
-
-/// CSR lists of the elements around each of `n` vertices.
-fn incidence<'e>(n: usize, elements: impl Iterator<Item = &'e [u32]> + Clone) -> (Vec<u32>, Vec<u32>) {
-    let mut offsets = vec![0u32; n + 1];
-    for el in elements.clone() {
-        for &v in el {
-            offsets[v as usize + 1] += 1;
-        }
-    }
-    for i in 0..n {
-        offsets[i + 1] += offsets[i];
-    }
-    let mut fill = offsets.clone();
-    let mut list = vec![0u32; offsets[n] as usize];
-    for (k, el) in elements.enumerate() {
-        for &v in el {
-            list[fill[v as usize] as usize] = k as u32;
-            fill[v as usize] += 1;
-        }
-    }
-    (offsets, list)
 }
 
 /// `indices` (each below `count`) ascending, each once: a bit per index

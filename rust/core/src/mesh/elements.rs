@@ -51,3 +51,25 @@ pub fn fan_triangles(corner_verts: &[i32], offsets: &[u32]) -> Vec<[u32; 3]> {
     tris
 }
 
+/// Compressed rows of the elements (edges, triangles) around each of `n`
+/// vertices: `(offsets, element indices)`, each vertex's ascending.
+pub fn vertex_incidence<'e>(n: usize, elements: impl Iterator<Item = &'e [u32]> + Clone) -> (Vec<u32>, Vec<u32>) {
+    let mut offsets = vec![0u32; n + 1];
+    for el in elements.clone() {
+        for &v in el {
+            offsets[v as usize + 1] += 1;
+        }
+    }
+    for i in 0..n {
+        offsets[i + 1] += offsets[i];
+    }
+    let mut fill = offsets.clone();
+    let mut list = vec![0u32; offsets[n] as usize];
+    for (k, el) in elements.enumerate() {
+        for &v in el {
+            list[fill[v as usize] as usize] = k as u32;
+            fill[v as usize] += 1;
+        }
+    }
+    (offsets, list)
+}

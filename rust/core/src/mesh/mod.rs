@@ -12,7 +12,7 @@ mod topology;
 mod transform;
 mod validate;
 
-pub use elements::{fan_triangles, polygon_edges, triangle_edges};
+pub use elements::{fan_triangles, polygon_edges, triangle_edges, vertex_incidence};
 pub use topology::{Topology, TopologyReport};
 pub use transform::transform_points;
 pub use validate::{all_finite, as_vec3, validate_positions, MeshInput};

@@ -171,14 +171,8 @@ impl Encoding {
     /// A copy with the listed vertices moved to the pinned list as `Inexact`.
     pub(super) fn without(&self, drop: &[u32]) -> Encoding {
         let mut out = Encoding {
-            vertices: Vec::new(),
-            ring_offsets: vec![0],
-            ring: Vec::new(),
-            weights: Vec::new(),
-            tangents: Vec::new(),
-            heights: Vec::new(),
             pinned: self.pinned.clone(),
-            ..*self
+            ..Encoding::empty(self.vertex_count, self.scale_safe, self.mean_edge_length)
         };
         for e in 0..self.vertices.len() {
             let v = self.vertices[e];
