@@ -12,7 +12,8 @@ mod common;
 
 use common::{bandwidth_reference_ms, machine, median_ms, with_threads, Report};
 use glam::{DVec3, Vec3};
-use tegument_core::collide::audit::{audit, fan_triangles};
+use tegument_core::collide::audit::audit;
+use tegument_core::mesh::fan_triangles;
 use tegument_core::collide::bvh::{BoxTree, Bounds};
 use tegument_core::collide::ccd::{edge_edge, vertex_triangle, CcdParams};
 use tegument_core::collide::{AuditParams, Clearance, Collider, ColliderSet, ColliderSettings, ResolveParams, Skin};
@@ -42,7 +43,7 @@ struct Scene {
     output: Vec<Vec3>,
 }
 
-/// One frame of collision work, as `PyramidDeformer::step` does it (the
+/// One frame of collision work, as `Sequence::step` does it (the
 /// clearance and planes measured once, at the start of the in-loop passes). The solver
 /// iteration is a stand-in: it pulls the skin halfway back to the flat input.
 fn frame(scene: &mut Scene, k: usize) -> (usize, usize) {

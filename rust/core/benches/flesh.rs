@@ -2,7 +2,7 @@
 //! limits and a compliant collider on the scene of the collision benchmark —
 //! a ~100k-vertex skin (a 316² grid) and a ~20k-triangle quad sphere that
 //! rises into it and slides sideways — through the whole
-//! `PyramidDeformer::step` (pyramid solve, both collision passes, and the
+//! `Sequence::step` (pyramid solve, both collision passes, and the
 //! feature under test), 10 iterations, 2 threads.
 //!
 //! `cargo bench -p tegument-core --bench flesh`
@@ -11,10 +11,11 @@ mod common;
 
 use common::{machine, with_threads, Report};
 use glam::Vec3;
-use tegument_core::collide::audit::fan_triangles;
+use tegument_core::mesh::fan_triangles;
 use tegument_core::collide::{Collider, ColliderSettings};
 use tegument_core::mesh::shapes::{grid, quad_sphere};
-use tegument_core::pyramid::{Closeness, DeformerOptions, Dynamics, PyramidDeformer, StepOptions, StrainMode, StrainOptions};
+use tegument_core::pyramid::{Closeness, DeformerOptions};
+use tegument_core::sequence::{Dynamics, Sequence, StepOptions, StrainMode, StrainOptions};
 use tegument_core::strain::MaxStretch;
 
 const FRAMES: usize = 8;
@@ -70,7 +71,7 @@ fn main() {
     ];
     let mut baseline = None;
     for config in &configs {
-        let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
         let at = |k: usize| sphere.positions.iter().map(|&p| p + centre(k)).collect::<Vec<_>>();
         let mut collider = Collider::new(&at(0), &tris, settings).unwrap();
         if config.compliant {

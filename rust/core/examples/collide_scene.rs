@@ -1,6 +1,6 @@
 //! The collision scene of `bench/blender_bench.py` (a 316² grid skin, 100k
 //! vertices, and a 128 × 80 UV sphere, 20k triangles, rising into it for 5
-//! frames and then sliding) stepped by `PyramidDeformer::step` in the core,
+//! frames and then sliding) stepped by `Sequence::step` in the core,
 //! without Blender: time per frame, contacts, the audit of every frame and,
 //! at the end, how far the resting skin stays from the sphere. For profiling
 //! the collision passes (`perf record` on it) and for checking a change's
@@ -11,7 +11,8 @@
 use glam::Vec3;
 use tegument_core::collide::{audit, AuditParams, Collider, ColliderSettings};
 use tegument_core::mesh::shapes::{grid, uv_sphere_triangles};
-use tegument_core::pyramid::{Closeness, DeformerOptions, PyramidDeformer, StepOptions};
+use tegument_core::pyramid::{Closeness, DeformerOptions};
+use tegument_core::sequence::{Sequence, StepOptions};
 
 /// The sphere's centre at `frame` (1-based), as in `bench/blender_bench.py`.
 fn centre(frame: usize) -> Vec3 {
@@ -27,7 +28,7 @@ fn main() {
     let at = |f: usize| sphere.iter().map(|&p| p + centre(f)).collect::<Vec<_>>();
     let settings = ColliderSettings { thickness: 0.005, static_friction: 0.3, kinetic_friction: 0.2 };
     let mut collider = Collider::new(&at(1), &tris, settings).unwrap();
-    let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+    let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
     let mut times = Vec::new();
     for f in 1..=frames {
         let t = std::time::Instant::now();

@@ -8,6 +8,7 @@ pub mod collide;
 pub mod error;
 pub mod mesh;
 pub mod pyramid;
+pub mod sequence;
 pub mod solve;
 pub mod strain;
 pub mod warp;

@@ -4,7 +4,7 @@
 //! limit is an inequality per edge, `l_e ≤ (1 + ε_e)·l_e⁰`. Here it is a
 //! projection — an over-long edge is shortened to its limit, the correction
 //! split between its ends by their inverse masses — so that it can run in the
-//! same projection loop as the contacts ([`crate::pyramid::StrainMode`]).
+//! same projection loop as the contacts ([`crate::sequence::StrainMode`]).
 //!
 //! The sweep is Gauss–Seidel in edge order: sequential, hence deterministic,
 //! and it converges much faster than a Jacobi average on the long chains of

@@ -9,8 +9,9 @@ use pyo3::types::PyDict;
 use tegument_core::collide::{AuditParams, ColliderSettings};
 use tegument_core::warp::WarpSettings;
 use tegument_core::collide::Collider as CoreCollider;
-use tegument_core::pyramid::{
-    Closeness, DeformerOptions, Dynamics as CoreDynamics, PyramidDeformer as Core, StepOptions, StepReport, StrainMode, StrainOptions,
+use tegument_core::pyramid::{Closeness, DeformerOptions};
+use tegument_core::sequence::{
+    Dynamics as CoreDynamics, Sequence as Core, StepOptions, StepReport, StrainMode, StrainOptions,
 };
 use tegument_core::strain::MaxStretch;
 
@@ -99,7 +100,7 @@ impl PyramidDeformer {
     /// They follow the input positions exactly.
     #[getter]
     fn pinned_vertices<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<i32>>> {
-        let pinned = self.with(py, |core| Ok(core.pinned_vertices()))?;
+        let pinned = self.with(py, |core| Ok(core.deformer().pinned_vertices()))?;
         Ok(indices_to_py(py, &pinned))
     }
 
@@ -128,7 +129,7 @@ impl PyramidDeformer {
             let flat = writable.as_slice_mut().expect("a new C-contiguous array");
             let out: &mut [glam::Vec3] = bytemuck::cast_slice_mut(flat);
             out.copy_from_slice(&input);
-            self.with(py, move |core| core.solve_into(&input, out, iterations, weights.as_closeness(), None))?;
+            self.with(py, move |core| core.deformer_mut().solve_into(&input, out, iterations, weights.as_closeness(), None))?;
         }
         Ok(output)
     }
@@ -175,7 +176,7 @@ impl PyramidDeformer {
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let (input, iterations, weights) = self.frame_args(positions, iterations, closeness)?;
         if substeps < 1 {
-            return Err(TegumentError::new_err(format!("substeps is {substeps}; it must be between 1 and {}", tegument_core::pyramid::MAX_SUBSTEPS)));
+            return Err(TegumentError::new_err(format!("substeps is {substeps}; it must be between 1 and {}", tegument_core::sequence::MAX_SUBSTEPS)));
         }
         let mode = match strain_mode {
             "unified" => StrainMode::Unified,
@@ -271,7 +272,7 @@ impl PyramidDeformer {
     /// relative to the mean rest edge length. 0 at rest and under rigid motion.
     fn residual(&self, py: Python<'_>, positions: &Bound<'_, PyAny>) -> PyResult<f64> {
         let positions = positions_arg("positions", positions, Some(self.vertex_count))?;
-        Ok(self.with(py, move |core| core.residual(&positions))? as f64)
+        Ok(self.with(py, move |core| core.deformer().residual(&positions))? as f64)
     }
 
     fn __repr__(&self) -> String {

@@ -31,7 +31,7 @@ use rayon::prelude::*;
 use super::bvh::Bounds;
 use super::collider::Collider;
 use super::planes::{rounding_margin, LocalPlanes};
-use super::response::Skin;
+use super::skin::{ascending_unique, Skin};
 use crate::mesh::validate_positions;
 use crate::{Error, Result};
 
@@ -297,24 +297,6 @@ pub struct Clear {
     pub vertex: Vec<bool>,
     pub edge: Vec<bool>,
     pub triangle: Vec<bool>,
-}
-
-/// `indices` (each below `count`) ascending, each once: a bit per index
-/// instead of sorting the tens of thousands an element list gathers.
-pub(super) fn ascending_unique(indices: impl Iterator<Item = u32>, count: usize) -> Vec<u32> {
-    let mut bits = vec![0u64; count.div_ceil(64)];
-    for k in indices {
-        bits[k as usize / 64] |= 1 << (k % 64);
-    }
-    let mut out = Vec::with_capacity(bits.iter().map(|w| w.count_ones() as usize).sum());
-    for (w, &word) in bits.iter().enumerate() {
-        let mut word = word;
-        while word != 0 {
-            out.push((w * 64) as u32 + word.trailing_zeros());
-            word &= word - 1;
-        }
-    }
-    out
 }
 
 /// The unproven elements among `listed` (ascending) and around the vertices

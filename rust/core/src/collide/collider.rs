@@ -8,7 +8,7 @@ use glam::Vec3;
 
 use super::bvh::{BoxTree, Bounds, UpdateReport};
 use super::geometry::closest_on_triangle;
-use crate::mesh::validate_positions;
+use crate::mesh::{validate_positions, vertex_incidence};
 use crate::{Error, Result};
 
 /// Thickness and friction of a collider.
@@ -175,7 +175,7 @@ impl Collider {
                 }
             }
         }
-        let (vertex_triangle_offsets, vertex_triangle_list) = incidence(positions.len(), triangles);
+        let (vertex_triangle_offsets, vertex_triangle_list) = vertex_incidence(positions.len(), triangles.iter().map(|t| &t[..]));
         let mut collider = Collider {
             triangles: triangles.to_vec(),
             edges,
@@ -634,28 +634,6 @@ fn edges_of(triangles: &[[u32; 3]]) -> (Vec<[u32; 2]>, Vec<[u32; 3]>, bool) {
         i = j;
     }
     (edges, triangle_edges, closed)
-}
-
-/// CSR lists of the triangles around each of `n` vertices.
-fn incidence(n: usize, triangles: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
-    let mut offsets = vec![0u32; n + 1];
-    for t in triangles {
-        for &v in t {
-            offsets[v as usize + 1] += 1;
-        }
-    }
-    for i in 0..n {
-        offsets[i + 1] += offsets[i];
-    }
-    let mut fill = offsets.clone();
-    let mut list = vec![0u32; offsets[n] as usize];
-    for (k, t) in triangles.iter().enumerate() {
-        for &v in t {
-            list[fill[v as usize] as usize] = k as u32;
-            fill[v as usize] += 1;
-        }
-    }
-    (offsets, list)
 }
 
 /// Triangles of a flat `[a0, b0, c0, a1, …]` index array, checked.

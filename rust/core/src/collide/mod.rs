@@ -10,6 +10,8 @@
 //! * [`collider`]: a triangle mesh moving from last frame to this frame, with
 //!   thickness, friction and a BVH over its swept triangles.
 //! * [`geometry`]: f64 helpers (normals, distances, crossing tests).
+//! * [`inside`]: whether a point is inside a closed collider (ray parity),
+//!   for the solver.
 //! * [`planes`]: supporting planes of the still colliders around the skin in
 //!   contact, measured with the clearance, that prove resting contacts apart
 //!   and lift the vertices the solver pulls back in, without a lookup.
@@ -20,6 +22,8 @@
 //! * [`response`]: [`ColliderSet::resolve_path`], the building block of both
 //!   collision passes (projection, friction, pinched vertices); its module doc
 //!   shows the intended use in seed 000's Algorithm 2.
+//! * [`skin`]: the skin's vertices, edges and triangles as the passes test
+//!   them.
 //! * [`audit`]: penetration audit (vertices inside closed colliders, edges
 //!   crossing in both directions), independent of the solver.
 
@@ -29,9 +33,11 @@ pub mod ccd;
 pub mod clearance;
 pub mod collider;
 pub mod geometry;
+pub mod inside;
 pub mod planes;
 pub mod proximity;
 pub mod response;
+pub mod skin;
 mod slab;
 
 pub use audit::{audit, AuditParams, AuditReport};
@@ -39,7 +45,9 @@ pub use bvh::{BoxTree, Bounds, UpdateReport};
 pub use ccd::{CcdHit, CcdParams};
 pub use clearance::{Clearance, Unproven};
 pub use collider::{Collider, ColliderSettings, Compliance, SurfacePoint};
-pub use response::{ColliderMotion, ColliderSet, ContactStats, ResolveParams, Skin};
+pub use inside::is_inside;
+pub use response::{ColliderMotion, ColliderSet, ContactStats, ResolveParams};
+pub use skin::Skin;
 
 #[cfg(test)]
 mod tests;

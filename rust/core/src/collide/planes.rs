@@ -384,11 +384,11 @@ fn vertex_planes(colliders: &[&Collider], outward: &[f64], p: Vec3, area: &Bound
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::collide::audit::fan_triangles;
+    use crate::mesh::fan_triangles;
     use crate::collide::clearance::Clearance;
     use crate::collide::collider::ColliderSettings;
     use crate::collide::geometry::{point_triangle_distance_squared, triangle_samples};
-    use crate::collide::response::Skin;
+    use crate::collide::skin::Skin;
     use crate::mesh::shapes::{grid, quad_sphere};
     use proptest::prelude::*;
 

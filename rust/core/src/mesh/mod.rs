@@ -7,12 +7,14 @@
 //! orientation, boundaries, and everything that is not a clean 2-manifold;
 //! [`Weld`] joins the vertices an importer split at seams.
 
+mod elements;
 pub mod shapes;
 mod topology;
 mod transform;
 mod validate;
 mod weld;
 
+pub use elements::{fan_triangles, polygon_edges, triangle_edges, vertex_incidence};
 pub use topology::{Topology, TopologyReport};
 pub use transform::transform_points;
 pub use validate::{all_finite, as_vec3, validate_positions, MeshInput};

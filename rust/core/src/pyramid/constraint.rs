@@ -13,7 +13,7 @@ use std::sync::Arc;
 
 use glam::Vec3;
 
-use super::encode::Encoding;
+use super::encoding::Encoding;
 use super::kernel::Packed;
 use super::project::frame;
 use crate::solve::{Constraint, Context, DiagonalChunk, Rows};

@@ -16,7 +16,6 @@ use super::constraint::{PyramidLaplacian, PyramidTargets};
 use super::encode::{encode, Encoding, PinReason};
 use super::project::residual;
 use crate::mesh::{validate_positions, MeshInput, Topology};
-use crate::collide::Skin;
 use crate::solve::{self, ConstraintId, IterationHook, Solver, SystemKind};
 use crate::{Error, Result};
 
@@ -96,44 +95,17 @@ pub struct PyramidDeformer {
     encoding: Arc<Encoding>,
     formulation: Formulation,
     pinned_mask: Vec<bool>,
-    pub(super) solver: Solver,
+    solver: Solver,
     pyramid: ConstraintId,
     closeness: ConstraintId,
     /// The closeness the solver's weights were last set from, so that a
     /// frame with the same closeness as the last one skips rebuilding and
     /// checking two weight arrays (a measurable part of a 10-iteration solve).
     applied: Option<Applied>,
-    /// Edges and triangles for the collision passes (vertices only when
-    /// built from a bare encoding: [`PyramidDeformer::step`] then handles
-    /// vertex contacts only).
-    pub(super) skin: Skin,
-    /// Last output of [`PyramidDeformer::step`]: collision-free, where the
-    /// next frame's first pass starts from.
-    pub(super) history: Option<Vec<Vec3>>,
     /// Per-vertex closeness as last applied to the solver (clamped; pinned
-    /// vertices at [`PINNED_CLOSENESS`]): inertia weights and strain-limit
-    /// inverse masses follow it.
-    pub(super) closeness_weights: Vec<f32>,
-    /// Rest positions (strain limits measure against them).
-    pub(super) rest: Vec<Vec3>,
-    /// The mesh's own edges, which strain limits hold (the collision skin's
-    /// edges also include the diagonals of triangulated polygons).
-    pub(super) mesh_edges: Vec<[u32; 2]>,
-    /// Area around each vertex at rest (a third of its triangles'): masses.
-    pub(super) vertex_area: Vec<f32>,
-    /// Dynamics state: velocities at the end of the last step.
-    pub(super) velocity: Option<Vec<Vec3>>,
-    /// The last step's input: substeps interpolate from it.
-    pub(super) last_input: Option<Vec<Vec3>>,
-    /// The inertia term, added on the first dynamic step.
-    pub(super) inertia: Option<ConstraintId>,
-    /// Target rows of skin giving way to compliant colliders, added on the
-    /// first step that needs them.
-    pub(super) contact_targets: Option<ConstraintId>,
-    /// The skin as a collider, for compliant colliders' vertices to meet.
-    pub(super) skin_collider: Option<crate::collide::Collider>,
-    /// The last substep's in-loop supporting planes, for the next first pass.
-    pub(super) carried_planes: Option<super::step::CarriedPlanes>,
+    /// vertices at [`PINNED_CLOSENESS`]): the stepper's inertia weights and
+    /// strain-limit inverse masses follow it.
+    closeness_weights: Vec<f32>,
 }
 
 /// What [`PyramidDeformer::set_closeness`] last applied.
@@ -148,12 +120,7 @@ impl PyramidDeformer {
     pub fn bind(mesh: MeshInput<'_>, options: DeformerOptions) -> Result<Self> {
         let topology = Topology::build(mesh)?;
         let encoding = Arc::new(encode(&topology, mesh.positions, options.scale_safe)?);
-        let mut deformer = Self::from_encoding(encoding, options.formulation)?;
-        deformer.skin = Skin::from_mesh(mesh)?;
-        deformer.rest = mesh.positions.to_vec();
-        deformer.mesh_edges = crate::collide::audit::polygon_edges(mesh.corner_verts, &mesh.validate()?);
-        deformer.vertex_area = vertex_areas(mesh.positions, deformer.skin.triangles());
-        Ok(deformer)
+        Self::from_encoding(encoding, options.formulation)
     }
 
     /// A deformer over an existing encoding (shared, e.g. to compare formulations).
@@ -179,18 +146,7 @@ impl PyramidDeformer {
             pyramid,
             closeness,
             applied: None,
-            skin: Skin::vertices_only(n),
-            history: None,
             closeness_weights: Vec::new(),
-            rest: Vec::new(),
-            mesh_edges: Vec::new(),
-            vertex_area: vec![1.0; n],
-            velocity: None,
-            last_input: None,
-            inertia: None,
-            contact_targets: None,
-            skin_collider: None,
-            carried_planes: None,
         };
         deformer.set_closeness(Closeness::Default)?;
         Ok(deformer)
@@ -331,30 +287,25 @@ impl PyramidDeformer {
         self.solver.solve(input, positions, iterations, hook)
     }
 
+    /// Per-vertex closeness as last applied (clamped to
+    /// [[`MIN_CLOSENESS`], 1]; pinned vertices at [`PINNED_CLOSENESS`]).
+    pub fn closeness_weights(&self) -> &[f32] {
+        &self.closeness_weights
+    }
+
+    /// The solver, for terms a caller adds around the pyramid and closeness
+    /// rows (the stepper's inertia and contact targets) and for solves with
+    /// an [`IterationHook`]. The pyramid and closeness weights stay the
+    /// deformer's: set them through [`Self::set_closeness`].
+    pub fn solver_mut(&mut self) -> &mut Solver {
+        &mut self.solver
+    }
+
     /// Mean pyramid residual `|x_v − target_v|` over the encoded vertices,
     /// relative to the mean rest edge length (0 when nothing is encoded).
     pub fn residual(&self, positions: &[Vec3]) -> Result<f32> {
         mean_residual(&self.encoding, positions)
     }
-}
-
-/// A third of the area of the triangles around each vertex (1 for a vertex
-/// without triangles, so that it still has a mass).
-fn vertex_areas(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<f32> {
-    let mut area = vec![0.0f32; positions.len()];
-    for t in triangles {
-        let [a, b, c] = t.map(|v| positions[v as usize]);
-        let third = (b - a).cross(c - a).length() / 6.0;
-        for &v in t {
-            area[v as usize] += third;
-        }
-    }
-    for a in &mut area {
-        if !(*a > 0.0) {
-            *a = 1.0;
-        }
-    }
-    area
 }
 
 /// [`PyramidDeformer::residual`] for an encoding.

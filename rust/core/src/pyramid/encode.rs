@@ -27,6 +27,7 @@
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
+pub use super::encoding::{Encoding, PinReason};
 use crate::mesh::Topology;
 use crate::{Error, Result};
 
@@ -43,66 +44,6 @@ const MIN_WEDGE: f64 = 1e-3;
 /// Ring polygons whose vector area is below this fraction of the squared mean
 /// neighbour distance have no usable normal.
 const MIN_RELATIVE_AREA: f64 = 1e-8;
-
-/// Why a vertex is not encoded. Pinned vertices get no pyramid constraint and
-/// follow their input (closeness 1); neighbours still see them.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum PinReason {
-    /// On an open border, with a one-ring too small or too narrow to close
-    /// (fewer than 3 neighbours, or all of them nearly on one line).
-    Boundary,
-    /// Its polygons do not form one fan (non-manifold edge, bow-tie, flipped face).
-    NonManifold,
-    /// No polygon uses it.
-    Isolated,
-    /// Fewer than 3 neighbours.
-    LowValence,
-    /// More than [`MAX_VALENCE`] neighbours.
-    HighValence,
-    /// The ring polygon has (next to) no area, so no normal.
-    ZeroArea,
-    /// The projected vertex is not strictly inside the kernel of its projected
-    /// ring (or coincides with a neighbour): mean-value weights are unreliable.
-    NotStarShaped,
-    /// The encoding does not reproduce the rest position in f32 (safety net,
-    /// like StretchMesh's bind-time self-test).
-    Inexact,
-}
-
-impl PinReason {
-    pub fn describe(self) -> &'static str {
-        match self {
-            PinReason::Boundary => "boundary corner without a usable one-ring",
-            PinReason::NonManifold => "non-manifold",
-            PinReason::Isolated => "isolated",
-            PinReason::LowValence => "fewer than 3 neighbours",
-            PinReason::HighValence => "too many neighbours",
-            PinReason::ZeroArea => "one-ring without area",
-            PinReason::NotStarShaped => "one-ring not star-shaped around the vertex",
-            PinReason::Inexact => "encoding not reproducible in single precision",
-        }
-    }
-}
-
-/// The pyramid coordinates of a mesh.
-#[derive(Debug, Clone)]
-pub struct Encoding {
-    vertex_count: usize,
-    scale_safe: bool,
-    /// Encoded vertices, ascending.
-    vertices: Vec<u32>,
-    /// Per encoded vertex: its neighbours at `ring_offsets[e]..ring_offsets[e+1]`.
-    ring_offsets: Vec<u32>,
-    ring: Vec<u32>,
-    /// Mean-value weight of each neighbour (sum 1 per vertex).
-    weights: Vec<f32>,
-    /// Scale-safe: elevation tangent of each edge `v − v_j` over the plane.
-    tangents: Vec<f32>,
-    /// Plain: signed height of the vertex over its ring's plane.
-    heights: Vec<f32>,
-    pinned: Vec<(u32, PinReason)>,
-    mean_edge_length: f32,
-}
 
 struct Ring {
     weights: Vec<f32>,
@@ -139,39 +80,21 @@ pub fn encode(topology: &Topology, rest: &[Vec3], scale_safe: bool) -> Result<En
         .map(|v| encode_vertex(topology, rest, v, scale_safe))
         .collect();
 
-    let mut encoding = Encoding {
-        vertex_count: n,
-        scale_safe,
-        vertices: Vec::new(),
-        ring_offsets: vec![0],
-        ring: Vec::new(),
-        weights: Vec::new(),
-        tangents: Vec::new(),
-        heights: Vec::new(),
-        pinned: Vec::new(),
-        mean_edge_length,
-    };
+    let mut encoding = Encoding::empty(n, scale_safe, mean_edge_length);
     for (v, result) in results.into_iter().enumerate() {
         match result {
-            Ok(ring) => {
-                encoding.vertices.push(v as u32);
-                encoding.ring.extend_from_slice(topology.one_ring(v));
-                encoding.ring_offsets.push(encoding.ring.len() as u32);
-                encoding.weights.extend_from_slice(&ring.weights);
-                encoding.tangents.extend_from_slice(&ring.tangents);
-                encoding.heights.push(ring.height);
-            }
-            Err(reason) => encoding.pinned.push((v as u32, reason)),
+            Ok(ring) => encoding.push(v as u32, topology.one_ring(v), &ring.weights, &ring.tangents, ring.height),
+            Err(reason) => encoding.pin(v as u32, reason),
         }
     }
 
     // Self-test: the runtime projection (f32) must give back the rest position.
     // Vertices that fail are pinned, and the encoding is rebuilt without them.
     let tolerance = 1e-4 * mean_edge_length.max(f32::MIN_POSITIVE);
-    let inexact: Vec<u32> = (0..encoding.vertices.len())
+    let inexact: Vec<u32> = (0..encoding.len())
         .into_par_iter()
         .filter_map(|e| {
-            let v = encoding.vertices[e];
+            let v = encoding.vertices()[e];
             match super::project::target(&encoding, e, rest) {
                 Some(t) if (t - rest[v as usize]).length() <= tolerance => None,
                 _ => Some(v),
@@ -366,108 +289,3 @@ impl OpenRingClosing {
     }
 }
 
-impl Encoding {
-    pub fn vertex_count(&self) -> usize {
-        self.vertex_count
-    }
-
-    pub fn scale_safe(&self) -> bool {
-        self.scale_safe
-    }
-
-    /// Encoded vertices, ascending.
-    pub fn vertices(&self) -> &[u32] {
-        &self.vertices
-    }
-
-    /// Number of encoded vertices.
-    pub fn len(&self) -> usize {
-        self.vertices.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.vertices.is_empty()
-    }
-
-    /// Neighbours of encoded vertex `e`, counter-clockwise.
-    #[inline]
-    pub fn ring(&self, e: usize) -> &[u32] {
-        &self.ring[self.ring_range(e)]
-    }
-
-    /// Mean-value weights of encoded vertex `e`, in ring order.
-    #[inline]
-    pub fn weights(&self, e: usize) -> &[f32] {
-        &self.weights[self.ring_range(e)]
-    }
-
-    /// Scale-safe elevation tangents of encoded vertex `e` (empty in plain mode).
-    #[inline]
-    pub fn tangents(&self, e: usize) -> &[f32] {
-        if self.scale_safe {
-            &self.tangents[self.ring_range(e)]
-        } else {
-            &[]
-        }
-    }
-
-    /// Plain height of encoded vertex `e` over its ring's plane.
-    #[inline]
-    pub fn height(&self, e: usize) -> f32 {
-        self.heights[e]
-    }
-
-    #[inline]
-    fn ring_range(&self, e: usize) -> std::ops::Range<usize> {
-        self.ring_offsets[e] as usize..self.ring_offsets[e + 1] as usize
-    }
-
-    /// Pinned vertices with the reason, ascending.
-    pub fn pinned(&self) -> &[(u32, PinReason)] {
-        &self.pinned
-    }
-
-    /// Pinned vertex indices, ascending.
-    pub fn pinned_vertices(&self) -> Vec<u32> {
-        self.pinned.iter().map(|p| p.0).collect()
-    }
-
-    /// Mean rest edge length: the unit of [`crate::pyramid::PyramidDeformer::residual`].
-    pub fn mean_edge_length(&self) -> f32 {
-        self.mean_edge_length
-    }
-
-    /// Total stored neighbour entries (for bandwidth estimates).
-    pub fn ring_entries(&self) -> usize {
-        self.ring.len()
-    }
-
-    /// A copy with the listed vertices moved to the pinned list as `Inexact`.
-    fn without(&self, drop: &[u32]) -> Encoding {
-        let mut out = Encoding {
-            vertices: Vec::new(),
-            ring_offsets: vec![0],
-            ring: Vec::new(),
-            weights: Vec::new(),
-            tangents: Vec::new(),
-            heights: Vec::new(),
-            pinned: self.pinned.clone(),
-            ..*self
-        };
-        for e in 0..self.vertices.len() {
-            let v = self.vertices[e];
-            if drop.binary_search(&v).is_ok() {
-                out.pinned.push((v, PinReason::Inexact));
-                continue;
-            }
-            out.vertices.push(v);
-            out.ring.extend_from_slice(self.ring(e));
-            out.ring_offsets.push(out.ring.len() as u32);
-            out.weights.extend_from_slice(self.weights(e));
-            out.tangents.extend_from_slice(self.tangents(e));
-            out.heights.push(self.heights[e]);
-        }
-        out.pinned.sort_unstable_by_key(|p| p.0);
-        out
-    }
-}

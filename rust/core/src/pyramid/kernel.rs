@@ -17,7 +17,7 @@
 
 use glam::Vec3;
 
-use super::encode::Encoding;
+use super::encoding::Encoding;
 use crate::solve::DiagonalChunk;
 
 /// Rows per block.

@@ -23,7 +23,7 @@
 
 use glam::Vec3;
 
-use super::encode::Encoding;
+use super::encoding::Encoding;
 
 /// The exponent field of an f32.
 pub(crate) const EXPONENT: u32 = 0x7f80_0000;

@@ -189,9 +189,12 @@ pub trait Constraint: Send + Sync {
         false
     }
 
-    /// The constraint as settable [`super::Targets`], if it is one: how a
-    /// caller holding only a [`super::ConstraintId`] updates an inertia term.
-    fn as_targets_mut(&mut self) -> Option<&mut super::Targets> {
+    /// Replaces the targets of a constraint whose rows project to settable
+    /// fixed targets (`solve::Targets`): how a caller holding only a
+    /// `ConstraintId` updates an inertia term. `None` when the constraint
+    /// has no such targets. (A method rather than a downcast to the type, so
+    /// that this trait does not depend on one of its implementations.)
+    fn replace_targets(&mut self, _targets: &[Vec3]) -> Option<Result<()>> {
         None
     }
 

@@ -147,8 +147,8 @@ impl Solver {
     pub fn set_targets(&mut self, id: ConstraintId, targets: &[Vec3]) -> Result<()> {
         self.entry(id)?;
         let name = self.entries[id.0].constraint.name().to_string();
-        match self.entries[id.0].constraint.as_targets_mut() {
-            Some(t) => t.set_targets(targets),
+        match self.entries[id.0].constraint.replace_targets(targets) {
+            Some(result) => result,
             None => Err(Error::invalid(format!("constraint {name} has no settable targets"))),
         }
     }

@@ -58,7 +58,7 @@ impl Constraint for Targets {
         self.targets[row]
     }
 
-    fn as_targets_mut(&mut self) -> Option<&mut Targets> {
-        Some(self)
+    fn replace_targets(&mut self, targets: &[Vec3]) -> Option<Result<()>> {
+        Some(self.set_targets(targets))
     }
 }

@@ -333,18 +333,22 @@ fn bary(a: (f32, f32), b: (f32, f32), c: (f32, f32), p: (f32, f32)) -> Option<[f
     Some([la, lb, 1.0 - la - lb])
 }
 
+/// The warped corners of cell `(ci, cj)` — nodes `(i, j)`, `(i+1, j)`,
+/// `(i+1, j+1)`, `(i, j+1)` — relative to the cell's rest corner, so that
+/// everything is O(1) and f32 is exact enough at 16384².
+#[inline(always)]
+fn cell_corners(dx: &[f32], dy: &[f32], w: usize, ci: usize, cj: usize) -> [(f32, f32); 4] {
+    let a = cj * w + ci;
+    let (b, c, d) = (a + 1, a + w + 1, a + w);
+    [(dx[a], dy[a]), (1.0 + dx[b], dy[b]), (1.0 + dx[c], 1.0 + dy[c]), (dx[d], 1.0 + dy[d])]
+}
+
 /// The warped triangles of cell `(ci, cj)` and their weights for the texel
 /// centre `(x, y)` (node-lattice coordinates: node `(i, j)` rests at `(i, j)`):
 /// `[lower-right (a, b, c), upper-left (a, c, d)]`.
 #[inline(always)]
 fn cell_weights(dx: &[f32], dy: &[f32], w: usize, ci: usize, cj: usize, x: usize, y: usize) -> [Option<[f32; 3]>; 2] {
-    let a = cj * w + ci;
-    let (b, c, d) = (a + 1, a + w + 1, a + w);
-    // Relative to the cell's rest corner, so that everything is O(1) and f32 is exact enough at 16384².
-    let pa = (dx[a], dy[a]);
-    let pb = (1.0 + dx[b], dy[b]);
-    let pc = (1.0 + dx[c], 1.0 + dy[c]);
-    let pd = (dx[d], 1.0 + dy[d]);
+    let [pa, pb, pc, pd] = cell_corners(dx, dy, w, ci, cj);
     let p = ((x as i32 as f32 - ci as i32 as f32), (y as i32 as f32 - cj as i32 as f32));
     [bary(pa, pb, pc, p), bary(pa, pc, pd, p)]
 }
@@ -416,13 +420,7 @@ fn walk_cells(dx: &[f32], dy: &[f32], w: usize, h: usize, x: usize, y: usize, st
     let (mut ci, mut cj) = (start.0 as usize, start.1 as usize);
     let cross = |o: (f32, f32), u: (f32, f32), v: (f32, f32)| (u.0 - o.0) * (v.1 - o.1) - (u.1 - o.1) * (v.0 - o.0);
     for step in 1..=max_steps {
-        let a = cj * w + ci;
-        let (b, c, d) = (a + 1, a + w + 1, a + w);
-        // Relative to the cell's rest corner, so that everything is O(1) and f32 is exact enough at 16384².
-        let pa = (dx[a], dy[a]);
-        let pb = (1.0 + dx[b], dy[b]);
-        let pc = (1.0 + dx[c], 1.0 + dy[c]);
-        let pd = (dx[d], 1.0 + dy[d]);
+        let [pa, pb, pc, pd] = cell_corners(dx, dy, w, ci, cj);
         let p = (xf - ci as i32 as f32, yf - cj as i32 as f32);
         // Lower-right triangle (a, b, c): edge functions = weights × area.
         let area0 = cross(pa, pb, pc);

@@ -56,6 +56,12 @@ pub const BYTES_PER_TEXEL: u64 = 56;
 /// Default memory limit: enough for 4096² tiles, not for 16384².
 pub const DEFAULT_MEMORY_LIMIT: u64 = 3 << 30;
 
+/// Under-relaxation of each projection: a rigid segment moves half way to its
+/// rest length per visit. Full steps (1.0) converge a little faster on smooth
+/// fixtures but oscillate and fold where neighbouring constraints disagree
+/// (Spot's small, unevenly stretched triangles).
+pub(crate) const RELAXATION: f32 = 0.5;
+
 /// Solver settings.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WarpSettings {

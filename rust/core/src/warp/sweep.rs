@@ -27,7 +27,7 @@
 //! enabled (eight lanes per instruction instead of four); no FMA, so both
 //! versions round identically.
 
-use super::solver::RELAXATION;
+use super::RELAXATION;
 
 /// Whether the CPU has AVX2 (the kernels here and in [`super::invert`] have an AVX2 build).
 pub(crate) fn has_avx2() -> bool {
@@ -188,7 +188,7 @@ struct Coefficients {
 }
 
 impl Coefficients {
-    /// Exactly the reference's arithmetic (`solver::Ctx::project`), so that the
+    /// Exactly the reference's arithmetic (`solver::reference::Ctx::project`), so that the
     /// sweeps stay bitwise equal to it.
     fn push(&mut self, ra: u8, rb: u8, mka: u8, mkb: u8) {
         let ma = mka as f32 * (1.0 - 0.9 / 255.0 * ra as f32);
@@ -487,7 +487,7 @@ struct Lanes<'a, const N: usize> {
     l02: &'a [f32; N],
 }
 
-/// The reference projection (`solver::Ctx::project`), branch-free over
+/// The reference projection (`solver::reference::Ctx::project`), branch-free over
 /// `N` independent constraints; writes the corrections of node a
 /// (subtracted) and node b (added).
 #[inline(always)]
@@ -528,7 +528,7 @@ fn project_lanes<const ORIENT: bool, const N: usize>(i: &Lanes<'_, N>, ex: f32, 
 
 /// Regularisation of one row `y` (seed eqs. 4–5 plus the 8-neighbourhood box
 /// clamp) from `dx`, `dy` into `ox`, `oy`; the reference is
-/// `solver::regularise_reference`.
+/// `solver::reference::regularise_reference`.
 #[allow(clippy::too_many_arguments)]
 pub fn regularise_row(dx: &[f32], dy: &[f32], rig: &[u8], mask: &[u8], w: usize, h: usize, y: usize, smoothing: f32, ox: &mut [f32], oy: &mut [f32], avx2: bool) {
     #[cfg(target_arch = "x86_64")]

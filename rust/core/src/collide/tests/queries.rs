@@ -9,7 +9,7 @@ use crate::mesh::shapes::grid;
 fn plane() -> Collider {
     let mesh = grid(8, 8, 2.0);
     let offsets: Vec<u32> = (0..=mesh.polygon_sizes.len() as u32).map(|k| 4 * k).collect();
-    let tris = crate::collide::audit::fan_triangles(&mesh.corner_verts, &offsets);
+    let tris = crate::mesh::fan_triangles(&mesh.corner_verts, &offsets);
     Collider::new(&mesh.positions, &tris, ColliderSettings::new(0.0, 0.0)).unwrap()
 }
 

@@ -2,7 +2,8 @@
 
 use glam::Vec3;
 
-use crate::collide::audit::{audit, fan_triangles, AuditParams};
+use crate::collide::audit::{audit, AuditParams};
+use crate::mesh::fan_triangles;
 use crate::collide::{Clearance, Collider, ColliderSet, ColliderSettings, ResolveParams, Skin};
 use crate::mesh::shapes::{grid, quad_sphere, PolyMesh};
 
@@ -229,9 +230,9 @@ fn audit_inside_test_matches_distance_on_a_sphere() {
         let r = (p - Vec3::new(0.1, -0.2, 0.3)).length();
         // The polygonal sphere lies between radius ~0.97 and 1.
         if r < 0.95 {
-            assert!(crate::collide::audit::is_inside(&sphere, p, 1e-4), "{p:?} r={r}");
+            assert!(crate::collide::is_inside(&sphere, p, 1e-4), "{p:?} r={r}");
         } else if r > 1.01 {
-            assert!(!crate::collide::audit::is_inside(&sphere, p, 1e-4), "{p:?} r={r}");
+            assert!(!crate::collide::is_inside(&sphere, p, 1e-4), "{p:?} r={r}");
         }
     }
 }

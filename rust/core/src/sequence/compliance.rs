@@ -29,7 +29,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::dynamics::STIFFNESS_DENSITY;
-use crate::collide::audit::is_inside;
+use crate::collide::is_inside;
 use crate::collide::{Collider, ColliderMotion, ColliderSet, ColliderSettings, ContactStats, ResolveParams, Skin};
 use crate::Result;
 
@@ -39,7 +39,7 @@ use crate::Result;
 /// between them inside it wherever the skin curves, and resolving those
 /// contacts shoves the vertices sideways by amounts that depend on the path
 /// (1 and 4 substeps then differ by 10% of the motion). At two thicknesses
-/// they agree within 1% (`step_tests::compliance`).
+/// they agree within 1% (`sequence::tests::compliance`).
 const CLEARANCE: f32 = 2.0;
 
 /// Target rows that make the skin give way to compliant colliders: per skin

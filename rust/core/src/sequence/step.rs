@@ -1,145 +1,24 @@
-//! Frame-to-frame stepping with collisions: seed 000, Algorithm 2, with the
-//! additions of seed 002 (compliant colliders, strain limits) and seed 000 §4
-//! (dynamics).
-//!
-//! [`PyramidDeformer::step`] keeps its last output, which is free of
-//! collisions, and splits each new frame into substeps (input and colliders
-//! interpolated linearly). Each substep
-//!
-//! 1. moves the compliant colliders' vertices from where they are towards
-//!    their animated positions, stopping at the skin (they recede on contact),
-//!    and gives the skin target rows where it heads into their animated
-//!    shapes, so that it gives way in proportion to their stiffness
-//!    ([`super::compliance`]);
-//! 2. moves every skin vertex from the last output towards this substep's
-//!    input (or, with dynamics, its inertial prediction) while the colliders
-//!    sweep over the substep, stopping and projecting at contacts, with
-//!    friction (first pass, [`ResolveParams::first_pass`]);
-//! 3. runs the projective solve from there, and after every iteration
-//!    * detects and resolves contacts along each vertex's move during that
-//!      iteration (second pass, [`ResolveParams::in_loop`]), compliant
-//!      colliders standing still;
-//!    * with strain limits in [`StrainMode::Unified`], alternates edge
-//!      shortening and contact resolution until both hold;
-//!    * lets the compliant vertices move back towards their goals, stopping
-//!      at the skin again.
-//!
-//! Every move in this sequence is checked by continuous collision detection
-//! from a collision-free start, which is what keeps the result free of
-//! penetrations. Vertices squeezed between colliders so that no projection
-//! frees them are *pinched*: they are counted, kept within a bounded distance
-//! of where the solver wanted them, and never NaN (see
-//! [`crate::collide::response`]).
+//! [`Sequence::step`]: one frame, split into substeps (see the module
+//! documentation of [`super`]).
 
 use glam::Vec3;
 
 use super::compliance::{compliant_skin, contact_targets, recede_from};
-use super::deformer::{Closeness, PyramidDeformer};
 use super::dynamics::{kinetic_energy, Dynamics, MAX_SUBSTEPS};
-use crate::collide::audit::is_inside;
+use super::options::{accumulate, StepOptions, StepReport, StrainMode};
+use super::strain_pass::{limit_strain_with_contacts, POST_STRAIN_SWEEPS, STRAIN_ROUNDS, STRAIN_ROUNDS_EARLY, STRAIN_TOLERANCE};
+use super::Sequence;
+use crate::collide::is_inside;
 use crate::collide::planes::LocalPlanes;
-use crate::collide::{Clearance, Collider, ColliderSet, ColliderSettings, ContactStats, ResolveParams, Skin};
+use crate::collide::{Clearance, Collider, ColliderSet, ColliderSettings, ResolveParams, Skin};
 use crate::mesh::validate_positions;
-use crate::solve::{Targets, IterationHook};
-use crate::strain::{EdgeLimits, MaxStretch};
+use crate::pyramid::MAX_ITERATIONS;
+use crate::pyramid::PyramidDeformer;
+use crate::solve::{ConstraintId, IterationHook, Targets};
+use crate::strain::EdgeLimits;
 use crate::{Error, Result};
 
-/// When strain limits are enforced relative to the contacts (seed 002 §2).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum StrainMode {
-    /// In the same projection loop as the contacts, after every iteration,
-    /// until both hold: no penetration and no edge over its limit.
-    #[default]
-    Unified,
-    /// Once after the solve and its collision passes, unaware of the
-    /// colliders: edges hold, but shortening them can pull skin back into a
-    /// collider. Kept to show the difference.
-    Post,
-}
-
-impl StrainMode {
-    pub fn name(self) -> &'static str {
-        match self {
-            StrainMode::Unified => "unified",
-            StrainMode::Post => "post",
-        }
-    }
-}
-
-/// Strain limits of a step.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StrainOptions<'a> {
-    pub max_stretch: MaxStretch<'a>,
-    pub mode: StrainMode,
-}
-
-/// Everything one [`PyramidDeformer::step`] is asked to do.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StepOptions<'a> {
-    /// Solver iterations per substep.
-    pub iterations: usize,
-    pub closeness: Closeness<'a>,
-    /// Substeps per frame (1..=[`MAX_SUBSTEPS`]): input and colliders are
-    /// interpolated linearly from the last frame's.
-    pub substeps: usize,
-    pub dynamics: Option<Dynamics>,
-    pub strain: Option<StrainOptions<'a>>,
-}
-
-impl Default for StepOptions<'_> {
-    fn default() -> Self {
-        StepOptions { iterations: 10, closeness: Closeness::Default, substeps: 1, dynamics: None, strain: None }
-    }
-}
-
-impl<'a> StepOptions<'a> {
-    /// `iterations` iterations with `closeness`, everything else off.
-    pub fn new(iterations: usize, closeness: Closeness<'a>) -> Self {
-        StepOptions { iterations, closeness, ..Default::default() }
-    }
-}
-
-/// Gauss–Seidel sweeps of the strain projection per round of the unified loop.
-const STRAIN_SWEEPS: usize = 8;
-/// Rounds of (strain sweeps, contact resolution) in the last iteration of the
-/// unified loop, until both hold; earlier iterations run
-/// [`STRAIN_ROUNDS_EARLY`]: the next iteration's solve moves the skin anyway,
-/// and every round costs a whole contact pass (16 rounds in every iteration
-/// took 18 s per frame on the 100k-vertex benchmark scene).
-const STRAIN_ROUNDS: usize = 16;
-const STRAIN_ROUNDS_EARLY: usize = 2;
-/// Relative excess over an edge's limit that counts as holding.
-const STRAIN_TOLERANCE: f32 = 1e-3;
-/// Sweeps of the post-collision strain pass.
-const POST_STRAIN_SWEEPS: usize = STRAIN_SWEEPS * STRAIN_ROUNDS;
-
-/// What one [`PyramidDeformer::step`] did about contacts, dynamics and strain.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct StepReport {
-    /// The first pass (last output → this frame's input, colliders sweeping),
-    /// summed over substeps.
-    pub first_pass: ContactStats,
-    /// Contacts resolved by the in-loop passes, over all iterations.
-    pub in_loop_contacts: usize,
-    /// Vertices any pass of this frame left pinched (ascending).
-    pub pinched: Vec<u32>,
-    /// Largest correction one in-loop pass applied to one vertex.
-    pub max_in_loop_correction: f32,
-    /// Kinetic energy at the end of the step (0 without dynamics).
-    pub kinetic_energy: f64,
-    /// Largest `length / rest length` over the strain-limited edges at the
-    /// end of the step (0 without strain limits).
-    pub worst_stretch: f32,
-    /// Contacts that stopped compliant collider vertices at the skin.
-    pub compliant_contacts: usize,
-    /// Skin vertices giving way to compliant colliders (most in one substep).
-    pub compliant_skin_vertices: usize,
-    /// Largest distance of a compliant collider vertex from its animated
-    /// position at the end of the step: how far the colliders receded.
-    pub max_recession: f32,
-}
-
-impl PyramidDeformer {
+impl Sequence {
     /// Solves the next frame of a sequence against `colliders` (already
     /// [`Collider::update`]-d to this frame) and remembers the result as the
     /// start of the next one. The first call, and the first after
@@ -164,14 +43,14 @@ impl PyramidDeformer {
         if let Some(dynamics) = &options.dynamics {
             dynamics.validate()?;
         }
-        if options.iterations > super::deformer::MAX_ITERATIONS {
+        if options.iterations > MAX_ITERATIONS {
             return Err(Error::invalid(format!(
                 "iterations is {}; at most {} are allowed",
                 options.iterations,
-                super::deformer::MAX_ITERATIONS
+                MAX_ITERATIONS
             )));
         }
-        self.set_closeness(options.closeness)?;
+        self.deformer.set_closeness(options.closeness)?;
         let limits = match options.strain {
             Some(strain) => {
                 if self.rest.is_empty() {
@@ -299,7 +178,7 @@ impl PyramidDeformer {
             }
         };
         // Where compliant colliders' goals overlap that, the skin gives way.
-        let contacts = contact_targets(&target, &self.closeness_weights, colliders, goals)?;
+        let contacts = contact_targets(&target, self.deformer.closeness_weights(), colliders, goals)?;
         report.compliant_skin_vertices = report.compliant_skin_vertices.max(contacts.as_ref().map_or(0, |(_, w)| w.iter().filter(|&&w| w > 0.0).count()));
         self.set_contact_targets(contacts)?;
         let mut x = target;
@@ -335,7 +214,7 @@ impl PyramidDeformer {
         // 3. The solve, with the in-loop passes after every iteration.
         // Strain projections move a vertex in proportion to how free it is.
         let inverse_mass: Vec<f32> = match limits {
-            Some(_) => self.closeness_weights.iter().map(|&c| 1.0 - c.min(1.0)).collect(),
+            Some(_) => self.deformer.closeness_weights().iter().map(|&c| 1.0 - c.min(1.0)).collect(),
             None => Vec::new(),
         };
         let mut last_pinched: Vec<u32> = suspects.clone();
@@ -378,7 +257,7 @@ impl PyramidDeformer {
         };
         let hook: Option<&mut dyn IterationHook> =
             if any_colliders || unified.is_some() { Some(&mut in_loop) } else { None };
-        self.solver.solve(input, &mut x, options.iterations, hook)?;
+        self.deformer.solver_mut().solve(input, &mut x, options.iterations, hook)?;
         self.carried_planes = clearance.and_then(Clearance::into_planes).map(|planes| CarriedPlanes {
             planes,
             colliders: colliders.iter().map(|c| (c.current().to_vec(), c.triangles().to_vec(), c.settings())).collect(),
@@ -410,109 +289,57 @@ impl PyramidDeformer {
     /// Turns the inertia term on (targets = the prediction, weights from the
     /// closeness and `h`) or off (weights 0).
     fn set_inertia(&mut self, on: Option<(&Dynamics, f32, &[Vec3])>) -> Result<()> {
-        match on {
-            Some((dynamics, h, prediction)) => {
-                let id = match self.inertia {
-                    Some(id) => id,
-                    None => {
-                        let all: Vec<u32> = (0..self.vertex_count() as u32).collect();
-                        let id = self.solver.add(Box::new(Targets::new("inertia", &all)), vec![0.0; all.len()])?;
-                        self.inertia = Some(id);
-                        id
-                    }
-                };
-                let scale = dynamics.inertia_scale(h);
-                let weights: Vec<f32> = self.closeness_weights.iter().map(|&c| (1.0 - c.min(1.0)) * scale).collect();
-                self.solver.set_weights(id, &weights)?;
-                self.solver.set_targets(id, prediction)
-            }
-            None => match self.inertia {
-                Some(id) if self.solver.weights(id)?.iter().any(|&w| w != 0.0) => {
-                    let zeros = vec![0.0; self.vertex_count()];
-                    self.solver.set_weights(id, &zeros)
-                }
-                _ => Ok(()),
-            },
-        }
+        let rows = on.map(|(dynamics, h, prediction)| {
+            let scale = dynamics.inertia_scale(h);
+            let weights: Vec<f32> = self.deformer.closeness_weights().iter().map(|&c| (1.0 - c.min(1.0)) * scale).collect();
+            (prediction, weights)
+        });
+        let rows = rows.as_ref().map(|(targets, weights)| (*targets, &weights[..]));
+        set_target_rows(&mut self.deformer, &mut self.inertia, "inertia", rows)
     }
-}
 
-impl PyramidDeformer {
     /// Sets the rows that make the skin give way to compliant colliders
     /// ([`contact_targets`]), or turns them off.
     fn set_contact_targets(&mut self, rows: Option<(Vec<Vec3>, Vec<f32>)>) -> Result<()> {
-        match rows {
-            Some((targets, weights)) => {
-                let id = match self.contact_targets {
-                    Some(id) => id,
-                    None => {
-                        let all: Vec<u32> = (0..self.vertex_count() as u32).collect();
-                        let id = self.solver.add(Box::new(Targets::new("compliant contacts", &all)), vec![0.0; all.len()])?;
-                        self.contact_targets = Some(id);
-                        id
-                    }
-                };
-                self.solver.set_weights(id, &weights)?;
-                self.solver.set_targets(id, &targets)
-            }
-            None => match self.contact_targets {
-                Some(id) if self.solver.weights(id)?.iter().any(|&w| w != 0.0) => {
-                    let zeros = vec![0.0; self.vertex_count()];
-                    self.solver.set_weights(id, &zeros)
-                }
-                _ => Ok(()),
-            },
-        }
+        let rows = rows.as_ref().map(|(targets, weights)| (&targets[..], &weights[..]));
+        set_target_rows(&mut self.deformer, &mut self.contact_targets, "compliant contacts", rows)
     }
 }
 
-/// Unified strain limiting (seed 002 §2): edge shortening and contact
-/// resolution alternate until both hold or the rounds run out. Returns the
-/// vertices the last contact resolution left pinched.
-fn limit_strain_with_contacts(
-    limits: &EdgeLimits,
-    colliders: &[&mut Collider],
-    x: &mut [Vec3],
-    skin: &Skin,
-    inverse_mass: &[f32],
-    rounds: usize,
-    clearance: Option<&Clearance>,
-) -> Result<Vec<u32>> {
-    let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
-    let set = ColliderSet::new(refs);
-    let mut pinched = Vec::new();
-    for _ in 0..rounds {
-        if limits.worst_ratio(x) <= 1.0 + STRAIN_TOLERANCE {
-            break;
+/// Gives the per-vertex target rows in `slot` these targets and weights,
+/// adding them to the solver the first time, or turns them off (weights 0,
+/// written only if some are not already 0, so that the factorisation stays).
+fn set_target_rows(
+    deformer: &mut PyramidDeformer,
+    slot: &mut Option<ConstraintId>,
+    name: &str,
+    rows: Option<(&[Vec3], &[f32])>,
+) -> Result<()> {
+    let n = deformer.vertex_count();
+    let solver = deformer.solver_mut();
+    match rows {
+        Some((targets, weights)) => {
+            let id = match *slot {
+                Some(id) => id,
+                None => {
+                    let all: Vec<u32> = (0..n as u32).collect();
+                    let id = solver.add(Box::new(Targets::new(name, &all)), vec![0.0; all.len()])?;
+                    *slot = Some(id);
+                    id
+                }
+            };
+            solver.set_weights(id, weights)?;
+            solver.set_targets(id, targets)
         }
-        let mut shortened = x.to_vec();
-        limits.project(&mut shortened, inverse_mass, STRAIN_SWEEPS, STRAIN_TOLERANCE);
-        if !set.colliders().is_empty() {
-            pinched = set.resolve_path_with(x, &mut shortened, skin, &ResolveParams::in_loop(), clearance)?.pinched;
-        }
-        x.copy_from_slice(&shortened);
+        None => match *slot {
+            Some(id) if solver.weights(id)?.iter().any(|&w| w != 0.0) => solver.set_weights(id, &vec![0.0; n]),
+            _ => Ok(()),
+        },
     }
-    Ok(pinched)
 }
 
 fn lerp(a: &[Vec3], b: &[Vec3], t: f32) -> Vec<Vec3> {
     a.iter().zip(b).map(|(a, b)| a.lerp(*b, t)).collect()
-}
-
-/// Adds a substep's first-pass figures to the frame's.
-pub(super) fn accumulate(total: &mut ContactStats, part: &ContactStats) {
-    total.vertex_contacts += part.vertex_contacts;
-    total.edge_contacts += part.edge_contacts;
-    total.collider_vertex_contacts += part.collider_vertex_contacts;
-    total.plane_lifts += part.plane_lifts;
-    total.rounds += part.rounds;
-    total.max_correction = total.max_correction.max(part.max_correction);
-    total.moved.extend_from_slice(&part.moved);
-    total.moved.sort_unstable();
-    total.moved.dedup();
-    total.pinched.extend_from_slice(&part.pinched);
-    total.pinched.sort_unstable();
-    total.pinched.dedup();
 }
 
 /// The last pass's pinched vertices, and the earlier ones that ended inside a
@@ -550,43 +377,6 @@ impl CarriedPlanes {
     }
 }
 
-impl PyramidDeformer {
-    /// Forgets the last output and the dynamics state: the next
-    /// [`Self::step`] starts from its input, at rest.
-    pub fn reset(&mut self) {
-        self.history = None;
-        self.velocity = None;
-        self.last_input = None;
-    }
-
-    /// Makes `positions` the last output, as if a step had produced them:
-    /// a bake resuming after frames already cached starts from the last of
-    /// them (at rest, and without substep interpolation from the input
-    /// before it). They must be free of collisions for the next step's
-    /// guarantee.
-    pub fn set_history(&mut self, positions: &[Vec3]) -> Result<()> {
-        let n = self.vertex_count();
-        if positions.len() != n {
-            return Err(Error::invalid(format!("history: {} vertices given, the deformer has {n}", positions.len())));
-        }
-        validate_positions("history", positions)?;
-        self.history = Some(positions.to_vec());
-        self.velocity = None;
-        self.last_input = None;
-        Ok(())
-    }
-
-    /// The last output of [`Self::step`], if any.
-    pub fn history(&self) -> Option<&[Vec3]> {
-        self.history.as_deref()
-    }
-
-    /// Velocities at the end of the last dynamic step, if any.
-    pub fn velocity(&self) -> Option<&[Vec3]> {
-        self.velocity.as_deref()
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use glam::Vec3;
@@ -594,18 +384,18 @@ mod tests {
     use super::*;
     use crate::collide::{audit, AuditParams, ColliderSettings};
     use crate::mesh::shapes::{grid, quad_sphere, PolyMesh};
-    use crate::pyramid::DeformerOptions;
+    use crate::pyramid::{Closeness, DeformerOptions};
 
     struct Scene {
         skin: PolyMesh,
-        deformer: PyramidDeformer,
+        deformer: Sequence,
         sphere: PolyMesh,
         triangles: Vec<[u32; 3]>,
     }
 
     fn scene() -> Scene {
         let skin = grid(40, 40, 2.0);
-        let deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
         let sphere = quad_sphere(8, 0.3);
         let offsets: Vec<u32> = std::iter::once(0)
             .chain(sphere.polygon_sizes.iter().scan(0u32, |acc, &s| {
@@ -613,7 +403,7 @@ mod tests {
                 Some(*acc)
             }))
             .collect();
-        let triangles = crate::collide::audit::fan_triangles(&sphere.corner_verts, &offsets);
+        let triangles = crate::mesh::fan_triangles(&sphere.corner_verts, &offsets);
         Scene { skin, deformer, sphere, triangles }
     }
 
@@ -714,7 +504,7 @@ mod tests {
     fn without_colliders_step_is_the_solve_and_reset_forgets() {
         let mut scene = scene();
         let input: Vec<Vec3> = scene.skin.positions.iter().map(|p| *p + Vec3::new(0.0, 0.0, p.x * p.x)).collect();
-        let solved = scene.deformer.solve(&input, 10, Closeness::Default).unwrap();
+        let solved = scene.deformer.deformer_mut().solve(&input, 10, Closeness::Default).unwrap();
         let (stepped, report) = scene.deformer.step(&input, &mut [], &StepOptions::default()).unwrap();
         assert_eq!(solved, stepped);
         assert_eq!(report, StepReport::default());
@@ -732,12 +522,12 @@ mod uv_sphere_tests {
     use super::*;
     use crate::collide::{audit, AuditParams, ColliderSettings};
     use crate::mesh::shapes::{grid, uv_sphere_triangles};
-    use crate::pyramid::DeformerOptions;
+    use crate::pyramid::{Closeness, DeformerOptions};
 
     #[test]
     fn a_uv_sphere_crossing_the_skin_in_one_frame_does_not_tunnel() {
         let skin = grid(40, 40, 2.0);
-        let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
         let (sphere, tris) = uv_sphere_triangles(32, 16, 0.3);
         let at = |z: f32| sphere.iter().map(|p| *p + Vec3::Z * z).collect::<Vec<_>>();
         let settings = ColliderSettings { thickness: 0.01, static_friction: 0.0, kinetic_friction: 0.0 };
@@ -763,17 +553,17 @@ mod open_collider_tests {
     use super::*;
     use crate::collide::{audit, AuditParams, ColliderSettings};
     use crate::mesh::shapes::grid;
-    use crate::pyramid::DeformerOptions;
+    use crate::pyramid::{Closeness, DeformerOptions};
 
     /// The rim of a board rising through the skin meets the draped skin along
     /// the diagonals of its quads: the collision skin must test them.
     #[test]
     fn an_open_board_rising_through_the_skin_in_one_frame_carries_it() {
         let skin = grid(40, 40, 2.0);
-        let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
         let board = grid(8, 8, 0.8);
         let offsets: Vec<u32> = (0..=board.polygon_sizes.len() as u32).map(|k| 4 * k).collect();
-        let tris = crate::collide::audit::fan_triangles(&board.corner_verts, &offsets);
+        let tris = crate::mesh::fan_triangles(&board.corner_verts, &offsets);
         let at = |z: f32| board.positions.iter().map(|p| *p + Vec3::Z * z).collect::<Vec<_>>();
         let settings = ColliderSettings { thickness: 0.01, static_friction: 0.3, kinetic_friction: 0.2 };
         let mut collider = Collider::new(&at(-0.3), &tris, settings).unwrap();
@@ -790,3 +580,4 @@ mod open_collider_tests {
         }
     }
 }
+

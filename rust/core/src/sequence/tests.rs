@@ -1,10 +1,10 @@
 //! Dynamics, compliant colliders and strain limits through
-//! [`PyramidDeformer::step`] (seed 000 §4, seed 002).
+//! [`Sequence::step`] (seed 000 §4, seed 002).
 
 use glam::Vec3;
 
-use super::step::{StepOptions, StepReport, StrainMode, StrainOptions};
-use super::{Closeness, DeformerOptions, Dynamics, PyramidDeformer};
+use super::{Dynamics, Sequence, StepOptions, StepReport, StrainMode, StrainOptions};
+use crate::pyramid::{Closeness, DeformerOptions};
 use crate::collide::{audit, AuditParams, Collider, ColliderSettings};
 use crate::mesh::shapes::{grid, quad_sphere, PolyMesh};
 use crate::mesh::MeshInput;
@@ -26,7 +26,7 @@ fn sphere(radius: f32) -> (PolyMesh, Vec<[u32; 3]>) {
             Some(*acc)
         }))
         .collect();
-    let triangles = crate::collide::audit::fan_triangles(&mesh.corner_verts, &offsets);
+    let triangles = crate::mesh::fan_triangles(&mesh.corner_verts, &offsets);
     (mesh, triangles)
 }
 
@@ -50,7 +50,7 @@ mod dynamics {
     /// output centroid's x per frame and the last output.
     fn translate_and_stop(options: &StepOptions<'_>, frames: usize) -> (Vec<f32>, Vec<Vec3>, Vec<StepReport>) {
         let skin = grid(12, 12, 1.0);
-        let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
         let (mut xs, mut out, mut reports) = (Vec::new(), Vec::new(), Vec::new());
         for k in 0..frames {
             let shift = 0.5 * (k.min(6) as f32 / 6.0);
@@ -78,7 +78,7 @@ mod dynamics {
     #[test]
     fn closeness_one_follows_the_input_exactly() {
         let skin = grid(8, 8, 1.0);
-        let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
         for k in 0..10 {
             let input: Vec<Vec3> = skin.positions.iter().map(|p| *p + Vec3::new(0.1 * k as f32, 0.0, (p.x * k as f32).sin() * 0.1)).collect();
             let (x, _) = deformer.step(&input, &mut [], &dynamic(2, 1.0)).unwrap();
@@ -100,7 +100,7 @@ mod dynamics {
     fn without_input_motion_kinetic_energy_does_not_grow() {
         // At rest it stays at rest.
         let skin = grid(8, 8, 1.0);
-        let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
         for _ in 0..50 {
             let (_, report) = deformer.step(&skin.positions, &mut [], &dynamic(1, 0.1)).unwrap();
             assert!(report.kinetic_energy < 1e-12, "energy from nothing: {}", report.kinetic_energy);
@@ -119,7 +119,7 @@ mod dynamics {
     #[test]
     fn bad_dynamics_are_named() {
         let skin = grid(4, 4, 1.0);
-        let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
         let mut options = dynamic(1, 0.1);
         options.dynamics.as_mut().unwrap().mass = 0.0;
         let err = deformer.step(&skin.positions, &mut [], &options).unwrap_err().to_string();
@@ -145,7 +145,7 @@ mod compliance {
     /// comes down into it, deeper than the skin over the torso allows.
     fn impossible_collision(stiffness: Option<f32>, substeps: usize) -> Result {
         let skin = grid(30, 30, 1.6);
-        let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
         let (ball, tris) = sphere(0.3);
         let settings = ColliderSettings::new(0.01, 0.0);
         let mut torso = Collider::new(&moved(&ball.positions, Vec3::new(0.0, 0.0, -0.32)), &tris, settings).unwrap();
@@ -204,7 +204,7 @@ mod compliance {
     /// how far the skin's centre gives way and how far the ball recedes.
     fn press_free_skin(stiffness: f32) -> (f32, f32) {
         let skin = grid(30, 30, 1.6);
-        let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
         let (ball, tris) = sphere(0.3);
         let at = |z: f32| moved(&ball.positions, Vec3::new(0.0, 0.0, z));
         let mut arm = Collider::new(&at(0.5), &tris, ColliderSettings::new(0.01, 0.0)).unwrap();
@@ -250,7 +250,7 @@ mod strain {
     /// sideways: the skin it holds stretches the edges around it.
     fn drag(strain: Option<StrainOptions<'_>>) -> (StepReport, (usize, usize, usize), f32) {
         let skin = grid(40, 40, 2.0);
-        let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
         let (ball, tris) = sphere(0.3);
         let settings = ColliderSettings::new(0.01, 2.0);
         let start = Vec3::new(-0.3, 0.0, -0.32);
@@ -276,7 +276,7 @@ mod strain {
 
     fn polygon_edges(skin: &PolyMesh) -> Vec<[u32; 2]> {
         let offsets: Vec<u32> = (0..=skin.polygon_sizes.len() as u32).map(|k| 4 * k).collect();
-        crate::collide::audit::polygon_edges(&skin.corner_verts, &offsets)
+        crate::mesh::polygon_edges(&skin.corner_verts, &offsets)
     }
 
     const EPS: f32 = 0.1;
@@ -317,12 +317,12 @@ mod carried_planes {
     #[test]
     fn last_frames_planes_are_carried_only_while_the_colliders_start_where_they_met_them() {
         let skin = grid(30, 30, 2.0);
-        let mut deformer = PyramidDeformer::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
         let (ball, tris) = sphere(0.3);
         let at = |k: usize| moved(&ball.positions, Vec3::new(0.0, 0.0, -0.32 + 0.03 * k as f32));
         let mut c = Collider::new(&at(0), &tris, ColliderSettings::new(0.01, 0.3)).unwrap();
         let options = StepOptions::new(10, Closeness::Uniform(0.05));
-        let step = |deformer: &mut PyramidDeformer, c: &mut Collider| {
+        let step = |deformer: &mut Sequence, c: &mut Collider| {
             let (x, report) = deformer.step(&skin.positions, &mut [c], &options).unwrap();
             assert_eq!(penetrations(&skin, &x, &[c]), (0, 0, 0));
             report

@@ -1,0 +1,137 @@
+//! Small geometry of one contact: when a path enters a box, and which side
+//! of an open collider the skin belongs on.
+
+use glam::DVec3;
+
+use crate::collide::bvh::Bounds;
+use crate::collide::geometry::unit;
+
+/// When the path `s → e` (parameter 0..1) first enters `bounds` grown by
+/// `grow`, or `None` if it misses it.
+pub(super) fn entry_time(s: DVec3, e: DVec3, bounds: &Bounds, grow: f64) -> Option<f64> {
+    let (lo, hi) = (bounds.min.as_dvec3() - DVec3::splat(grow), bounds.max.as_dvec3() + DVec3::splat(grow));
+    let direction = e - s;
+    let (mut enter, mut leave) = (0.0f64, 1.0f64);
+    for k in 0..3 {
+        if direction[k] == 0.0 {
+            if s[k] < lo[k] || s[k] > hi[k] {
+                return None;
+            }
+            continue;
+        }
+        let (a, b) = ((lo[k] - s[k]) / direction[k], (hi[k] - s[k]) / direction[k]);
+        enter = enter.max(a.min(b));
+        leave = leave.min(a.max(b));
+    }
+    // Rounding of the divisions: a path grazing a face may come out just
+    // outside; the growth is far larger than that, so the order still holds.
+    (enter <= leave).then_some(enter)
+}
+
+/// Side (+1/−1 along the triangle normal) an open collider's contact is
+/// resolved to: where the vertex was just before contact, else at the start,
+/// else opposite to the relative motion, else the normal's side.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn open_side(
+    s: DVec3,
+    e: DVec3,
+    xt: DVec3,
+    qt: DVec3,
+    q0: DVec3,
+    q1: DVec3,
+    nt: Option<DVec3>,
+    n0: Option<DVec3>,
+    n1: DVec3,
+    sep: f64,
+) -> f64 {
+    let at_contact = nt.map_or(0.0, |n| (xt - qt).dot(n) * n.dot(n1).signum());
+    let at_start = n0.map_or(0.0, |n| (s - q0).dot(n) * n.dot(n1).signum());
+    open_side_generic(at_contact, at_start, ((e - s) - (q1 - q0)).dot(n1), sep)
+}
+
+pub(super) fn open_side_generic(at_contact: f64, at_start: f64, relative_motion: f64, sep: f64) -> f64 {
+    let tiny = 1e-12;
+    if at_contact.abs() > (0.25 * sep).max(tiny) {
+        at_contact.signum()
+    } else if at_start.abs() > tiny {
+        at_start.signum()
+    } else if relative_motion.abs() > tiny {
+        -relative_motion.signum()
+    } else {
+        1.0
+    }
+}
+
+/// The normal along which a contact is resolved, given the normal the
+/// contact's own geometry suggests (`n1`, if any). Against a closed collider,
+/// `n1` turned to the outside unless it is nearly perpendicular to it, else
+/// the outside itself (`outward`, from the adjacent faces); against an open
+/// one, `n1` (or the direction between the points at the end) turned to the
+/// side the skin came from ([`open_side_generic`]). Pairs are
+/// `[skin point, collider point]` at contact (`t`), at the start and at the
+/// end.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn contact_normal(
+    closed: bool,
+    outward: impl FnOnce() -> Option<DVec3>,
+    n1: Option<DVec3>,
+    [pt, rt]: [DVec3; 2],
+    [p0, r0]: [DVec3; 2],
+    [p1, r1]: [DVec3; 2],
+    sep: f64,
+) -> Option<DVec3> {
+    if closed {
+        let out = outward()?;
+        Some(match n1 {
+            Some(n) if n.dot(out).abs() > 0.2 => n * n.dot(out).signum(),
+            _ => out,
+        })
+    } else {
+        let n1 = n1.or_else(|| unit(p1 - r1))?;
+        let side = open_side_generic((pt - rt).dot(n1), (p0 - r0).dot(n1), ((p1 - p0) - (r1 - r0)).dot(n1), sep);
+        Some(side * n1)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::*;
+    use proptest::prelude::*;
+
+    fn point() -> impl Strategy<Value = DVec3> {
+        (-2.0f64..2.0, -2.0f64..2.0, -2.0f64..2.0).prop_map(|(x, y, z)| DVec3::new(x, y, z))
+    }
+
+    proptest! {
+        /// No point of the path before its entry time lies in the (grown)
+        /// box, and a path said to miss it has no point in it at all.
+        #[test]
+        fn a_path_is_never_in_a_box_before_it_enters_it(s in point(), e in point(), a in point(), b in point(), axis_aligned in any::<bool>()) {
+            let e = if axis_aligned { DVec3::new(s.x, s.y, e.z) } else { e };
+            let bounds = Bounds::of_points(&[a.as_vec3(), b.as_vec3()]);
+            let grow = 0.01;
+            let (lo, hi) = (bounds.min.as_dvec3() - grow, bounds.max.as_dvec3() + grow);
+            let inside = |p: DVec3| p.cmpge(lo).all() && p.cmple(hi).all();
+            let entry = entry_time(s, e, &bounds, grow);
+            for k in 0..=400 {
+                let t = k as f64 / 400.0;
+                if inside(s.lerp(e, t)) {
+                    prop_assert!(entry.is_some_and(|entry| entry <= t + 1e-12), "in the box at {t}, entry {entry:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn entry_times_of_simple_paths() {
+        let unit = Bounds { min: Vec3::ZERO, max: Vec3::ONE };
+        let at = |s: [f64; 3], e: [f64; 3]| entry_time(DVec3::from(s), DVec3::from(e), &unit, 0.0);
+        assert_eq!(at([-1.0, 0.5, 0.5], [3.0, 0.5, 0.5]), Some(0.25));
+        assert_eq!(at([0.5, 0.5, 0.5], [3.0, 0.5, 0.5]), Some(0.0), "starting inside");
+        assert_eq!(at([-1.0, 2.0, 0.5], [3.0, 2.0, 0.5]), None, "passing beside");
+        assert_eq!(at([-3.0, 0.5, 0.5], [-2.0, 0.5, 0.5]), None, "stopping short");
+    }
+}
+

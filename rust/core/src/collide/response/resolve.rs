@@ -1,0 +1,284 @@
+//! The rounds of a resolution: detection on what moved, corrections
+//! averaged per vertex, pinched vertices bounded.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
+
+use super::{d, ColliderMotion, ColliderSet, ContactStats, ResolveParams};
+use crate::collide::bvh::Bounds;
+use crate::collide::clearance::{Clearance, PLANE_REACH};
+use crate::collide::planes::{Lift, LocalPlanes, VertexStep};
+use crate::collide::skin::Skin;
+use crate::mesh::validate_positions;
+use crate::{Error, Result};
+
+impl<'a> ColliderSet<'a> {
+    /// Edge–edge and collider-vertex–skin-triangle corrections of one round,
+    /// averaged per vertex. Returns the number of contacts and the changes.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn shared_corrections(
+        &self,
+        start: &[Vec3],
+        end: &[Vec3],
+        skin: &Skin,
+        edges: &[u32],
+        triangles: &[u32],
+        params: &ResolveParams,
+        planes: Option<(&LocalPlanes, &[Vec3])>,
+    ) -> (usize, usize, Vec<(u32, Vec3)>) {
+        let cleared = |corners: &[u32]| planes.is_some_and(|(p, from)| p.clears(corners, from, end));
+        let from_edges: Vec<(u32, [DVec3; 2])> = if params.edge_edge {
+            edges
+                .par_iter()
+                .filter_map(|&k| {
+                    let edge = skin.edges()[k as usize];
+                    if cleared(&edge) {
+                        return None;
+                    }
+                    self.edge_correction(start, end, edge, edge.map(|v| skin.inverse_mass(v)), params).map(|(a, b)| (k, [a, b]))
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let from_faces: Vec<(u32, [DVec3; 3])> = if params.collider_vertices {
+            triangles
+                .par_iter()
+                .filter_map(|&k| {
+                    let tri = skin.triangles()[k as usize];
+                    if cleared(&tri) {
+                        return None;
+                    }
+                    self.face_correction(start, end, tri, tri.map(|v| skin.inverse_mass(v)), params).map(|c| (k, c))
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let mut sum: std::collections::BTreeMap<u32, (DVec3, u32)> = Default::default();
+        let mut add = |v: u32, delta: DVec3| {
+            let slot = sum.entry(v).or_insert((DVec3::ZERO, 0));
+            slot.0 += delta;
+            slot.1 += 1;
+        };
+        for (k, deltas) in &from_edges {
+            for (&v, &delta) in skin.edges()[*k as usize].iter().zip(deltas) {
+                add(v, delta);
+            }
+        }
+        for (k, deltas) in &from_faces {
+            for (&v, &delta) in skin.triangles()[*k as usize].iter().zip(deltas) {
+                add(v, delta);
+            }
+        }
+        let changes = sum
+            .into_iter()
+            .filter_map(|(v, (delta, count))| {
+                let p = (d(end[v as usize]) + delta / count as f64).as_vec3();
+                p.is_finite().then_some((v, p))
+            })
+            .collect();
+        (from_edges.len(), from_faces.len(), changes)
+    }
+
+    pub(super) fn resolve(
+        &self,
+        start: &[Vec3],
+        end: &mut [Vec3],
+        skin: &Skin,
+        params: &ResolveParams,
+        clearance: Option<&Clearance>,
+        carried: Option<&LocalPlanes>,
+    ) -> Result<ContactStats> {
+        let n = start.len();
+        if end.len() != n || skin.vertex_count() != n {
+            return Err(Error::invalid(format!(
+                "start has {n} positions, end has {} and the skin has {} vertices; all three must agree",
+                end.len(),
+                skin.vertex_count()
+            )));
+        }
+        validate_positions("start positions", start)?;
+        validate_positions("end positions", end)?;
+        let mut stats = ContactStats::default();
+        if self.colliders.is_empty() || n == 0 {
+            return Ok(stats);
+        }
+        // Where the vertices the pass moves were asked to go, recorded when
+        // first moved (most of a skin is not).
+        let mut requested: Vec<(u32, Vec3)> = Vec::new();
+        let mut moved = vec![false; n];
+        // The clearance and its planes hold for colliders standing still.
+        let still = (0..self.colliders.len()).all(|c| self.motion(c, params.motion) == ColliderMotion::AtCurrent);
+        let clearance = clearance.filter(|c| still && c.is_valid_for(&self.colliders, n));
+        let lift = |c: usize| {
+            let settings = self.colliders[c].settings();
+            let friction = |mu: f32| if params.friction { mu as f64 } else { 0.0 };
+            Lift {
+                slack: self.slack(settings.thickness as f64),
+                static_friction: friction(settings.static_friction),
+                kinetic_friction: friction(settings.kinetic_friction),
+            }
+        };
+        let (mut active, mut active_edges, mut active_triangles) = match clearance {
+            // Elements the clearance proves apart are left out from the start.
+            Some(clearance) => {
+                let unproven = clearance.unproven(skin, start, end);
+                (unproven.vertices, unproven.edges, unproven.triangles)
+            }
+            // Without one, those whose step misses every collider's whole box.
+            None => {
+                let mut reach_vertices = vec![false; n];
+                let mut reach_edges = vec![false; skin.edges().len()];
+                let mut reach_triangles = vec![false; skin.triangles().len()];
+                for c in 0..self.colliders.len() {
+                    // Each vertex's box over the step where the collider's
+                    // trees see it, once; an element's is its corners' union.
+                    let root = self.triangle_tree(c, params.motion).bounds();
+                    let boxes: Vec<Bounds> = (0..n)
+                        .into_par_iter()
+                        .with_min_len(4096)
+                        .map(|i| self.query_box(c, params.motion, Bounds::of_points(&[start[i]]), Bounds::of_points(&[end[i]])))
+                        .collect();
+                    let mark = |flags: &mut [bool], elements: &[u32], size: usize| {
+                        flags.par_chunks_mut(4096).enumerate().for_each(|(chunk, out)| {
+                            for (k, flag) in out.iter_mut().enumerate() {
+                                let first = (chunk * 4096 + k) * size;
+                                let union = elements[first..first + size].iter().fold(Bounds::EMPTY, |u, &v| u.union(boxes[v as usize]));
+                                *flag |= root.overlaps(&union);
+                            }
+                        })
+                    };
+                    reach_vertices.par_iter_mut().zip(&boxes).with_min_len(4096).for_each(|(flag, b)| *flag |= root.overlaps(b));
+                    mark(&mut reach_edges, skin.edges().as_flattened(), 2);
+                    mark(&mut reach_triangles, skin.triangles().as_flattened(), 3);
+                }
+                let listed = |flags: &[bool]| -> Vec<u32> { (0..flags.len() as u32).into_par_iter().with_min_len(4096).filter(|&k| flags[k as usize]).collect() };
+                (listed(&reach_vertices), listed(&reach_edges), listed(&reach_triangles))
+            }
+        };
+        // Vertices with inverse mass 0 move as imposed: never corrected.
+        if skin.has_inverse_mass() {
+            active.retain(|&i| skin.inverse_mass(i) > 0.0);
+        }
+        // Supporting planes: the clearance's for still colliders; for sweeping
+        // ones, planes around the active vertices in the frame drifting with
+        // the colliders, if they translate together (carried along from the
+        // last frame where they hold). Each comes with the step starts in its
+        // frame.
+        let all_swept = (0..self.colliders.len()).all(|c| self.motion(c, params.motion) == ColliderMotion::Swept);
+        let drifting = match clearance {
+            None if all_swept => {
+                let radius = PLANE_REACH * Clearance::default_radius(&self.colliders, skin, start);
+                LocalPlanes::drifting(&self.colliders, &self.outward, start, &active, radius, carried)
+            }
+            _ => None,
+        };
+        let planes: Option<(&LocalPlanes, &[Vec3])> = match &drifting {
+            Some((planes, from)) => Some((planes, from)),
+            None => clearance.and_then(|c| c.planes()).map(|planes| (planes, start)),
+        };
+        let lifted = AtomicUsize::new(0);
+        let mut converged = false;
+        for _ in 0..params.max_rounds.max(1) {
+            stats.rounds += 1;
+            // Skin vertices against collider triangles.
+            let updates: Vec<(u32, Vec3)> = active
+                .par_iter()
+                .filter_map(|&i| {
+                    let (s, e) = (start[i as usize], end[i as usize]);
+                    match planes.map_or(VertexStep::Unknown, |(p, from)| p.vertex_step(i, from[i as usize], e, lift)) {
+                        VertexStep::Clear => None,
+                        VertexStep::Lifted(p) => {
+                            lifted.fetch_add(1, Ordering::Relaxed);
+                            Some((i, p))
+                        }
+                        VertexStep::Unknown => self.vertex_correction(s, e, params).map(|p| (i, p)),
+                    }
+                })
+                .collect();
+            stats.vertex_contacts += updates.len();
+            stats.plane_lifts += lifted.swap(0, Ordering::Relaxed);
+            let mut apply = |i: u32, p: Vec3, end: &mut [Vec3]| {
+                if !moved[i as usize] {
+                    moved[i as usize] = true;
+                    requested.push((i, end[i as usize]));
+                }
+                end[i as usize] = p;
+            };
+            let mut lifted_now: Vec<u32> = Vec::with_capacity(updates.len());
+            for (i, p) in updates {
+                apply(i, p, end);
+                lifted_now.push(i);
+            }
+            // Skin edges against collider edges, skin triangles against
+            // collider vertices: those still to be checked, and those around
+            // the vertices just moved, at their new ends. An element checked
+            // here stays checked until one of its corners moves again.
+            (active_edges, active_triangles) = skin.touching(&lifted_now, (&active_edges, &active_triangles));
+            let (ee, fv, shared) = self.shared_corrections(start, end, skin, &active_edges, &active_triangles, params, planes);
+            stats.edge_contacts += ee;
+            stats.collider_vertex_contacts += fv;
+            let mut pushed: Vec<u32> = Vec::with_capacity(shared.len());
+            for (i, p) in shared {
+                apply(i, p, end);
+                pushed.push(i);
+            }
+            // Every vertex moved in this round is checked again in the next;
+            // the elements around those the shared corrections pushed are
+            // checked after the next round's vertex corrections.
+            let mut next: Vec<u32> = lifted_now.iter().chain(&pushed).copied().collect();
+            next.sort_unstable();
+            next.dedup();
+            next.retain(|&i| skin.inverse_mass(i) > 0.0);
+            if next.is_empty() {
+                converged = true;
+                break;
+            }
+            (active_edges, active_triangles) = skin.touching(&pushed, (&[], &[]));
+            active = next;
+        }
+        if !converged {
+            // Verify the last round's changes; what is still in violation is pinched.
+            let mut pinched: Vec<u32> = active
+                .par_iter()
+                .copied()
+                .filter(|&i| {
+                    let (s, e) = (start[i as usize], end[i as usize]);
+                    match planes.map_or(VertexStep::Unknown, |(p, from)| p.vertex_step(i, from[i as usize], e, lift)) {
+                        VertexStep::Clear => false,
+                        VertexStep::Lifted(_) => true,
+                        VertexStep::Unknown => self.vertex_correction(s, e, params).is_some(),
+                    }
+                })
+                .collect();
+            let (_, _, shared) = self.shared_corrections(start, end, skin, &active_edges, &active_triangles, params, planes);
+            pinched.extend(shared.iter().map(|(v, _)| *v));
+            pinched.sort_unstable();
+            pinched.dedup();
+            // Bound the displacement of pinched vertices: no farther from the
+            // requested end than the step length plus twice the largest thickness.
+            let max_thickness =
+                self.colliders.iter().map(|c| c.settings().thickness as f64).fold(0.0, f64::max);
+            requested.sort_unstable_by_key(|&(i, _)| i);
+            for &i in &pinched {
+                let Ok(k) = requested.binary_search_by_key(&i, |&(j, _)| j) else { continue };
+                let (i, asked) = (i as usize, d(requested[k].1));
+                let limit = (asked - d(start[i])).length() + 2.0 * max_thickness + self.slack(max_thickness);
+                let offset = d(end[i]) - asked;
+                if offset.length() > limit {
+                    end[i] = (asked + offset * (limit / offset.length())).as_vec3();
+                }
+            }
+            stats.pinched = pinched;
+        }
+        requested.sort_unstable_by_key(|&(i, _)| i);
+        for (i, asked) in requested {
+            stats.moved.push(i);
+            stats.max_correction = stats.max_correction.max((end[i as usize] - asked).length());
+        }
+        Ok(stats)
+    }
+}

@@ -1,0 +1,75 @@
+//! Elements derived from a polygon mesh in Blender's layout: its edges, a fan
+//! triangulation and the triangulation's edges. The solver's collision skin
+//! and strain limits use these; the penetration audit
+//! ([`crate::collide::audit`]) deliberately triangulates on its own.
+
+use rayon::prelude::*;
+
+/// Unique edges `[min, max]` of a polygon mesh, sorted.
+pub fn polygon_edges(corner_verts: &[i32], offsets: &[u32]) -> Vec<[u32; 2]> {
+    let mut edges = Vec::with_capacity(corner_verts.len());
+    for w in offsets.windows(2) {
+        let poly = &corner_verts[w[0] as usize..w[1] as usize];
+        for k in 0..poly.len() {
+            let (a, b) = (poly[k] as u32, poly[(k + 1) % poly.len()] as u32);
+            if a != b {
+                edges.push([a.min(b), a.max(b)]);
+            }
+        }
+    }
+    edges.par_sort_unstable();
+    edges.dedup();
+    edges
+}
+
+/// Unique edges `[min, max]` of triangles, sorted: a fan-triangulated
+/// polygon's edges *and* its diagonals. Collision tests and the audit need the
+/// diagonals: two triangulated surfaces meet where an edge of one crosses a
+/// triangle of the other, and a folded quad first meets a collider edge along
+/// its diagonal.
+pub fn triangle_edges(triangles: &[[u32; 3]]) -> Vec<[u32; 2]> {
+    let mut edges: Vec<[u32; 2]> = triangles
+        .iter()
+        .flat_map(|&[a, b, c]| [[a, b], [b, c], [c, a]])
+        .filter(|[a, b]| a != b)
+        .map(|[a, b]| [a.min(b), a.max(b)])
+        .collect();
+    edges.par_sort_unstable();
+    edges.dedup();
+    edges
+}
+
+/// Fan triangulation of every polygon.
+pub fn fan_triangles(corner_verts: &[i32], offsets: &[u32]) -> Vec<[u32; 3]> {
+    let mut tris = Vec::with_capacity(corner_verts.len());
+    for w in offsets.windows(2) {
+        let poly = &corner_verts[w[0] as usize..w[1] as usize];
+        for k in 1..poly.len() - 1 {
+            tris.push([poly[0] as u32, poly[k] as u32, poly[k + 1] as u32]);
+        }
+    }
+    tris
+}
+
+/// Compressed rows of the elements (edges, triangles) around each of `n`
+/// vertices: `(offsets, element indices)`, each vertex's ascending.
+pub fn vertex_incidence<'e>(n: usize, elements: impl Iterator<Item = &'e [u32]> + Clone) -> (Vec<u32>, Vec<u32>) {
+    let mut offsets = vec![0u32; n + 1];
+    for el in elements.clone() {
+        for &v in el {
+            offsets[v as usize + 1] += 1;
+        }
+    }
+    for i in 0..n {
+        offsets[i + 1] += offsets[i];
+    }
+    let mut fill = offsets.clone();
+    let mut list = vec![0u32; offsets[n] as usize];
+    for (k, el) in elements.enumerate() {
+        for &v in el {
+            list[fill[v as usize] as usize] = k as u32;
+            fill[v as usize] += 1;
+        }
+    }
+    (offsets, list)
+}

@@ -1,0 +1,205 @@
+//! Frame-to-frame stepping with collisions: seed 000, Algorithm 2, with the
+//! additions of seed 002 (compliant colliders, strain limits) and seed 000 §4
+//! (dynamics).
+//!
+//! [`Sequence::step`] keeps its last output, which is free of
+//! collisions, and splits each new frame into substeps (input and colliders
+//! interpolated linearly). Each substep
+//!
+//! 1. moves the compliant colliders' vertices from where they are towards
+//!    their animated positions, stopping at the skin (they recede on contact),
+//!    and gives the skin target rows where it heads into their animated
+//!    shapes, so that it gives way in proportion to their stiffness
+//!    ([`compliance`]);
+//! 2. moves every skin vertex from the last output towards this substep's
+//!    input (or, with dynamics, its inertial prediction) while the colliders
+//!    sweep over the substep, stopping and projecting at contacts, with
+//!    friction (first pass, [`crate::collide::ResolveParams::first_pass`]);
+//! 3. runs the projective solve from there, and after every iteration
+//!    * detects and resolves contacts along each vertex's move during that
+//!      iteration (second pass,
+//!      [`crate::collide::ResolveParams::in_loop`]), compliant
+//!      colliders standing still;
+//!    * with strain limits in [`StrainMode::Unified`], alternates edge
+//!      shortening and contact resolution until both hold;
+//!    * lets the compliant vertices move back towards their goals, stopping
+//!      at the skin again.
+//!
+//! Every move in this sequence is checked by continuous collision detection
+//! from a collision-free start, which is what keeps the result free of
+//! penetrations. Vertices squeezed between colliders so that no projection
+//! frees them are *pinched*: they are counted, kept within a bounded distance
+//! of where the solver wanted them, and never NaN (see
+//! [`crate::collide::response`]).
+//!
+//! A [`Sequence`] owns the bound [`PyramidDeformer`] and the state of one
+//! bake: the last output, velocities, the last input, the solver rows it adds
+//! (inertia, compliant contacts), the skin as a collider and the planes
+//! carried from one substep to the next. It is the one module that drives
+//! both [`crate::collide`] and [`crate::solve`]; [`crate::pyramid`] only says
+//! which constraints the solver holds.
+//!
+//! Files: [`step`] (the frame and its substeps), [`options`] (what a step is
+//! asked and reports), [`dynamics`], [`compliance`], [`strain_pass`].
+
+pub mod compliance;
+pub mod dynamics;
+pub mod options;
+mod step;
+mod strain_pass;
+
+use glam::Vec3;
+
+use crate::collide::{Collider, Skin};
+use crate::mesh::{polygon_edges, validate_positions, MeshInput};
+use crate::pyramid::{DeformerOptions, PyramidDeformer};
+use crate::solve::ConstraintId;
+use crate::{Error, Result};
+
+pub use dynamics::{Dynamics, MAX_SUBSTEPS, STIFFNESS_DENSITY};
+pub use options::{StepOptions, StepReport, StrainMode, StrainOptions};
+
+use step::CarriedPlanes;
+
+/// A bound mesh and the state of the sequence of frames being solved.
+pub struct Sequence {
+    deformer: PyramidDeformer,
+    // Bind-time data of the collision and strain passes.
+    /// Edges and triangles for the collision passes (vertices only when
+    /// built from a bare deformer: [`Sequence::step`] then handles vertex
+    /// contacts only).
+    skin: Skin,
+    /// Rest positions (strain limits measure against them).
+    rest: Vec<Vec3>,
+    /// The mesh's own edges, which strain limits hold (the collision skin's
+    /// edges also include the diagonals of triangulated polygons).
+    mesh_edges: Vec<[u32; 2]>,
+    /// Area around each vertex at rest (a third of its triangles'): masses.
+    vertex_area: Vec<f32>,
+    // Per-bake state.
+    /// Last output of [`Sequence::step`]: collision-free, where the next
+    /// frame's first pass starts from.
+    history: Option<Vec<Vec3>>,
+    /// Dynamics state: velocities at the end of the last step.
+    velocity: Option<Vec<Vec3>>,
+    /// The last step's input: substeps interpolate from it.
+    last_input: Option<Vec<Vec3>>,
+    /// The inertia term, added to the deformer's solver on the first
+    /// dynamic step.
+    inertia: Option<ConstraintId>,
+    /// Target rows of skin giving way to compliant colliders, added on the
+    /// first step that needs them.
+    contact_targets: Option<ConstraintId>,
+    /// The skin as a collider, for compliant colliders' vertices to meet.
+    skin_collider: Option<Collider>,
+    /// The last substep's in-loop supporting planes, for the next first pass.
+    carried_planes: Option<CarriedPlanes>,
+}
+
+impl Sequence {
+    /// Binds `mesh` at rest ([`PyramidDeformer::bind`]) with the skin, edges
+    /// and areas the collision, strain and dynamics passes need.
+    pub fn bind(mesh: MeshInput<'_>, options: DeformerOptions) -> Result<Self> {
+        let deformer = PyramidDeformer::bind(mesh, options)?;
+        let skin = Skin::from_mesh(mesh)?;
+        let mut sequence = Self::new(deformer);
+        sequence.rest = mesh.positions.to_vec();
+        sequence.mesh_edges = polygon_edges(mesh.corner_verts, &mesh.validate()?);
+        sequence.vertex_area = vertex_areas(mesh.positions, skin.triangles());
+        sequence.skin = skin;
+        Ok(sequence)
+    }
+
+    /// A sequence over a deformer built without a mesh (e.g. from a bare
+    /// encoding): vertex contacts only, unit masses, no strain limits.
+    pub fn new(deformer: PyramidDeformer) -> Self {
+        let n = deformer.vertex_count();
+        Sequence {
+            deformer,
+            skin: Skin::vertices_only(n),
+            rest: Vec::new(),
+            mesh_edges: Vec::new(),
+            vertex_area: vec![1.0; n],
+            history: None,
+            velocity: None,
+            last_input: None,
+            inertia: None,
+            contact_targets: None,
+            skin_collider: None,
+            carried_planes: None,
+        }
+    }
+
+    pub fn deformer(&self) -> &PyramidDeformer {
+        &self.deformer
+    }
+
+    /// The deformer, e.g. for a plain [`PyramidDeformer::solve`], which
+    /// neither reads nor changes the sequence's state.
+    pub fn deformer_mut(&mut self) -> &mut PyramidDeformer {
+        &mut self.deformer
+    }
+
+    pub fn vertex_count(&self) -> usize {
+        self.deformer.vertex_count()
+    }
+}
+
+impl Sequence {
+    /// Forgets the last output and the dynamics state: the next
+    /// [`Self::step`] starts from its input, at rest.
+    pub fn reset(&mut self) {
+        self.history = None;
+        self.velocity = None;
+        self.last_input = None;
+    }
+
+    /// Makes `positions` the last output, as if a step had produced them:
+    /// a bake resuming after frames already cached starts from the last of
+    /// them (at rest, and without substep interpolation from the input
+    /// before it). They must be free of collisions for the next step's
+    /// guarantee.
+    pub fn set_history(&mut self, positions: &[Vec3]) -> Result<()> {
+        let n = self.deformer.vertex_count();
+        if positions.len() != n {
+            return Err(Error::invalid(format!("history: {} vertices given, the deformer has {n}", positions.len())));
+        }
+        validate_positions("history", positions)?;
+        self.history = Some(positions.to_vec());
+        self.velocity = None;
+        self.last_input = None;
+        Ok(())
+    }
+
+    /// The last output of [`Self::step`], if any.
+    pub fn history(&self) -> Option<&[Vec3]> {
+        self.history.as_deref()
+    }
+
+    /// Velocities at the end of the last dynamic step, if any.
+    pub fn velocity(&self) -> Option<&[Vec3]> {
+        self.velocity.as_deref()
+    }
+}
+
+/// A third of the area of the triangles around each vertex (1 for a vertex
+/// without triangles, so that it still has a mass).
+fn vertex_areas(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<f32> {
+    let mut area = vec![0.0f32; positions.len()];
+    for t in triangles {
+        let [a, b, c] = t.map(|v| positions[v as usize]);
+        let third = (b - a).cross(c - a).length() / 6.0;
+        for &v in t {
+            area[v as usize] += third;
+        }
+    }
+    for a in &mut area {
+        if !(*a > 0.0) {
+            *a = 1.0;
+        }
+    }
+    area
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,103 @@
+//! What a step is asked to do, and what it reports.
+
+use super::dynamics::Dynamics;
+use crate::collide::ContactStats;
+use crate::pyramid::Closeness;
+use crate::strain::MaxStretch;
+
+/// When strain limits are enforced relative to the contacts (seed 002 §2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum StrainMode {
+    /// In the same projection loop as the contacts, after every iteration,
+    /// until both hold: no penetration and no edge over its limit.
+    #[default]
+    Unified,
+    /// Once after the solve and its collision passes, unaware of the
+    /// colliders: edges hold, but shortening them can pull skin back into a
+    /// collider. Kept to show the difference.
+    Post,
+}
+
+impl StrainMode {
+    pub fn name(self) -> &'static str {
+        match self {
+            StrainMode::Unified => "unified",
+            StrainMode::Post => "post",
+        }
+    }
+}
+
+/// Strain limits of a step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StrainOptions<'a> {
+    pub max_stretch: MaxStretch<'a>,
+    pub mode: StrainMode,
+}
+
+/// Everything one [`super::Sequence::step`] is asked to do.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepOptions<'a> {
+    /// Solver iterations per substep.
+    pub iterations: usize,
+    pub closeness: Closeness<'a>,
+    /// Substeps per frame (1..=[`MAX_SUBSTEPS`]): input and colliders are
+    /// interpolated linearly from the last frame's.
+    pub substeps: usize,
+    pub dynamics: Option<Dynamics>,
+    pub strain: Option<StrainOptions<'a>>,
+}
+
+impl Default for StepOptions<'_> {
+    fn default() -> Self {
+        StepOptions { iterations: 10, closeness: Closeness::Default, substeps: 1, dynamics: None, strain: None }
+    }
+}
+
+impl<'a> StepOptions<'a> {
+    /// `iterations` iterations with `closeness`, everything else off.
+    pub fn new(iterations: usize, closeness: Closeness<'a>) -> Self {
+        StepOptions { iterations, closeness, ..Default::default() }
+    }
+}
+
+/// What one [`super::Sequence::step`] did about contacts, dynamics and strain.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct StepReport {
+    /// The first pass (last output → this frame's input, colliders sweeping),
+    /// summed over substeps.
+    pub first_pass: ContactStats,
+    /// Contacts resolved by the in-loop passes, over all iterations.
+    pub in_loop_contacts: usize,
+    /// Vertices any pass of this frame left pinched (ascending).
+    pub pinched: Vec<u32>,
+    /// Largest correction one in-loop pass applied to one vertex.
+    pub max_in_loop_correction: f32,
+    /// Kinetic energy at the end of the step (0 without dynamics).
+    pub kinetic_energy: f64,
+    /// Largest `length / rest length` over the strain-limited edges at the
+    /// end of the step (0 without strain limits).
+    pub worst_stretch: f32,
+    /// Contacts that stopped compliant collider vertices at the skin.
+    pub compliant_contacts: usize,
+    /// Skin vertices giving way to compliant colliders (most in one substep).
+    pub compliant_skin_vertices: usize,
+    /// Largest distance of a compliant collider vertex from its animated
+    /// position at the end of the step: how far the colliders receded.
+    pub max_recession: f32,
+}
+
+/// Adds a substep's first-pass figures to the frame's.
+pub(super) fn accumulate(total: &mut ContactStats, part: &ContactStats) {
+    total.vertex_contacts += part.vertex_contacts;
+    total.edge_contacts += part.edge_contacts;
+    total.collider_vertex_contacts += part.collider_vertex_contacts;
+    total.plane_lifts += part.plane_lifts;
+    total.rounds += part.rounds;
+    total.max_correction = total.max_correction.max(part.max_correction);
+    total.moved.extend_from_slice(&part.moved);
+    total.moved.sort_unstable();
+    total.moved.dedup();
+    total.pinched.extend_from_slice(&part.pinched);
+    total.pinched.sort_unstable();
+    total.pinched.dedup();
+}
