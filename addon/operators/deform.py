@@ -49,7 +49,7 @@ def bind(context, obj) -> str:
     pinned = len(deformer.pinned_vertices)
     warnings = []
     if pinned:
-        warnings.append(f"{pinned} vertices follow the rig (boundary or irregular one-ring)")
+        warnings.append(f"{pinned} vertices follow the rig (a border corner, a non-manifold spot or a one-ring that cannot be encoded)")
     if not report.is_clean:
         warnings.append("the mesh has non-manifold parts (run Check Mesh)")
     obj.tegument.warnings = "; ".join(warnings)
