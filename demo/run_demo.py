@@ -335,13 +335,11 @@ def run(args, out: pathlib.Path, user: str) -> int:
 
     with stage("heat_map") as info:
         # The stretch left on the texture detail at the last frame, without (identity) and with the
-        # warp: the add-on's own measure (warp/heatmap.py), shown over the side chart.
-        from bl_ext.user_default.tegument.warp import heatmap
-
+        # warp: the measure the add-on's heat map writes (tegument.stretch_map), over the side chart.
         data = job.inputs
         deformed = job.last_positions
-        without = heatmap.stretch_map(data.rest, deformed, data.corner_verts, data.polygon_sizes, data.corner_uvs,
-                                      1001, np.zeros((WARP_RESOLUTION, WARP_RESOLUTION, 2), np.float32))
+        without = tegument.stretch_map(data.rest, deformed, data.corner_verts, data.polygon_sizes, data.corner_uvs,
+                                       np.zeros((WARP_RESOLUTION, WARP_RESOLUTION, 2), np.float32), udim=1001)
         with_warp = tegument.read_exr(job.heatmaps[1001])[0][..., 0]
         rigid = demo_scene.scale_pattern(WARP_RESOLUTION, LIMB_RADIUS, 2.0)[1] > 0.5
         chart = demo_scene.tube_side_chart(WARP_RESOLUTION, LIMB_RADIUS, 2.0)
