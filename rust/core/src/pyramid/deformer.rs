@@ -211,18 +211,7 @@ impl PyramidDeformer {
                 vec![c; n]
             }
             Closeness::PerVertex(weights) => {
-                if weights.len() != n {
-                    return Err(Error::invalid(format!(
-                        "closeness has {} weights but the mesh has {n} vertices",
-                        weights.len()
-                    )));
-                }
-                if let Some(v) = weights.iter().position(|c| !(0.0..=1.0).contains(c)) {
-                    return Err(Error::invalid(format!(
-                        "closeness of vertex {v} is {}; it must be between 0 and 1",
-                        weights[v]
-                    )));
-                }
+                validate_closeness(weights, n)?;
                 weights.to_vec()
             }
         };
@@ -306,6 +295,23 @@ impl PyramidDeformer {
     pub fn residual(&self, positions: &[Vec3]) -> Result<f32> {
         mean_residual(&self.encoding, positions)
     }
+}
+
+/// Checks per-vertex closeness weights: one per vertex, each in `[0, 1]`.
+pub fn validate_closeness(weights: &[f32], vertex_count: usize) -> Result<()> {
+    if weights.len() != vertex_count {
+        return Err(Error::invalid(format!(
+            "closeness has {} weights but the mesh has {vertex_count} vertices",
+            weights.len()
+        )));
+    }
+    if let Some(v) = weights.iter().position(|c| !(0.0..=1.0).contains(c)) {
+        return Err(Error::invalid(format!(
+            "closeness of vertex {v} is {}; it must be between 0 and 1",
+            weights[v]
+        )));
+    }
+    Ok(())
 }
 
 /// [`PyramidDeformer::residual`] for an encoding.

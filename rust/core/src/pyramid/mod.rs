@@ -32,7 +32,7 @@ pub mod project;
 pub use constraint::{PyramidLaplacian, PyramidTargets};
 pub use deformer::{
     mean_residual, Closeness, DeformerOptions, Formulation, PyramidDeformer, DEFAULT_CLOSENESS,
-    MAX_ITERATIONS, MIN_CLOSENESS,
+    MAX_ITERATIONS, MIN_CLOSENESS, validate_closeness,
 };
 pub use encode::{encode, Encoding, PinReason, MAX_VALENCE};
 
