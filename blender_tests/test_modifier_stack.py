@@ -1,11 +1,15 @@
 """Pyramid Deform binds the stack *above* its modifier (issue 26: a Subdivision Surface between the
-Armature and Tegument), through the installed extension.
+Armature and Tegument), through the installed extension; plus what bind reports (pinned vertices
+by kind) and that its warning survives a bake.
 
 Where the stack above Tegument changes the topology, the bind is a Mesh datablock of its own
 (``obj.tegument.bind_mesh``) and the user's mesh is not touched at all.
 """
 
 from __future__ import annotations
+
+import pathlib
+import re
 
 import bpy
 import numpy as np
@@ -192,3 +196,65 @@ def test_an_edit_of_the_mesh_and_a_closeness_group_on_a_subdivided_stack(subdivi
     obj.data.update()
     with pytest.raises(RuntimeError, match=r"the mesh has \d+ vertices but was bound with \d+: rebind it"):
         bpy.ops.tegument.bake()
+
+
+# ---------------------------------------------------------------------------- bind reports
+
+
+def grid_with_a_fin(name: str = "Grid") -> bpy.types.Object:
+    """A 5 × 4 quad grid (its corners pinned as boundary corners) plus, optionally, a fin: a third
+    face on one inner edge, whose ends are non-manifold."""
+    rows, columns = 4, 5
+    positions = [(float(c), float(r), 0.0) for r in range(rows) for c in range(columns)]
+    faces = [(r * columns + c, r * columns + c + 1, (r + 1) * columns + c + 1, (r + 1) * columns + c)
+             for r in range(rows - 1) for c in range(columns - 1)]
+    if name == "Fin":
+        positions += [(1.0, 1.0, 1.0), (2.0, 1.0, 1.0)]
+        a, b = 1 * columns + 1, 1 * columns + 2
+        faces.append((a, b, len(positions) - 1, len(positions) - 2))
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(positions, [], faces)
+    obj = bpy.data.objects.new(name, mesh)
+    bpy.context.collection.objects.link(obj)
+    bpy.context.view_layer.objects.active = obj
+    return obj
+
+
+def test_bind_lists_the_pinned_vertices_by_kind(tmp_path):
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "grids.blend"))
+    grid = grid_with_a_fin("Grid")
+    assert bpy.ops.tegument.deform_add() == {"FINISHED"}
+    assert grid.tegument.bind_warnings == "4 vertices follow the rig: 4 boundary corners"
+
+    fin = grid_with_a_fin("Fin")
+    assert bpy.ops.tegument.deform_add() == {"FINISHED"}
+    pinned, *rest = fin.tegument.bind_warnings.split("; ")
+    match = re.fullmatch(r"(\d+) vertices follow the rig: (.*)", pinned)
+    assert match, pinned
+    kinds = dict(reversed(re.fullmatch(r"(\d+) (.+)", kind).groups()) for kind in match.group(2).split(", "))
+    assert int(kinds["non-manifold"]) >= 2 and "boundary corners" in kinds
+    assert sum(map(int, kinds.values())) == int(match.group(1))
+    assert rest == ["the mesh has non-manifold parts (run Check Mesh)"]
+
+
+def test_the_bind_warning_survives_a_bake(tmp_path):
+    from bl_ext.user_default.tegument.ui import modifier_panel
+
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "grid.blend"))
+    grid = grid_with_a_fin("Grid")
+    assert bpy.ops.tegument.deform_add() == {"FINISHED"}
+    settings = grid.tegument
+    settings.frame_start, settings.frame_end = 1, 2
+    settings.collider_collection = bpy.data.collections.new("Colliders")  # empty: the bake notes it
+    bind_warning = "4 vertices follow the rig: 4 boundary corners"
+    assert bpy.ops.tegument.bake() == {"FINISHED"}
+    assert settings.bind_warnings == bind_warning
+    assert settings.warnings == f'{bind_warning}; the collider collection "Colliders" holds no mesh objects'
+    assert modifier_panel.warning_lines(settings) == [bind_warning, 'the collider collection "Colliders" holds no mesh objects']
+    assert pathlib.Path(bpy.path.abspath(settings.cache_path)).is_file()
+
+    settings.collider_collection = None
+    assert bpy.ops.tegument.bake() == {"FINISHED"}
+    assert settings.warnings == bind_warning and modifier_panel.warning_lines(settings) == [bind_warning]
+    assert bpy.ops.tegument.deform_remove() == {"FINISHED"}
+    assert settings.warnings == settings.bind_warnings == ""

@@ -279,7 +279,9 @@ class BakeJob:
         settings.audit_edges_crossing = self.audit_totals["edges_crossing"]
         settings.audit_collider_edges_crossing = self.audit_totals["collider_edges_crossing"]
         settings.pinched_vertices = self.most_pinched
-        notes = list(self.rig.warnings)
+        # The bind's warnings stay: the bake adds its own notes after them.
+        notes = [settings.bind_warnings] if settings.bind_warnings else []
+        notes += self.rig.warnings
         if self.most_pinched:
             notes.append(f"{self.most_pinched} vertices pinched between colliders")
         settings.warnings = "; ".join(notes)

@@ -28,6 +28,32 @@ def bind_pose(context, obj):
     return mesh_arrays.positions(obj.data)
 
 
+# How bind names each kind of pinned vertex (the wheel's `pinned_reasons` keys): (one, several).
+PIN_KINDS = {
+    "boundary": ("boundary corner", "boundary corners"),
+    "non_manifold": ("non-manifold", "non-manifold"),
+    "isolated": ("isolated", "isolated"),
+    "low_valence": ("with fewer than 3 neighbours", "with fewer than 3 neighbours"),
+    "high_valence": ("with too many neighbours", "with too many neighbours"),
+    "zero_area": ("with a flat one-ring", "with flat one-rings"),
+    "not_star_shaped": ("with a folded one-ring", "with folded one-rings"),
+    "inexact": ("not encodable in single precision", "not encodable in single precision"),
+}
+
+
+def pinned_by_kind(deformer) -> str:
+    """"12 vertices follow the rig: 8 boundary corners, 4 non-manifold" ("" when none do), most first."""
+    reasons = {name: len(vertices) for name, vertices in deformer.pinned_reasons.items() if len(vertices)}
+    total = sum(reasons.values())
+    if not total:
+        return ""
+    kinds = ", ".join(
+        f"{count} {PIN_KINDS.get(name, (name, name))[count != 1]}"
+        for name, count in sorted(reasons.items(), key=lambda item: (-item[1], item[0]))
+    )
+    return f"{total} {'vertex follows' if total == 1 else 'vertices follow'} the rig: {kinds}"
+
+
 def bind_shape(context, obj) -> tuple:
     """``(rest, corner_verts, polygon_sizes, keeps_topology)`` of the stack above Tegument's
     modifier now: what Pyramid Deform binds. Bind Pose *Original* takes the mesh's own positions
@@ -74,13 +100,13 @@ def bind(context, obj) -> str:
         evaluate.store_bind_mesh(obj, rest, corners, sizes)
     settings.bound_vertices = len(rest)
     settings.source_vertices = len(obj.data.vertices)
-    pinned = len(deformer.pinned_vertices)
     warnings = []
+    pinned = pinned_by_kind(deformer)
     if pinned:
-        warnings.append(f"{pinned} vertices follow the rig (a border corner, a non-manifold spot or a one-ring that cannot be encoded)")
+        warnings.append(pinned)
     if not report.is_clean:
         warnings.append("the mesh has non-manifold parts (run Check Mesh)")
-    settings.warnings = "; ".join(warnings)
+    settings.bind_warnings = settings.warnings = "; ".join(warnings)
     where = "" if keeps else f" (the modifier stack's; the mesh has {len(obj.data.vertices)})"
     return f"Bound {obj.name}: {len(rest)} vertices{where}" + (f" ({'; '.join(warnings)})" if warnings else "")
 
@@ -130,7 +156,7 @@ class TEGUMENT_OT_deform_remove(bpy.types.Operator):
             obj.data.attributes.remove(attribute)
         evaluate.remove_bind_mesh(obj)
         obj.tegument.bound_vertices = obj.tegument.source_vertices = 0
-        obj.tegument.warnings = ""
+        obj.tegument.warnings = obj.tegument.bind_warnings = ""
         self.report({"INFO"}, f"Removed Pyramid Deform from {obj.name}")
         return {"FINISHED"}
 
