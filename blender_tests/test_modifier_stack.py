@@ -258,3 +258,20 @@ def test_the_bind_warning_survives_a_bake(tmp_path):
     assert settings.warnings == bind_warning and modifier_panel.warning_lines(settings) == [bind_warning]
     assert bpy.ops.tegument.deform_remove() == {"FINISHED"}
     assert settings.warnings == settings.bind_warnings == ""
+
+
+def test_a_uv_warp_bind_leaves_a_subdivided_bind_alone(subdivided):
+    """UV Warp binds the mesh's own vertices (the tegument_rest attribute, at the user's request);
+    beside a bind mesh it must not change what Pyramid Deform bound."""
+    from bl_ext.user_default.tegument.operators.warp import bind_rest
+
+    obj, _ = subdivided
+    assert bpy.ops.tegument.deform_add() == {"FINISHED"}
+    bound, source = obj.tegument.bound_vertices, obj.tegument.source_vertices
+    bind_rest(bpy.context, obj)
+    assert "tegument_rest" in obj.data.attributes
+    assert obj.tegument.bind_mesh is not None
+    assert (obj.tegument.bound_vertices, obj.tegument.source_vertices) == (bound, source)
+    assert bpy.ops.tegument.bake() == {"FINISHED"}
+    frames, _ = read_pc2(bpy.path.abspath(obj.tegument.cache_path))
+    assert frames.shape == (4, bound, 3)
