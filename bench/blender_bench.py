@@ -337,7 +337,7 @@ def character(bpy, np, rows, threads, workdir) -> None:
 
         bpy.context.view_layer.objects.active = obj
         assert bpy.ops.tegument.deform_add() == {"FINISHED"}
-        pinned = character_demo.pinned_count(obj)  # before the bake, which replaces the warnings
+        pinned = character_demo.pinned_count(obj)  # the bind's warning (obj.tegument.bind_warnings)
         obj.tegument.frame_start, obj.tegument.frame_end = character_demo.POSE_FRAMES
         job = bake.BakeJob(bpy.context, obj, range(character_demo.POSE_FRAMES[0], last + 1))
         while not job.finished:

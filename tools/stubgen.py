@@ -117,6 +117,7 @@ RETURNS = {
     "Mesh.report": "MeshReport",
     "PyramidDeformer.vertex_count": "int",
     "PyramidDeformer.pinned_vertices": "Int32",
+    "PyramidDeformer.pinned_reasons": "dict[str, Int32]",
     "PyramidDeformer.solve": "Float32",
     "PyramidDeformer.step": "Float32",
     "PyramidDeformer.velocity": "Float32 | None",

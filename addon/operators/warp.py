@@ -45,7 +45,8 @@ def bind_rest(context, obj) -> str:
     if vertex is not None:
         raise WarpError(f"{obj.name}: vertex {vertex} has a non-finite position")
     evaluate.store_rest(obj, rest)
-    obj.tegument.bound_vertices = len(rest)
+    if obj.tegument.bind_mesh is None:  # Pyramid Deform's bind is this attribute too: it is renewed
+        obj.tegument.bound_vertices = obj.tegument.source_vertices = len(rest)
     return f"Bound {obj.name}: {len(rest)} vertices"
 
 

@@ -9,7 +9,7 @@ use pyo3::types::PyDict;
 use tegument_core::collide::{AuditParams, ColliderSettings};
 use tegument_core::warp::WarpSettings;
 use tegument_core::collide::Collider as CoreCollider;
-use tegument_core::pyramid::{Closeness, DeformerOptions};
+use tegument_core::pyramid::{Closeness, DeformerOptions, PinReason};
 use tegument_core::sequence::{
     Dynamics as CoreDynamics, Sequence as Core, StepOptions, StepReport, StrainMode, StrainOptions,
 };
@@ -113,6 +113,28 @@ impl PyramidDeformer {
     fn pinned_vertices<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<i32>>> {
         let pinned = self.with(py, |core| Ok(core.pinned_vertices()))?;
         Ok(indices_to_py(py, &pinned))
+    }
+
+    /// ``{reason: int32 (K,)}``: the pinned vertices by why the bind could not
+    /// encode them, each array ascending; only reasons that occur are keys.
+    /// Reasons: ``boundary`` (a border corner without a usable one-ring),
+    /// ``non_manifold``, ``isolated``, ``low_valence`` (fewer than 3
+    /// neighbours), ``high_valence``, ``zero_area`` (a one-ring without
+    /// area), ``not_star_shaped`` (the vertex does not project inside its
+    /// ring), ``inexact`` (not reproducible in single precision). Together
+    /// they hold exactly ``pinned_vertices``.
+    #[getter]
+    fn pinned_reasons<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let pinned = self.with(py, |core| Ok(core.deformer().pinned().to_vec()))?;
+        let dict = PyDict::new(py);
+        for reason in PinReason::ALL {
+            let mut vertices: Vec<u32> = pinned.iter().filter(|&&(_, r)| r == reason).map(|&(v, _)| v).collect();
+            if !vertices.is_empty() {
+                vertices.sort_unstable();
+                dict.set_item(reason.name(), indices_to_py(py, &vertices))?;
+            }
+        }
+        Ok(dict)
     }
 
     /// Solves one frame and returns float32 ``(N, 3)`` positions.

@@ -348,3 +348,25 @@ def test_solve_refuses_bad_input(bound):
         deformer.residual(nan)
     # Still usable after all of that.
     np.testing.assert_allclose(deformer.solve(rest), rest, atol=1e-5)
+
+
+def test_pinned_reasons_name_the_kind_of_every_pinned_vertex():
+    # A quad grid: its four corners have two neighbours on an open border.
+    grid = tegument.PyramidDeformer(*grid_arrays(6, 5))
+    reasons = grid.pinned_reasons
+    assert list(reasons) == ["boundary"]
+    assert reasons["boundary"].dtype == np.int32
+    np.testing.assert_array_equal(reasons["boundary"], grid.pinned_vertices)
+    # Three faces on one edge: its two ends are non-manifold.
+    positions = np.array([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (1, 0, 1), (0, 0, 1), (0, -1, 0), (1, -1, 0)], np.float32)
+    corners = np.array([0, 1, 2, 3, 1, 0, 5, 4, 0, 1, 7, 6], np.int32)
+    fin = tegument.PyramidDeformer(positions, corners, np.array([4, 4, 4], np.int32))
+    reasons = fin.pinned_reasons
+    assert set(reasons) <= {"boundary", "non_manifold", "isolated", "low_valence", "high_valence", "zero_area",
+                            "not_star_shaped", "inexact"}
+    assert {0, 1} <= set(reasons["non_manifold"].tolist())
+    together = np.sort(np.concatenate(list(reasons.values())))
+    np.testing.assert_array_equal(together, fin.pinned_vertices)  # each pinned vertex once, with one reason
+    assert all(np.all(np.diff(v) > 0) for v in reasons.values())
+    closed = tegument.PyramidDeformer(*quad_sphere_arrays())
+    assert closed.pinned_reasons == {}

@@ -28,6 +28,32 @@ pub enum PinReason {
 }
 
 impl PinReason {
+    /// Every reason, in declaration order.
+    pub const ALL: [PinReason; 8] = [
+        PinReason::Boundary,
+        PinReason::NonManifold,
+        PinReason::Isolated,
+        PinReason::LowValence,
+        PinReason::HighValence,
+        PinReason::ZeroArea,
+        PinReason::NotStarShaped,
+        PinReason::Inexact,
+    ];
+
+    /// A stable identifier (snake case) for scripts and reports; [`Self::describe`] is the prose.
+    pub fn name(self) -> &'static str {
+        match self {
+            PinReason::Boundary => "boundary",
+            PinReason::NonManifold => "non_manifold",
+            PinReason::Isolated => "isolated",
+            PinReason::LowValence => "low_valence",
+            PinReason::HighValence => "high_valence",
+            PinReason::ZeroArea => "zero_area",
+            PinReason::NotStarShaped => "not_star_shaped",
+            PinReason::Inexact => "inexact",
+        }
+    }
+
     pub fn describe(self) -> &'static str {
         match self {
             PinReason::Boundary => "boundary corner without a usable one-ring",

@@ -733,3 +733,10 @@ fn anderson_acceleration_reaches_the_same_solution_in_far_fewer_iterations() {
     let plain = error(&deformer.solve(&input, 15, Closeness::Uniform(0.05)).unwrap());
     assert!(fast < 0.05 && fast < 0.25 * plain, "15 iterations: accelerated {fast}, plain {plain}");
 }
+
+#[test]
+fn every_pin_reason_has_its_own_name() {
+    let names: std::collections::HashSet<&str> = PinReason::ALL.iter().map(|r| r.name()).collect();
+    assert_eq!(names.len(), PinReason::ALL.len());
+    assert!(PinReason::ALL.iter().all(|r| !r.describe().is_empty()));
+}

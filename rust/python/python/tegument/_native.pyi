@@ -195,6 +195,17 @@ class PyramidDeformer:
         compliant collider vertex from its animated position).
         """
     @property
+    def pinned_reasons(self) -> dict[str, Int32]:
+        """``{reason: int32 (K,)}``: the pinned vertices by why the bind could not
+        encode them, each array ascending; only reasons that occur are keys.
+        Reasons: ``boundary`` (a border corner without a usable one-ring),
+        ``non_manifold``, ``isolated``, ``low_valence`` (fewer than 3
+        neighbours), ``high_valence``, ``zero_area`` (a one-ring without
+        area), ``not_star_shaped`` (the vertex does not project inside its
+        ring), ``inexact`` (not reproducible in single precision). Together
+        they hold exactly ``pinned_vertices``.
+        """
+    @property
     def pinned_vertices(self) -> Int32:
         """int32 ``(K,)``: the vertices the bind could not encode (boundary,
         non-manifold, degenerate or very high valence one-rings), ascending.
