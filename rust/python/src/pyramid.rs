@@ -125,7 +125,7 @@ impl PyramidDeformer {
     /// they hold exactly ``pinned_vertices``.
     #[getter]
     fn pinned_reasons<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let pinned = self.with(py, |core| Ok(core.deformer().pinned().to_vec()))?;
+        let pinned = self.with(py, |core| Ok(core.pinned()))?;
         let dict = PyDict::new(py);
         for reason in PinReason::ALL {
             let mut vertices: Vec<u32> = pinned.iter().filter(|&&(_, r)| r == reason).map(|&(v, _)| v).collect();
