@@ -31,7 +31,6 @@ import measures
 MEASURED_FRAMES = (4, 8, 12)
 PINNED_AT_MOST = 0.005  # of the vertices: the issue's "at most 0.5% follow the input"
 SEAM_GAP_AT_MOST = 1e-5  # of the mesh size
-SEAMS_NOT_WELDED = "seams are welded in the core next (issue 26 item 1)"
 
 
 @functools.cache
@@ -120,37 +119,25 @@ def figures_of(variant: str) -> dict:
     return baked(variant)
 
 
-# The checks the glTF round trip fails until the core welds split seams, exactly those. Pinned:
-# 73 of 14 517 (0.503%), 52 of them on split seams (the wheel's pinned_vertices against
-# measures.coincident_groups), where welded they would have a closed ring.
-XFAIL_UNTIL_WELDED = {("gltf", "seams_closed"), ("gltf", "pinned")}
-
-
-def check(variant: str, name: str, request) -> dict:
-    if (variant, name) in XFAIL_UNTIL_WELDED:
-        request.applymarker(pytest.mark.xfail(strict=True, reason=SEAMS_NOT_WELDED))
-    return figures_of(variant)
-
-
 @pytest.mark.parametrize("variant", character_demo.VARIANTS)
-def test_bind_leaves_at_most_half_a_percent_following_the_input(variant, request):
-    figures = check(variant, "pinned", request)
+def test_bind_leaves_at_most_half_a_percent_following_the_input(variant):
+    figures = figures_of(variant)
     bind = figures["bind"]
     assert bind["vertices"] > (50000 if variant == "subdivided" else 13000)
     assert bind["pinned"] <= PINNED_AT_MOST * bind["vertices"], report_line(figures)
 
 
 @pytest.mark.parametrize("variant", character_demo.VARIANTS)
-def test_the_cache_is_finite_and_whole(variant, request):
-    figures = check(variant, "finite", request)
+def test_the_cache_is_finite_and_whole(variant):
+    figures = figures_of(variant)
     assert figures["cache_frames"] == character_demo.POSE_FRAMES[1] - character_demo.POSE_FRAMES[0] + 1
     assert figures["cache_finite"]
     assert all(pair["tegument"]["finite"] for pair in figures["frames"].values())
 
 
 @pytest.mark.parametrize("variant", character_demo.VARIANTS)
-def test_split_seams_stay_closed(variant, request):
-    figures = check(variant, "seams_closed", request)
+def test_split_seams_stay_closed(variant):
+    figures = figures_of(variant)
     if variant == "gltf":
         assert figures["split_vertices"] > 1000, "the glTF round trip no longer splits the seams: this test lost its point"
     limit = SEAM_GAP_AT_MOST * figures["mesh_size"]
@@ -160,15 +147,15 @@ def test_split_seams_stay_closed(variant, request):
 
 
 @pytest.mark.parametrize("variant", character_demo.VARIANTS)
-def test_no_spike_above_the_skinning_input(variant, request):
-    figures = check(variant, "spikes", request)
+def test_no_spike_above_the_skinning_input(variant):
+    figures = figures_of(variant)
     for frame, pair in figures["frames"].items():
         assert pair["tegument"]["spike_max"] <= pair["skinning"]["spike_max"], f"frame {frame}: {report_line(figures)}"
 
 
 @pytest.mark.parametrize("variant", character_demo.VARIANTS)
-def test_no_more_self_intersections_than_the_skinning_input(variant, request):
-    figures = check(variant, "self_intersections", request)
+def test_no_more_self_intersections_than_the_skinning_input(variant):
+    figures = figures_of(variant)
     for frame, pair in figures["frames"].items():
         assert pair["tegument"]["self_intersections"] <= pair["skinning"]["self_intersections"], f"frame {frame}: {report_line(figures)}"
 
@@ -185,13 +172,13 @@ def test_the_pose_is_as_hard_as_the_issue_asks():
 
 
 @pytest.mark.parametrize("variant", character_demo.VARIANTS)
-def test_bind_and_bake_leave_the_users_mesh_unchanged(variant, request):
+def test_bind_and_bake_leave_the_users_mesh_unchanged(variant):
     """Byte for byte: positions, loops, polygons, edges, UVs, vertex-group weights and every
     attribute, except the one bind adds on purpose where the stack above Tegument keeps the mesh's
     topology: ``tegument_rest`` (the rest positions, a FLOAT_VECTOR point attribute, documented in
     docs/pyramid-deform.md), checked to equal the positions. Under a Subdivision Surface the bind is
     a mesh of its own and nothing at all is added."""
-    figures = check(variant, "unchanged", request)
+    figures = figures_of(variant)
     before, after = figures["before"], figures["after"]
     added = sorted(set(after) - set(before))
     if variant == "subdivided":

@@ -116,6 +116,7 @@ RETURNS = {
     "Mesh.problem_vertices": "Int32",
     "Mesh.report": "MeshReport",
     "PyramidDeformer.vertex_count": "int",
+    "PyramidDeformer.welded_vertex_count": "int",
     "PyramidDeformer.pinned_vertices": "Int32",
     "PyramidDeformer.pinned_reasons": "dict[str, Int32]",
     "PyramidDeformer.solve": "Float32",

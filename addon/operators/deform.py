@@ -108,7 +108,10 @@ def bind(context, obj) -> str:
         warnings.append("the mesh has non-manifold parts (run Check Mesh)")
     settings.bind_warnings = settings.warnings = "; ".join(warnings)
     where = "" if keeps else f" (the modifier stack's; the mesh has {len(obj.data.vertices)})"
-    return f"Bound {obj.name}: {len(rest)} vertices{where}" + (f" ({'; '.join(warnings)})" if warnings else "")
+    # Split seams (glTF/FBX/USD imports) are welded for the solver: said, not warned about.
+    seams = len(rest) - deformer.welded_vertex_count
+    welded = f", {seams} on split seams welded" if seams else ""
+    return f"Bound {obj.name}: {len(rest)} vertices{where}{welded}" + (f" ({'; '.join(warnings)})" if warnings else "")
 
 
 class TEGUMENT_OT_deform_add(bpy.types.Operator):

@@ -370,3 +370,54 @@ def test_pinned_reasons_name_the_kind_of_every_pinned_vertex():
     assert all(np.all(np.diff(v) > 0) for v in reasons.values())
     closed = tegument.PyramidDeformer(*quad_sphere_arrays())
     assert closed.pinned_reasons == {}
+
+
+# ---------------------------------------------------------------- split seams (issue 26)
+
+
+def split_by_side(positions: np.ndarray, corners: np.ndarray, sizes: np.ndarray):
+    """The mesh split along x = 0 as a glTF importer splits a UV seam: the faces on the +x side
+    get their own copies of the vertices they share with the -x side. Returns the split arrays
+    and, per split vertex, the original vertex."""
+    starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+    side = np.array([positions[corners[s:s + n]].mean(axis=0)[0] > 0 for s, n in zip(starts, sizes)])
+    face_of_corner = np.repeat(np.arange(len(sizes)), sizes)
+    negative = np.zeros(len(positions), bool)
+    negative[corners[~side[face_of_corner]]] = True
+    shared = np.flatnonzero(negative & np.isin(np.arange(len(positions)), corners[side[face_of_corner]]))
+    copy_of = {v: len(positions) + k for k, v in enumerate(shared)}
+    split_corners = corners.copy()
+    for c in np.flatnonzero(side[face_of_corner]):
+        split_corners[c] = copy_of.get(int(corners[c]), corners[c])
+    original = np.concatenate((np.arange(len(positions)), shared))
+    return positions[original].copy(), split_corners, sizes, original
+
+
+def test_split_seams_are_welded_and_stay_closed():
+    rest, corners, sizes = quad_sphere_arrays(8)
+    split_rest, split_corners, split_sizes, original = split_by_side(rest, corners, sizes)
+    assert len(split_rest) > len(rest) + 20
+    whole = tegument.PyramidDeformer(rest, corners, sizes)
+    split = tegument.PyramidDeformer(split_rest, split_corners, split_sizes)
+    assert split.vertex_count == len(split_rest) and split.welded_vertex_count == len(rest)
+    assert len(split.pinned_vertices) == 0, "the seam's vertices have whole rings once welded"
+
+    bend = lambda p: p + np.stack([0 * p[:, 0], 0 * p[:, 0], 0.6 * p[:, 0] ** 2], 1).astype(np.float32)  # noqa: E731
+    solved = split.solve(bend(split_rest))
+    assert solved.shape == split_rest.shape and np.isfinite(solved).all()
+    np.testing.assert_allclose(solved, whole.solve(bend(rest))[original], atol=1e-6)
+    stepped = split.step(bend(split_rest), closeness=np.full(len(split_rest), 0.05, np.float32))
+    for copy, first in enumerate(original):
+        assert np.array_equal(stepped[copy], stepped[first]), f"seam vertex {copy} left vertex {first}"
+    with pytest.raises(tegument.TegumentError, match=rf"closeness: expected float32 \({len(split_rest)},\)"):
+        split.solve(split_rest, closeness=np.full(len(rest), 0.05, np.float32))
+
+
+def test_the_users_arrays_are_only_read():
+    rest, corners, sizes = quad_sphere_arrays(6)
+    split_rest, split_corners, split_sizes, _ = split_by_side(rest, corners, sizes)
+    copies = [a.copy() for a in (split_rest, split_corners, split_sizes)]
+    deformer = tegument.PyramidDeformer(split_rest, split_corners, split_sizes)
+    deformer.step(split_rest * np.float32(1.1))
+    for before, after in zip(copies, (split_rest, split_corners, split_sizes)):
+        assert before.tobytes() == after.tobytes()

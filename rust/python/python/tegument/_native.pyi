@@ -174,10 +174,12 @@ class PyramidDeformer:
     ``rest_positions`` float32 ``(N, 3)``, ``corner_verts`` int32 ``(L,)`` and
     ``polygon_sizes`` int32 ``(P,)`` describe the mesh at rest in Blender's
     layout. ``scale_safe`` stores edge elevation angles instead of plain heights,
-    so that a uniformly scaled input is reproduced exactly. Boundary,
-    non-manifold and degenerate vertices cannot be encoded: they follow the
-    input and are listed in ``pinned_vertices``. Raises ``TegumentError`` on
-    bad input.
+    so that a uniformly scaled input is reproduced exactly. Vertices that
+    coincide at rest (split seams of imported meshes) are welded for the
+    solver, so seams stay closed; the mesh arrays themselves are only read.
+    Open borders are encoded with open one-rings; corners, non-manifold and
+    degenerate spots that cannot be encoded follow the input and are listed in
+    ``pinned_vertices``. Raises ``TegumentError`` on bad input.
     """
     def __init__(self, rest_positions: Floats, corner_verts: Indices, polygon_sizes: Indices, scale_safe: bool = ...) -> None: ...
     @property
@@ -268,6 +270,13 @@ class PyramidDeformer:
     @property
     def vertex_count(self) -> int:
         """Number of vertices of the bound mesh."""
+    @property
+    def welded_vertex_count(self) -> int:
+        """Number of vertices the solver works on: the mesh's, with vertices
+        that coincide at rest (split UV or sharp-normal seams, as glTF, FBX and
+        USD importers deliver them) welded into one. Results come back per
+        mesh vertex, the same position for every member of a seam.
+        """
 
 class UvWarp:
     """Content-aware UV warp of one mesh (seed 001: hierarchical position-based
