@@ -199,3 +199,5 @@ fn vertex_areas(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<f32> {
 mod tests;
 #[cfg(test)]
 mod seam_tests;
+#[cfg(test)]
+mod irregular_tests;
