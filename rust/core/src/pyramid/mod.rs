@@ -40,7 +40,7 @@ pub use deformer::{
     mean_residual, Closeness, DeformerOptions, Formulation, PyramidDeformer, DEFAULT_CLOSENESS,
     MAX_ITERATIONS, MIN_CLOSENESS, validate_closeness,
 };
-pub use encode::{encode, Encoding, PinReason, MAX_VALENCE};
+pub use encode::{encode, Encoding, PinReason, MAX_REST_ELEVATION, MAX_VALENCE};
 
 #[cfg(test)]
 mod open_ring_tests;

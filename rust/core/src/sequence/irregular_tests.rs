@@ -172,6 +172,7 @@ fn irregular_places_bend_without_spikes_or_tears() {
         ("near-degenerate sliver rings", sliver_rings(), 1.5),
         ("sleeve resting on an arm (overlapping shells)", sleeve_resting_on_arm(), 1.5),
     ];
+    let mut failures = Vec::new();
     for (name, mesh, joint) in cases {
         let mut sequence = Sequence::bind(mesh.input(), DeformerOptions::default()).unwrap();
         let input = elbow(&mesh.positions, joint, 0.8);
@@ -181,10 +182,15 @@ fn irregular_places_bend_without_spikes_or_tears() {
             assert!(out.iter().all(|p| p.is_finite()), "{name}: non-finite result");
             let (spike, stretch) = (spike_max(&mesh, &out), worst_stretch(&mesh, &out));
             eprintln!("{name}, {iterations} iterations: spike {input_spike:.3} -> {spike:.3}, stretch {input_stretch:.3} -> {stretch:.3}, pinned {:?}", sequence.pinned().len());
-            assert!(spike <= input_spike + 1e-3, "{name}, {iterations} iterations: spike max {spike} against the input's {input_spike}");
-            assert!(stretch <= input_stretch.max(1.0) * 1.05, "{name}, {iterations} iterations: an edge stretched {stretch}× (input {input_stretch}×)");
+            if !(spike <= input_spike + 1e-3) {
+                failures.push(format!("{name}, {iterations} iterations: spike max {spike} against the input's {input_spike}"));
+            }
+            if !(stretch <= input_stretch.max(1.0) * 1.05) {
+                failures.push(format!("{name}, {iterations} iterations: an edge stretched {stretch}× (input {input_stretch}×)"));
+            }
         }
     }
+    assert!(failures.is_empty(), "{failures:#?}");
 }
 
 #[test]
@@ -196,5 +202,47 @@ fn irregular_places_are_pinned_only_where_nothing_else_works() {
         let pinned = sequence.pinned();
         eprintln!("{name}: {:?}", pinned.iter().map(|(v, r)| (v, r.describe())).collect::<Vec<_>>());
         assert!(pinned.len() * 10 < mesh.positions.len(), "{name}: {} of {} vertices pinned", pinned.len(), mesh.positions.len());
+    }
+}
+
+#[test]
+#[ignore]
+fn diagnose_cuff() {
+    let mesh = sliver_rings();
+    let mut sequence = Sequence::bind(mesh.input(), DeformerOptions::default()).unwrap();
+    eprintln!("ring fitted {:?}", sequence.ring_fitted());
+    let input = elbow(&mesh.positions, 1.5, 0.8);
+    let nb = neighbours(&mesh);
+    for iterations in [10, 60, 200] {
+        let out = sequence.solve(&input, iterations, Closeness::Default).unwrap();
+        let rest = &mesh.positions;
+        let mut worst: Vec<(f32, usize)> = nb.iter().enumerate().map(|(i, ring)| {
+            let offset = |p: &[Vec3]| (p[i] - ring.iter().map(|&j| p[j]).sum::<Vec3>() / ring.len() as f32).length();
+            let edge = ring.iter().map(|&j| (rest[j] - rest[i]).length()).sum::<f32>() / ring.len() as f32;
+            ((offset(&out) - offset(rest)) / edge, i)
+        }).collect();
+        worst.sort_by(|a, b| b.0.total_cmp(&a.0));
+        eprintln!("{iterations}: {:?}", worst.iter().take(6).map(|&(s, i)| (s, i / 25, i % 25)).collect::<Vec<_>>());
+    }
+}
+
+#[test]
+#[ignore]
+fn diagnose_tangents() {
+    for (name, mesh, around) in [("cuff", cuff_step(), 24usize), ("fin", tube_with_fin(), 24), ("sleeve", sleeve_resting_on_arm(), 24)] {
+        let topology = crate::mesh::Topology::build(mesh.input()).unwrap();
+        let encoding = crate::pyramid::encode(&topology, &mesh.positions, true).unwrap();
+        let mut per_ring = std::collections::BTreeMap::new();
+        for e in 0..encoding.len() {
+            let v = encoding.vertices()[e] as usize;
+            let t = encoding.tangents(e).iter().fold(0f32, |m, t| m.max(t.abs()));
+            let wmin = encoding.weights(e).iter().fold(1f32, |m, &w| m.min(w));
+            let wmax = encoding.weights(e).iter().fold(0f32, |m, &w| m.max(w));
+            let entry = per_ring.entry(v / around).or_insert((0f32, 1f32, 0f32));
+            entry.0 = entry.0.max(t);
+            entry.1 = entry.1.min(wmin);
+            entry.2 = entry.2.max(wmax);
+        }
+        eprintln!("{name}: {:?}", per_ring);
     }
 }
