@@ -101,6 +101,10 @@ pub struct PyramidDeformer {
     encoding: Arc<Encoding>,
     formulation: Formulation,
     pinned_mask: Vec<bool>,
+    /// Vertices carried from a nearly coincident neighbour by their ring fit:
+    /// closeness would pull the pair of a sliver apart by `c` times the
+    /// shape correction, so they have none (just [`MIN_CLOSENESS`]).
+    anchored_mask: Vec<bool>,
     /// Vertices that follow the input, with the reason, ascending.
     pinned: Vec<(u32, PinReason)>,
     /// Vertices without a pyramid row held by a ring fit, with the reason
@@ -163,6 +167,12 @@ impl PyramidDeformer {
         for &(v, _) in &split.pinned {
             pinned_mask[v as usize] = true;
         }
+        let mut anchored_mask = vec![false; n];
+        if let Some(fit) = &ring_fit {
+            for v in fit.anchored() {
+                anchored_mask[v as usize] = true;
+            }
+        }
         let mut solver = Solver::new(n);
         let pyramid_rows = encoding.len();
         let constraint: Box<dyn solve::Constraint> = match formulation {
@@ -182,6 +192,7 @@ impl PyramidDeformer {
             encoding,
             formulation,
             pinned_mask,
+            anchored_mask,
             pinned: split.pinned,
             ring_fitted: split.fitted,
             solver,
@@ -264,9 +275,11 @@ impl PyramidDeformer {
                 weights.to_vec()
             }
         };
-        for (c, &pinned) in per_vertex.iter_mut().zip(&self.pinned_mask) {
+        for ((c, &pinned), &anchored) in per_vertex.iter_mut().zip(&self.pinned_mask).zip(&self.anchored_mask) {
             *c = if pinned {
                 PINNED_CLOSENESS
+            } else if anchored {
+                MIN_CLOSENESS
             } else {
                 c.max(MIN_CLOSENESS)
             };

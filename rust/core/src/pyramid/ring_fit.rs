@@ -34,6 +34,10 @@ use crate::solve::{Constraint, Context, Rows};
 const ROTATION_ITERATIONS: usize = 48;
 const ROTATION_TOLERANCE: f64 = 1e-9;
 
+/// A neighbour closer than this fraction of the mean neighbour distance makes
+/// a sliver (see [`super::encode::MIN_RELATIVE_NEIGHBOUR_DISTANCE`]).
+const SLIVER: f64 = super::encode::MIN_RELATIVE_NEIGHBOUR_DISTANCE;
+
 /// Which pinned vertices a ring fit can hold, and their neighbours.
 #[derive(Debug, Clone, Default)]
 pub struct RingFitVertices {
@@ -82,8 +86,12 @@ pub struct RingFit {
     neighbours: Vec<u32>,
     /// Per neighbour entry: its rest offset from the neighbours' rest mean.
     rest_offsets: Vec<Vec3>,
-    /// Per row: the vertex's own rest offset from its neighbours' rest mean.
+    /// Per row: the vertex's own rest offset from its neighbours' rest mean,
+    /// or from its anchor when it has one.
     own_offsets: Vec<Vec3>,
+    /// Per row: a nearly coincident neighbour of lower index the vertex is
+    /// carried from instead of its neighbours' mean (`u32::MAX`: none).
+    anchors: Vec<u32>,
     scale_safe: bool,
 }
 
@@ -106,6 +114,7 @@ impl RingFit {
         }
         let mut offsets = vec![0u32];
         let (mut neighbours, mut rest_offsets, mut own_offsets) = (Vec::new(), Vec::new(), Vec::new());
+        let mut anchors = Vec::new();
         for (list, &v) in lists.iter_mut().zip(vertices) {
             list.sort_unstable();
             list.dedup();
@@ -115,7 +124,30 @@ impl RingFit {
                 neighbours.push(j);
                 rest_offsets.push((rest[j as usize].as_dvec3() - centre).as_vec3());
             }
-            own_offsets.push((rest[v as usize].as_dvec3() - centre).as_vec3());
+            // A sliver: the nearest neighbour almost on the vertex. Equal
+            // weights would let the pair drift apart (by the fit's error,
+            // huge next to their distance); carrying the vertex from that
+            // neighbour keeps the sliver one. Only from a lower index, so
+            // that a pair (or a collapsed cluster) is never carried from
+            // itself and stays tied to the rest of the surface.
+            let own = rest[v as usize].as_dvec3();
+            let distance = |j: u32| (rest[j as usize].as_dvec3() - own).length();
+            let mean = list.iter().map(|&j| distance(j)).sum::<f64>() / list.len() as f64;
+            let anchor = list
+                .iter()
+                .copied()
+                .filter(|&j| j < v && distance(j) < SLIVER * mean)
+                .min_by(|&a, &b| distance(a).total_cmp(&distance(b)).then(a.cmp(&b)));
+            match anchor {
+                Some(a) => {
+                    own_offsets.push((own - rest[a as usize].as_dvec3()).as_vec3());
+                    anchors.push(a);
+                }
+                None => {
+                    own_offsets.push((own - centre).as_vec3());
+                    anchors.push(u32::MAX);
+                }
+            }
             offsets.push(neighbours.len() as u32);
         }
         RingFit {
@@ -125,12 +157,18 @@ impl RingFit {
             neighbours,
             rest_offsets,
             own_offsets,
+            anchors,
             scale_safe,
         }
     }
 
     pub fn vertices(&self) -> &[u32] {
         &self.vertices
+    }
+
+    /// The vertices carried from a nearly coincident neighbour (slivers).
+    pub fn anchored(&self) -> Vec<u32> {
+        self.vertices.iter().zip(&self.anchors).filter(|(_, &a)| a != u32::MAX).map(|(&v, _)| v).collect()
     }
 
     /// The target of row `r` at positions `x`.
@@ -141,8 +179,9 @@ impl RingFit {
         let own_rest = self.own_offsets[r].as_dvec3();
         let centre = ring.iter().map(|&j| x[j as usize].as_dvec3()).sum::<DVec3>() / ring.len() as f64;
         let own = x[self.vertices[r] as usize].as_dvec3() - centre;
-        // Covariance Σ p qᵀ of current p onto rest q offsets, the vertex's own included.
-        let mut covariance = outer(own, own_rest);
+        // Covariance Σ p qᵀ of current p onto rest q offsets, the vertex's
+        // own included (unless carried from an anchor: its offset is tiny).
+        let mut covariance = if self.anchors[r] == u32::MAX { outer(own, own_rest) } else { DMat3::ZERO };
         let mut rest_norm = 0.0;
         for (&j, q) in ring.iter().zip(rest) {
             let (p, q) = (x[j as usize].as_dvec3() - centre, q.as_dvec3());
@@ -162,7 +201,11 @@ impl RingFit {
         } else {
             1.0
         };
-        (centre + scale * (rotation * own_rest)).as_vec3()
+        let origin = match self.anchors[r] {
+            u32::MAX => centre,
+            a => x[a as usize].as_dvec3(),
+        };
+        (origin + scale * (rotation * own_rest)).as_vec3()
     }
 }
 

@@ -206,43 +206,22 @@ fn irregular_places_are_pinned_only_where_nothing_else_works() {
 }
 
 #[test]
-#[ignore]
-fn diagnose_cuff() {
-    let mesh = sliver_rings();
-    let mut sequence = Sequence::bind(mesh.input(), DeformerOptions::default()).unwrap();
-    eprintln!("ring fitted {:?}", sequence.ring_fitted());
-    let input = elbow(&mesh.positions, 1.5, 0.8);
-    let nb = neighbours(&mesh);
-    for iterations in [10, 60, 200] {
-        let out = sequence.solve(&input, iterations, Closeness::Default).unwrap();
-        let rest = &mesh.positions;
-        let mut worst: Vec<(f32, usize)> = nb.iter().enumerate().map(|(i, ring)| {
-            let offset = |p: &[Vec3]| (p[i] - ring.iter().map(|&j| p[j]).sum::<Vec3>() / ring.len() as f32).length();
-            let edge = ring.iter().map(|&j| (rest[j] - rest[i]).length()).sum::<f32>() / ring.len() as f32;
-            ((offset(&out) - offset(rest)) / edge, i)
-        }).collect();
-        worst.sort_by(|a, b| b.0.total_cmp(&a.0));
-        eprintln!("{iterations}: {:?}", worst.iter().take(6).map(|&(s, i)| (s, i / 25, i % 25)).collect::<Vec<_>>());
+fn ring_fitted_vertices_reproduce_rigid_motion_and_uniform_scale() {
+    let motion = |p: Vec3, scale: f32| Quat::from_euler(glam::EulerRot::XYZ, 0.7, -1.1, 2.3) * (p * scale) + Vec3::new(3.0, -2.0, 1.5);
+    for (name, mesh) in [("fin", tube_with_fin()), ("bow-tie", bow_tie_tubes()), ("cuff", cuff_step())] {
+        let mut sequence = Sequence::bind(mesh.input(), DeformerOptions::default()).unwrap();
+        assert!(!sequence.ring_fitted().is_empty(), "{name}: nothing ring-fitted");
+        for scale in [1.0, 2.5] {
+            let input: Vec<Vec3> = mesh.positions.iter().map(|&p| motion(p, scale)).collect();
+            let size = input.iter().fold(0f32, |m, p| m.max((*p - input[0]).length()));
+            for iterations in [10, 60] {
+                let out = sequence.solve(&input, iterations, Closeness::Default).unwrap();
+                let error = out.iter().zip(&input).map(|(a, b)| (*a - *b).length()).fold(0.0, f32::max);
+                eprintln!("{name}, scale {scale}, {iterations} iterations: off by {:.2e} of the size", error / size);
+                // f32 rounding of coordinates near 8 over the iterations: measured up to 1.07e-5.
+                assert!(error <= 2e-5 * size, "{name}, scale {scale}, {iterations} iterations: off by {error} (size {size})");
+            }
+        }
     }
 }
 
-#[test]
-#[ignore]
-fn diagnose_tangents() {
-    for (name, mesh, around) in [("cuff", cuff_step(), 24usize), ("fin", tube_with_fin(), 24), ("sleeve", sleeve_resting_on_arm(), 24)] {
-        let topology = crate::mesh::Topology::build(mesh.input()).unwrap();
-        let encoding = crate::pyramid::encode(&topology, &mesh.positions, true).unwrap();
-        let mut per_ring = std::collections::BTreeMap::new();
-        for e in 0..encoding.len() {
-            let v = encoding.vertices()[e] as usize;
-            let t = encoding.tangents(e).iter().fold(0f32, |m, t| m.max(t.abs()));
-            let wmin = encoding.weights(e).iter().fold(1f32, |m, &w| m.min(w));
-            let wmax = encoding.weights(e).iter().fold(0f32, |m, &w| m.max(w));
-            let entry = per_ring.entry(v / around).or_insert((0f32, 1f32, 0f32));
-            entry.0 = entry.0.max(t);
-            entry.1 = entry.1.min(wmin);
-            entry.2 = entry.2.max(wmax);
-        }
-        eprintln!("{name}: {:?}", per_ring);
-    }
-}
