@@ -69,8 +69,6 @@ impl Sequence {
             (Some(last), true) => last.clone(),
             _ => Vec::new(),
         };
-        // Warm start: what the last frame's result was solved for (none on a cold frame).
-        let solved_for = self.last_input.take().filter(|_| self.history.is_some());
         // Where each collider is at the ends of the frame; compliant ones start
         // from where they were solved last frame (their `previous`).
         let frame_ends: Vec<(Vec<Vec3>, Vec<Vec3>)> = colliders
@@ -113,12 +111,7 @@ impl Sequence {
                     }
                 }
                 let h = options.dynamics.map_or(0.0, |d| d.frame_time / substeps as f32);
-                let previous_s = match (s, &solved_for) {
-                    (1, _) => solved_for.clone(),
-                    (_, Some(_)) if !last_input.is_empty() => Some(lerp(&last_input, input, f0)),
-                    _ => Some(input.to_vec()),
-                };
-                x = self.substep(&x, &input_s, previous_s.as_deref(), colliders, &goals, options, limits.as_ref(), h, &mut report)?;
+                x = self.substep(&x, &input_s, colliders, &goals, options, limits.as_ref(), h, &mut report)?;
             }
             Ok(())
         })();
@@ -156,9 +149,7 @@ impl Sequence {
     }
 
     /// One substep from the collision-free `x_n` towards `input` (see the
-    /// module documentation). `solved_for` is the input `x_n` was solved
-    /// for: the solve then starts warm, from `x_n` moved as the input moved
-    /// (without it, cold from the input). `goals[c]` holds the compliant colliders'
+    /// module documentation). `goals[c]` holds the compliant colliders'
     /// animated positions at the end of the substep; `h` is its length in
     /// seconds (dynamics only).
     #[allow(clippy::too_many_arguments)]
@@ -166,7 +157,6 @@ impl Sequence {
         &mut self,
         x_n: &[Vec3],
         input: &[Vec3],
-        solved_for: Option<&[Vec3]>,
         colliders: &mut [&mut Collider],
         goals: &[Option<Vec<Vec3>>],
         options: &StepOptions<'_>,
@@ -191,12 +181,7 @@ impl Sequence {
         let contacts = contact_targets(&target, self.deformer.closeness_weights(), colliders, goals)?;
         report.compliant_skin_vertices = report.compliant_skin_vertices.max(contacts.as_ref().map_or(0, |(_, w)| w.iter().filter(|&&w| w > 0.0).count()));
         self.set_contact_targets(contacts)?;
-        // Where the solve starts (the first collision pass goes there from
-        // `x_n`): warm, or with dynamics the prediction, or cold.
-        let mut x = match (solved_for, &options.dynamics) {
-            (Some(from), None) => x_n.iter().zip(input).zip(from).map(|((x, i), f)| *x + (*i - *f)).collect(),
-            _ => target,
-        };
+        let mut x = target;
         // A vertex one pass leaves pinched inside a collider starts the next
         // pass inside, where no contact is seen again: keep the suspects and
         // look at where they end.
