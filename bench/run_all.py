@@ -85,8 +85,9 @@ def main() -> int:
     cargo = ["cargo", "bench", "-p", "tegument-core"]
     steps = [
         # Compiled first, so no benchmark is timed while its successors compile.
-        ("build", cargo + ["--no-run", "--bench", "pyramid", "--bench", "collide", "--bench", "flesh", "--bench", "warp"], {}),
+        ("build", cargo + ["--no-run", "--bench", "pyramid", "--bench", "convergence", "--bench", "collide", "--bench", "flesh", "--bench", "warp"], {}),
         ("pyramid", cargo + ["--bench", "pyramid"], results_env),
+        ("convergence", cargo + ["--bench", "convergence"], results_env),
         ("collide", cargo + ["--bench", "collide"], results_env),
         ("flesh", cargo + ["--bench", "flesh"], results_env),
         ("warp", cargo + ["--bench", "warp"], {**results_env, "TEGUMENT_WARP_SIZES": "1024,2048,4096"}),
@@ -108,6 +109,8 @@ def main() -> int:
         [python, str(HERE / "collect.py"), "--results", str(args.results), "--json", str(args.json), "--markdown", str(args.markdown),
          "--plot", os.path.relpath(args.plot, args.markdown.parent)],
         [python, str(HERE / "plot_bench.py"), "--results", str(args.json), "--out", str(args.plot)],
+        [python, str(HERE / "plot_convergence.py"), "--results", str(args.results / "convergence.json"),
+         "--out", str(args.plot.parent / "pyramid-convergence.png")],
     ):
         if subprocess.run(command, cwd=ROOT).returncode != 0:
             return 1

@@ -2,8 +2,8 @@
 Armature and Tegument), through the installed extension; plus what bind reports (pinned vertices
 by kind) and that its warning survives a bake.
 
-Where the stack above Tegument changes the topology, the bind is a Mesh datablock of its own
-(``obj.tegument.bind_mesh``) and the user's mesh is not touched at all.
+The bind is a Mesh datablock of its own (``obj.tegument.bind_mesh``), whether or not the stack
+above Tegument changes the topology, and the user's mesh is not touched at all.
 """
 
 from __future__ import annotations
@@ -123,11 +123,13 @@ def test_rebind_after_changing_the_levels_and_remove(subdivided):
     frames, _ = read_pc2(bpy.path.abspath(obj.tegument.cache_path))
     assert frames.shape == (4, count, 3)
 
-    # Without the Subdivision Surface the bind goes back to the mesh's rest attribute.
+    # Without the Subdivision Surface the bind is still a bind mesh, now of the mesh's own
+    # vertices and faces: the user's mesh gets no attribute.
     obj.modifiers.remove(obj.modifiers["Subdivision"])
     assert bpy.ops.tegument.bind() == {"FINISHED"}
-    assert obj.tegument.bind_mesh is None and bind_meshes() == []
-    assert "tegument_rest" in obj.data.attributes
+    assert bind_meshes() == [BIND_MESH] and len(obj.tegument.bind_mesh.vertices) == len(obj.data.vertices)
+    assert [p.vertices[:] for p in obj.tegument.bind_mesh.polygons] == [p.vertices[:] for p in obj.data.polygons]
+    assert "tegument_rest" not in obj.data.attributes and mesh_snapshot(obj.data) == before
     obj.modifiers.new("Subdivision", "SUBSURF")
     bpy.ops.object.modifier_move_to_index(modifier="Subdivision", index=1)
     assert bpy.ops.tegument.bind() == {"FINISHED"} and bind_meshes() == [BIND_MESH]
@@ -261,8 +263,9 @@ def test_the_bind_warning_survives_a_bake(tmp_path):
 
 
 def test_a_uv_warp_bind_leaves_a_subdivided_bind_alone(subdivided):
-    """UV Warp binds the mesh's own vertices (the tegument_rest attribute, at the user's request);
-    beside a bind mesh it must not change what Pyramid Deform bound."""
+    """UV Warp binds the mesh's own vertices: beside a bind mesh of another vertex count (the
+    subdivided stack's) that is UV Warp's own tegument_rest attribute, at the user's request, and it
+    must not change what Pyramid Deform bound."""
     from bl_ext.user_default.tegument.operators.warp import bind_rest
 
     obj, _ = subdivided

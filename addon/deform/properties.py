@@ -137,8 +137,9 @@ class TEGUMENT_PG_deform(bpy.types.PropertyGroup):
     )
     bind_mesh: PointerProperty(
         name="Bind Mesh", type=bpy.types.Mesh, options={"HIDDEN"},
-        description="The bind (rest shape and topology) when the modifiers above Tegument change the topology "
-        "(Subdivision Surface, Remesh…); empty when the bind is the tegument_rest attribute of the object's mesh",
+        description="Pyramid Deform's bind: the rest shape and topology of the modifiers above Tegument, a mesh of "
+        "its own so that the object's mesh is not changed (empty: not bound, or bound by an earlier version "
+        "in the tegument_rest attribute of the object's mesh)",
     )
     last_frame_ms: FloatProperty(name="Time per Frame", default=0.0, options={"HIDDEN"})
     bind_warnings: StringProperty(

@@ -80,10 +80,10 @@ def bind(context, obj) -> str:
     """Binds the rest shape and topology of the stack above Tegument and checks they can be
     encoded; returns a status message.
 
-    Where that stack keeps ``obj.data``'s topology, the rest positions go into its
-    ``tegument_rest`` attribute (shared with UV Warp); where it changes it (Subdivision Surface,
-    Remesh…), the bind is a Mesh datablock of its own (``obj.tegument.bind_mesh``) and
-    ``obj.data`` is not touched."""
+    The bind is always a Mesh datablock of its own (``obj.tegument.bind_mesh``: rest positions and
+    topology), whether that stack keeps ``obj.data``'s topology or changes it (Subdivision Surface,
+    Remesh…): ``obj.data`` is not touched. A ``tegument_rest`` attribute on it (a bind made by an
+    earlier version, or UV Warp's own bind) is left alone: the bind mesh takes precedence."""
     import tegument
 
     rest, corners, sizes, keeps = bind_shape(context, obj)
@@ -93,11 +93,7 @@ def bind(context, obj) -> str:
     except tegument.TegumentError as error:
         raise DeformError(f"{obj.name}: {error}") from None
     settings = obj.tegument
-    if keeps:
-        evaluate.store_rest(obj, rest)
-        evaluate.remove_bind_mesh(obj)
-    else:
-        evaluate.store_bind_mesh(obj, rest, corners, sizes)
+    evaluate.store_bind_mesh(obj, rest, corners, sizes)
     settings.bound_vertices = len(rest)
     settings.source_vertices = len(obj.data.vertices)
     warnings = []
@@ -154,9 +150,8 @@ class TEGUMENT_OT_deform_remove(bpy.types.Operator):
     def execute(self, context):
         obj = context.active_object
         obj.modifiers.remove(evaluate.tegument_modifier(obj))
-        attribute = obj.data.attributes.get(evaluate.REST_ATTRIBUTE)
-        if attribute is not None:
-            obj.data.attributes.remove(attribute)
+        # The bind mesh only: a tegument_rest attribute on obj.data (a legacy bind, or UV Warp's
+        # bind) is left alone, so that Remove never changes the user's mesh.
         evaluate.remove_bind_mesh(obj)
         obj.tegument.bound_vertices = obj.tegument.source_vertices = 0
         obj.tegument.warnings = obj.tegument.bind_warnings = ""

@@ -63,7 +63,8 @@ class TEGUMENT_PT_modifier(MeshPropertiesPanel, bpy.types.Panel):
             buttons.operator("tegument.free_bake", icon="TRASH")
             cached = pc2.frame_count(evaluate.cache_file(obj))
             status = layout.column(align=True)
-            stack = " of the modifier stack" if settings.bind_mesh is not None else ""
+            bind = settings.bind_mesh
+            stack = " of the modifier stack" if bind is not None and len(bind.vertices) != len(obj.data.vertices) else ""
             status.label(text=f"Bound: {settings.bound_vertices} vertices{stack} · cached: {cached} frames"
                          + (f" · {settings.last_frame_ms:.1f} ms/frame" if settings.last_frame_ms else ""), icon="INFO")
             if settings.collider_collection is not None and settings.audit and cached:

@@ -63,7 +63,8 @@ TOPOLOGY_CASES = {
     "duplicate vertices (unwelded seam)": (
         mesh_from([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (1, 0, 0), (2, 0, 0), (2, 1, 0), (1, 1, 0)],
                   [(0, 1, 2, 3), (4, 5, 6, 7)]),
-        {"boundary_vertices": 8, "is_clean": True}, [1, 2, 4, 7]),
+        # Welded for the solver: one 2×1 sheet whose four outer corners alone lack a usable ring.
+        {"boundary_vertices": 8, "is_clean": True}, [0, 3, 5, 6]),
     "flipped face": (mesh_from(CUBE_VERTS, CUBE_FACES[:-1] + [tuple(reversed(CUBE_FACES[-1]))]),
                      {"flipped_edges": 4}, [1, 3, 5, 7]),
     "repeated corner in a polygon": (mesh_from([(0, 0, 0), (1, 0, 0), (0, 1, 0)], [(0, 1, 1, 2)]),

@@ -44,6 +44,11 @@ pub const MIN_CLOSENESS: f32 = 1e-8;
 /// formulations (the diagonal formulation normalises it away).
 pub const PINNED_CLOSENESS: f32 = 1e4;
 
+/// Anderson window that goes with the coarse correction when a caller turns
+/// acceleration on ([`PyramidDeformer::set_accelerated`]). Off by default:
+/// see docs/pyramid-deform.md for what it buys and what it costs (issue 28).
+pub const ACCELERATED_ANDERSON_WINDOW: usize = 5;
+
 /// Most iterations one solve accepts; more is certainly a mistake.
 pub const MAX_ITERATIONS: usize = 100_000;
 
@@ -313,6 +318,19 @@ impl PyramidDeformer {
     /// last `window` iterates (0: plain iterations).
     pub fn set_anderson_window(&mut self, window: usize) {
         self.solver.set_anderson_window(window);
+    }
+
+    /// The accelerated solver (coarse correction + Anderson over
+    /// [`ACCELERATED_ANDERSON_WINDOW`] iterates) or the plain one.
+    pub fn set_accelerated(&mut self, on: bool) {
+        self.set_coarse_correction(on);
+        self.set_anderson_window(if on { ACCELERATED_ANDERSON_WINDOW } else { 0 });
+    }
+
+    /// Turns the solver's coarse-level correction on or off (see
+    /// `solve::coarse`; only the per-vertex-target formulation has one).
+    pub fn set_coarse_correction(&mut self, on: bool) {
+        self.solver.set_coarse_correction(on);
     }
 
     /// Solves one frame starting from `input` and returns the result.

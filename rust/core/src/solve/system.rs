@@ -212,6 +212,14 @@ impl System {
         }
     }
 
+    /// `1 / Σ w` per vertex of a diagonal system; `None` for a coupled one.
+    pub fn diagonal_inverse(&self) -> Option<&[f32]> {
+        match &self.factor {
+            Factor::Diagonal { inverse, .. } => Some(inverse),
+            Factor::Cholesky { .. } => None,
+        }
+    }
+
     /// Number of stored entries of the Cholesky factor (0 for a diagonal system).
     pub fn factor_nnz(&self) -> usize {
         match &self.factor {
@@ -408,6 +416,29 @@ fn cholesky<'a>(
             }
         }
     }
+    let (symbolic, values) = factorize_lower(n, entries, symbolic)?;
+    let req = symbolic.solve_in_place_scratch::<f64>(1, Par::Seq);
+    let scratch = [
+        MemBuffer::new(req),
+        MemBuffer::new(req),
+        MemBuffer::new(req),
+    ];
+    Ok(Factor::Cholesky {
+        symbolic,
+        values,
+        columns: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
+        scratch,
+    })
+}
+
+/// Sums the duplicates of the lower-triangle entries `(column, row, value)`
+/// (in insertion order: deterministic) and factorises the matrix by sparse
+/// Cholesky, reusing `symbolic` when it fits.
+pub(crate) fn factorize_lower(
+    n: usize,
+    mut entries: Vec<(u32, u32, f64)>,
+    symbolic: Option<Arc<SymbolicCholesky<usize>>>,
+) -> Result<(Arc<SymbolicCholesky<usize>>, Vec<f64>)> {
     // Stable sort: duplicates are summed in insertion order, deterministically.
     entries.par_sort_by_key(|&(col, row, _)| (col, row));
     let mut col_ptr = vec![0usize; n + 1];
@@ -469,16 +500,5 @@ fn cholesky<'a>(
                     .to_string(),
             )
         })?;
-    let req = symbolic.solve_in_place_scratch::<f64>(1, Par::Seq);
-    let scratch = [
-        MemBuffer::new(req),
-        MemBuffer::new(req),
-        MemBuffer::new(req),
-    ];
-    Ok(Factor::Cholesky {
-        symbolic,
-        values,
-        columns: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
-        scratch,
-    })
+    Ok((symbolic, values))
 }
