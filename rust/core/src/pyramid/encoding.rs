@@ -20,8 +20,14 @@ pub enum PinReason {
     /// The ring polygon has (next to) no area, so no normal.
     ZeroArea,
     /// The projected vertex is not strictly inside the kernel of its projected
-    /// ring (or coincides with a neighbour): mean-value weights are unreliable.
+    /// ring, or (nearly) coincides with a neighbour (see
+    /// [`super::encode::MIN_RELATIVE_NEIGHBOUR_DISTANCE`]): mean-value weights
+    /// are unreliable.
     NotStarShaped,
+    /// The ring is folded at rest (a sharp crease or step): some edge rises
+    /// steeper than [`super::encode::MAX_REST_ELEVATION`] over the ring's
+    /// plane, where pyramid coordinates are ill-conditioned.
+    Folded,
     /// The encoding does not reproduce the rest position in f32 (safety net,
     /// like StretchMesh's bind-time self-test).
     Inexact,
@@ -29,7 +35,7 @@ pub enum PinReason {
 
 impl PinReason {
     /// Every reason, in declaration order.
-    pub const ALL: [PinReason; 8] = [
+    pub const ALL: [PinReason; 9] = [
         PinReason::Boundary,
         PinReason::NonManifold,
         PinReason::Isolated,
@@ -37,6 +43,7 @@ impl PinReason {
         PinReason::HighValence,
         PinReason::ZeroArea,
         PinReason::NotStarShaped,
+        PinReason::Folded,
         PinReason::Inexact,
     ];
 
@@ -50,6 +57,7 @@ impl PinReason {
             PinReason::HighValence => "high_valence",
             PinReason::ZeroArea => "zero_area",
             PinReason::NotStarShaped => "not_star_shaped",
+            PinReason::Folded => "folded",
             PinReason::Inexact => "inexact",
         }
     }
@@ -63,6 +71,7 @@ impl PinReason {
             PinReason::HighValence => "too many neighbours",
             PinReason::ZeroArea => "one-ring without area",
             PinReason::NotStarShaped => "one-ring not star-shaped around the vertex",
+            PinReason::Folded => "one-ring folded at rest (sharp crease or step)",
             PinReason::Inexact => "encoding not reproducible in single precision",
         }
     }

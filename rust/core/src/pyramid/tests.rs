@@ -136,13 +136,12 @@ fn high_valence_pole_is_pinned() {
         mesh.polygon_sizes.extend([3, 3]);
     }
     let deformer = bind(&mesh, true, Formulation::VertexTargets);
-    assert_eq!(
-        deformer.pinned(),
-        &[
-            (k as u32, PinReason::HighValence),
-            (k as u32 + 1, PinReason::HighValence)
-        ]
-    );
+    // Not encoded, but each pole has 70 edge neighbours: a ring fit carries
+    // it, nothing follows the input.
+    assert!(deformer.pinned().is_empty(), "{:?}", deformer.pinned());
+    for pole in [k as u32, k as u32 + 1] {
+        assert!(deformer.ring_fitted().contains(&(pole, PinReason::HighValence)), "{:?}", deformer.ring_fitted());
+    }
 }
 
 #[test]

@@ -57,7 +57,7 @@ mod strain_pass;
 use glam::Vec3;
 
 use crate::collide::{Collider, Skin};
-use crate::mesh::{polygon_edges, MeshInput, Weld, WELD_TOLERANCE};
+use crate::mesh::{polygon_edges, MeshInput, Weld, SLIVER_RATIO, WELD_TOLERANCE};
 use crate::pyramid::{DeformerOptions, PyramidDeformer};
 use crate::solve::ConstraintId;
 use crate::Result;
@@ -108,12 +108,13 @@ pub struct Sequence {
 
 impl Sequence {
     /// Welds the vertices of `mesh` that coincide at rest (within
-    /// [`WELD_TOLERANCE`] of its size), binds the welded mesh
+    /// [`WELD_TOLERANCE`] of its size) and the ends of sliver edges (shorter
+    /// than [`SLIVER_RATIO`] of their neighbours), binds the welded mesh
     /// ([`PyramidDeformer::bind`]) and builds the skin, edges and areas the
     /// collision, strain and dynamics passes need.
     pub fn bind(mesh: MeshInput<'_>, options: DeformerOptions) -> Result<Self> {
-        mesh.validate()?; // before welding: finite positions, indices in range
-        let weld = Weld::by_distance(mesh.positions, WELD_TOLERANCE);
+        let offsets = mesh.validate()?; // before welding: finite positions, indices in range
+        let weld = Weld::by_distance_and_slivers(mesh.positions, mesh.corner_verts, &offsets, WELD_TOLERANCE, SLIVER_RATIO);
         let (positions, corner_verts);
         let welded = if weld.is_identity() {
             mesh
@@ -199,3 +200,5 @@ fn vertex_areas(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<f32> {
 mod tests;
 #[cfg(test)]
 mod seam_tests;
+#[cfg(test)]
+mod irregular_tests;

@@ -135,14 +135,26 @@ impl Sequence {
         self.velocity.as_deref().map(|v| self.scatter(v))
     }
 
-    /// Vertices the bind could not encode, with the reason, ascending; they
-    /// follow the input. Every member of a welded seam point is listed.
+    /// Vertices that follow the input (no pyramid row and no ring fit), with
+    /// the reason, ascending. Every member of a welded seam point is listed.
     pub fn pinned(&self) -> Vec<(u32, PinReason)> {
-        let pinned = self.deformer.pinned();
+        self.unweld_reasons(self.deformer.pinned())
+    }
+
+    /// Vertices without a pyramid row that deform with their neighbourhood
+    /// through a ring fit ([`crate::pyramid::PyramidDeformer::ring_fitted`]),
+    /// with the reason they have no pyramid row, ascending. Every member of a
+    /// welded seam point is listed.
+    pub fn ring_fitted(&self) -> Vec<(u32, PinReason)> {
+        self.unweld_reasons(self.deformer.ring_fitted())
+    }
+
+    /// Welded vertices with a reason, as the mesh's own vertices.
+    fn unweld_reasons(&self, welded: &[(u32, PinReason)]) -> Vec<(u32, PinReason)> {
         if self.weld.is_identity() {
-            return pinned.to_vec();
+            return welded.to_vec();
         }
-        let mut out: Vec<(u32, PinReason)> = pinned
+        let mut out: Vec<(u32, PinReason)> = welded
             .iter()
             .flat_map(|&(w, reason)| self.weld.members(w as usize).iter().map(move |&v| (v, reason)))
             .collect();

@@ -258,8 +258,13 @@ impl System {
             // block then row order: the same sums as the gather below), divide.
             out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, o)| {
                 let base = c * CHUNK;
-                if let ([block], [(constraint, _)]) = (blocks.as_slice(), constraints) {
-                    // One varying constraint: it may run the whole step itself.
+                if let (Some((block, others)), Some(((constraint, _), other_constraints))) =
+                    (blocks.split_first(), constraints.split_first())
+                {
+                    // The first varying constraint may run the whole step itself;
+                    // the rows of the others (few: ring fits of irregular
+                    // vertices) are then added on top, `w·t·(1/Σw)` each, which
+                    // keeps the fast kernel for the mesh's bulk.
                     let rows = block.chunk_rows[c] as usize..block.chunk_rows[c + 1] as usize;
                     let chunk = DiagonalChunk {
                         base,
@@ -268,6 +273,12 @@ impl System {
                         weights: &block.weight[rows.clone()],
                     };
                     if constraint.solve_chunk(context, rows, &chunk, o) {
+                        for (block, &(constraint, _)) in others.iter().zip(other_constraints) {
+                            for r in block.chunk_rows[c] as usize..block.chunk_rows[c + 1] as usize {
+                                let v = block.vertex[r] as usize;
+                                o[v - base] += constraint.project_row(context, r) * (block.weight[r] * inverse[v]);
+                            }
+                        }
                         return;
                     }
                 }
