@@ -194,7 +194,7 @@ TOPOLOGY_CASES = [
         "non-manifold edge",
         lambda: mesh_object("Fin", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (1, 0, 1), (0, 0, 1), (0, -1, 0), (1, -1, 0)],
                             [(0, 1, 2, 3), (1, 0, 5, 4), (0, 1, 7, 6)]),
-        "FINISHED", "1 non-manifold edges", "follow the rig"),
+        "FINISHED", "1 non-manifold edges", "non-manifold parts"),  # ring-fitted, not pinned
     TopologyCase(
         "loose vertices and edges",
         lambda: mesh_object("Loose", CUBE_VERTS + [(5, 5, 5), (6, 6, 6), (7, 6, 6)], CUBE_FACES, edges=[(9, 10)]),
@@ -207,12 +207,12 @@ TOPOLOGY_CASES = [
     TopologyCase(
         "zero-area faces",
         lambda: mesh_object("Sliver", [(0, 0, 0), (1, 0, 0), (2, 0, 0), (0, 1, 0), (2, 1, 0)], [(0, 1, 2), (0, 1, 3), (1, 2, 4)]),
-        "FINISHED", "1 degenerate faces", "follow the rig"),
+        "FINISHED", "1 degenerate faces", "non-manifold parts"),
     TopologyCase(
         "duplicate vertices",
         lambda: mesh_object("Seam", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (1, 0, 0), (2, 0, 0), (2, 1, 0), (1, 1, 0)],
                             [(0, 1, 2, 3), (4, 5, 6, 7)]),
-        "FINISHED", "Manifold mesh with a boundary: 8 vertices", "follow the rig"),
+        "FINISHED", "Manifold mesh with a boundary: 8 vertices", "2 on split seams welded"),
     TopologyCase(
         "flipped face",
         lambda: mesh_object("Flipped", CUBE_VERTS, CUBE_FACES[:-1] + [tuple(reversed(CUBE_FACES[-1]))]),
