@@ -24,7 +24,6 @@
 //! deterministic (no SVD, no warm start).
 
 use glam::{DMat3, DQuat, DVec3, Vec3};
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use super::encoding::PinReason;
 use crate::mesh::Topology;
@@ -94,12 +93,6 @@ pub struct RingFit {
     /// carried from instead of its neighbours' mean (`u32::MAX`: none).
     anchors: Vec<u32>,
     scale_safe: bool,
-    /// Per row: the rotation its last projection found (f64 bits of x, y, z,
-    /// w), where the next one starts. From the identity an elbow's rotation
-    /// takes dozens of iterations; from the last iteration's, one or two. Each
-    /// row reads and writes only its own slot, once per projection, so the
-    /// result does not depend on the thread count.
-    last_rotation: Vec<[AtomicU64; 4]>,
 }
 
 impl RingFit {
@@ -164,7 +157,6 @@ impl RingFit {
             neighbours,
             rest_offsets,
             own_offsets,
-            last_rotation: vertices.iter().map(|_| DQuat::IDENTITY.to_array().map(|c| AtomicU64::new(c.to_bits()))).collect(),
             anchors,
             scale_safe,
         }
@@ -196,12 +188,7 @@ impl RingFit {
             covariance += outer(p, q);
             rest_norm += q.length_squared();
         }
-        let slot = &self.last_rotation[r];
-        let start = DQuat::from_array(slot.each_ref().map(|c| f64::from_bits(c.load(Ordering::Relaxed))));
-        let rotation = rotational_part_from(&covariance, start);
-        for (c, value) in slot.iter().zip(rotation.to_array()) {
-            c.store(value.to_bits(), Ordering::Relaxed);
-        }
+        let rotation = rotational_part(&covariance);
         let scale = if self.scale_safe && rest_norm > 0.0 {
             // Best-fit uniform scale of the neighbours' offsets alone: the
             // vertex itself cannot inflate its own target.
@@ -229,15 +216,10 @@ fn outer(p: DVec3, q: DVec3) -> DMat3 {
 /// The rotation `R` maximising `tr(Rᵀ A)` (Müller et al. 2016), from the
 /// identity. For a rank-deficient `A` the undetermined part stays the identity's.
 pub fn rotational_part(a: &DMat3) -> DQuat {
-    rotational_part_from(a, DQuat::IDENTITY)
-}
-
-/// [`rotational_part`] starting from `start`.
-pub fn rotational_part_from(a: &DMat3, start: DQuat) -> DQuat {
     let scale = a.x_axis.length() + a.y_axis.length() + a.z_axis.length();
-    let mut q = if start.is_finite() && start.length_squared() > 0.5 { start.normalize() } else { DQuat::IDENTITY };
+    let mut q = DQuat::IDENTITY;
     if !(scale > 0.0) || !scale.is_finite() {
-        return DQuat::IDENTITY;
+        return q;
     }
     for _ in 0..ROTATION_ITERATIONS {
         let r = DMat3::from_quat(q);
