@@ -1,7 +1,8 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """Headless bakes: ``blender -b scene.blend --command tegument bake [--objects A,B] [--frames S-E]``,
 ``... --command tegument warp-bake [--material M] [--node N] [--frames S-E] [--chunk] [--preroll N]``,
-and ``... --command tegument list-bakes`` (every bake of the file as JSON, for farms: see ``farm``).
+``... --command tegument list-bakes`` (every bake of the file as JSON, for farms: see ``farm``) and
+``... --command tegument warp-attach [--save]`` (nodes play sequences a farm baked in chunks).
 
 The same entry point serves the PyPI ``bpy`` module, which has no ``--command``::
 
@@ -45,6 +46,12 @@ def _parser() -> argparse.ArgumentParser:
     warping.add_argument("--preroll", type=_count, default=0, metavar="N",
                          help="first solve up to N frames before the range without writing them (a warm start "
                          "for a chunk that does not begin the bake); never before frame 0")
+    attaching = commands.add_parser(
+        "warp-attach", help="point Tegument UV Warp nodes at sequences baked elsewhere (a farm's chunks)")
+    attaching.add_argument("--material", help="material holding the node (default: every material with one)")
+    attaching.add_argument("--node", help="node name (default: every Tegument UV Warp node of the material)")
+    attaching.add_argument("--frames", help="frame range S-E (default: each node's own range)")
+    attaching.add_argument("--save", action="store_true", help="save the .blend afterwards (unless a node failed)")
     listing = commands.add_parser("list-bakes", help="print every Tegument bake of the .blend as JSON (for farms)")
     listing.add_argument("--output", help="write the JSON to this file instead of stdout")
     listing.add_argument("--frames", help="frame range S-E of every bake in the tasks (default: each bake's own)")
@@ -104,6 +111,8 @@ def main(argv: list[str]) -> int:
         return 2
     if args.command == "list-bakes":
         return _list_bakes(args, span)
+    if args.command == "warp-attach":
+        return _warp_attach(args, span)
     if args.command == "warp-bake" and args.chunk and args.save:
         # Chunks of one node run at once on several workers: none may save the shared .blend.
         print("error: --chunk leaves the .blend as it is (chunks run at once on a farm): drop --save", file=sys.stderr)
@@ -162,6 +171,17 @@ def _deform_jobs(args, span):
 
 def _warp_jobs(args, span):
     """One job factory per node to bake, or the exit code of a usage error."""
+    targets = _warp_targets(args)
+    if isinstance(targets, int):
+        return targets
+    return [
+        lambda m=m, n=n: warp_bake.WarpBakeJob(bpy.context, m, n, _frames(span, n), preroll=args.preroll, chunk=args.chunk)
+        for m, n in targets
+    ]
+
+
+def _warp_targets(args):
+    """The (material, node) pairs ``--material`` and ``--node`` name, or the exit code of a usage error."""
     if args.material:
         material = bpy.data.materials.get(args.material)
         if material is None:
@@ -178,10 +198,26 @@ def _warp_jobs(args, span):
             print("error: nothing to bake: no material has a Tegument UV Warp node"
                   + (f" named {args.node}" if args.node else "") + _no_file_hint(), file=sys.stderr)
             return 2
-    return [
-        lambda m=m, n=n: warp_bake.WarpBakeJob(bpy.context, m, n, _frames(span, n), preroll=args.preroll, chunk=args.chunk)
-        for m, n in targets
-    ]
+    return targets
+
+
+def _warp_attach(args, span) -> int:
+    """``warp-attach``: points each node at its sequence baked elsewhere (a farm's chunks)."""
+    targets = _warp_targets(args)
+    if isinstance(targets, int):
+        return targets
+    failed = 0
+    for material, node in targets:
+        try:
+            frames = warp_bake.attach(material, node, _frames(span, node))
+        except warp_bake.WarpError as error:
+            print(f"error: {error}", file=sys.stderr)
+            failed += 1
+            continue
+        print(f"Tegument UV Warp: {material.name} › {node.name} plays frames {frames.start}–{frames.stop - 1}")
+    if args.save and bpy.data.filepath and not failed:
+        bpy.ops.wm.save_mainfile()
+    return 1 if failed else 0
 
 
 def _list_bakes(args, span) -> int:

@@ -281,6 +281,26 @@ def test_a_farm_bake_equals_a_local_bake_and_survives_killed_tasks(shot, tmp_pat
     # read; docs/farm.md says it may be deleted), and nothing else.
     assert [p.name.startswith(".tegument-warp-") for p in warp_farm.iterdir() if p.is_dir()] == [True]
 
+    # The chunks left the node and the .blend as they were; warp-attach points the node at the
+    # farm's sequence (refusing while a frame is missing) and saves.
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    assert bpy.data.materials["Skin"].node_tree.nodes[NODE].baked_frames == 0
+    frame_7 = warp_farm / f"{STEM}_0007.exr"
+    frame_7.rename(tmp_path / frame_7.name)
+    refused = worker([str(blend), "--command", "tegument", "warp-attach", "--save"])
+    assert refused.returncode == 1
+    assert f"error: Skin › {NODE}: frame 7 of the sequence is missing ({frame_7}): bake it first" in refused.stderr
+    (tmp_path / frame_7.name).rename(frame_7)
+    attached = worker([str(blend), "--command", "tegument", "warp-attach", "--save"])
+    assert attached.returncode == 0, attached.stderr
+    assert f"Tegument UV Warp: Skin › {NODE} plays frames 1–48" in attached.stdout
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    node = bpy.data.materials["Skin"].node_tree.nodes[NODE]
+    assert (node.baked_start, node.baked_frames) == FRAMES
+    texture = node.node_tree.nodes["Warp 1001"]
+    assert texture.image.filepath == f"//tegument/warp/{STEM}_0001.exr"
+    assert (texture.image_user.frame_start, texture.image_user.frame_duration) == (1, 48)
+
     # A finished cache survives a re-run that dies: the deform cache is replaced only whole.
     before = pc2_bytes(farm / "tegument" / "Alice.pc2")
     (alice_task,) = [t for t in tasks if t["name"] == "Pyramid Deform Alice 1-48"]

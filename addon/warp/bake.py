@@ -32,7 +32,7 @@ import bpy
 import numpy as np
 
 from .. import jobs, mesh_arrays
-from . import inputs
+from . import inputs, raster
 from . import node as warp_node
 from .inputs import WarpError
 
@@ -283,25 +283,53 @@ class WarpBakeJob:
                     os.remove(path)
 
     def _point_node_at(self, baked: range) -> None:
-        node = self.node
-        node.baked_start = baked.start
-        node.baked_frames = len(baked)
-        current = warp_node.tile_images(node)
-        images = {}
-        for udim in self.inputs.tiles:
-            filename = os.path.basename(warp_node.frame_file("", self.stem, udim, baked.start))
-            stored = _stored_path(node.directory, filename)
-            existing = current.get(udim)
-            if existing is not None and existing.filepath != stored:
-                existing = None  # another node's sequence (a copy of this node): leave it alone
-            images[udim] = warp_node.sequence_image(
-                f"{self.stem}_{udim}", warp_node.frame_file(self.inputs.directory, self.stem, udim, baked.start),
-                stored, existing,
-            )
-        warp_node.build_sampler(node, images)
-        node.report = self.summary.text()
+        point_node_at(self.node, self.stem, self.inputs.tiles, self.inputs.directory, baked)
+        self.node.report = self.summary.text()
         if getattr(self, "heatmaps", None):
-            node.report += f"; heat map of frame {baked.stop - 1}: {', '.join(os.path.basename(p) for p in self.heatmaps.values())}"
+            self.node.report += f"; heat map of frame {baked.stop - 1}: {', '.join(os.path.basename(p) for p in self.heatmaps.values())}"
+
+
+def point_node_at(node, stem: str, tiles: list[int], directory: str, baked: range) -> None:
+    """Makes the node's inner tree sample the sequence ``stem`` of ``tiles`` in ``directory`` over ``baked``."""
+    node.baked_start = baked.start
+    node.baked_frames = len(baked)
+    current = warp_node.tile_images(node)
+    images = {}
+    for udim in tiles:
+        filename = os.path.basename(warp_node.frame_file("", stem, udim, baked.start))
+        stored = _stored_path(node.directory, filename)
+        existing = current.get(udim)
+        if existing is not None and existing.filepath != stored:
+            existing = None  # another node's sequence (a copy of this node): leave it alone
+        images[udim] = warp_node.sequence_image(
+            f"{stem}_{udim}", warp_node.frame_file(directory, stem, udim, baked.start), stored, existing,
+        )
+    warp_node.build_sampler(node, images)
+
+
+def attach(material, node, frames: range | None = None) -> range:
+    """Points the node at a sequence baked elsewhere — a farm's chunks, which leave the node and the
+    .blend alone — once every frame of every tile is there; returns the frames. A WarpError names
+    the first missing file, and the node stays as it was."""
+    label = f"{material.name} › {node.name}"
+    frames = frames if frames is not None else range(node.frame_start, node.frame_end + 1)
+    if len(frames) == 0:
+        raise WarpError(f"{label}: the frame range {frames.start}–{frames.stop - 1} is empty")
+    obj = node.object
+    if obj is None or obj.type != "MESH":
+        raise WarpError(f"{label}: no object: set the node's Object to the deforming mesh")
+    layer = inputs.uv_layer_name(obj, node.uv_map, label)
+    tiles = raster.udim_tiles(inputs.corner_uvs(obj.data, layer), mesh_arrays.polygon_sizes(obj.data))
+    directory = inputs.output_directory(node.directory, label)
+    stem = warp_node.file_stem(material.name, node.name)
+    for udim in tiles:
+        for frame in frames:
+            path = warp_node.frame_file(directory, stem, udim, frame)
+            if not os.path.isfile(path):
+                raise WarpError(f"{label}: frame {frame} of the sequence is missing ({path}): bake it first")
+    point_node_at(node, stem, tiles, directory, frames)
+    node.report = f"{len(frames)} frames baked elsewhere (frames {frames.start}–{frames.stop - 1})"
+    return frames
 
 
 def bake_blocking(context, material, node, frames: range | None = None, *, report=print,
