@@ -34,10 +34,8 @@ def _parser() -> argparse.ArgumentParser:
     baking.add_argument("--objects", help="comma-separated object names (default: every object with Pyramid Deform)")
     baking.add_argument("--frames", help="frame range S-E (default: each object's own range)")
     baking.add_argument("--save", action="store_true", help="save the .blend afterwards (status fields)")
-    warping = commands.add_parser("warp-bake", help="bake Tegument UV Warp nodes into their OpenEXR sequences")
-    warping.add_argument("--material", help="material holding the node (default: every material with one)")
-    warping.add_argument("--node", help="node name (default: every Tegument UV Warp node of the material)")
-    warping.add_argument("--frames", help="frame range S-E (default: each node's own range)")
+    warping = _node_arguments(commands.add_parser(
+        "warp-bake", help="bake Tegument UV Warp nodes into their OpenEXR sequences"))
     warping.add_argument("--save", action="store_true",
                          help="save the .blend afterwards (so the nodes point at the new sequences)")
     warping.add_argument("--chunk", action="store_true",
@@ -46,11 +44,8 @@ def _parser() -> argparse.ArgumentParser:
     warping.add_argument("--preroll", type=_count, default=0, metavar="N",
                          help="first solve up to N frames before the range without writing them (a warm start "
                          "for a chunk that does not begin the bake); never before frame 0")
-    attaching = commands.add_parser(
-        "warp-attach", help="point Tegument UV Warp nodes at sequences baked elsewhere (a farm's chunks)")
-    attaching.add_argument("--material", help="material holding the node (default: every material with one)")
-    attaching.add_argument("--node", help="node name (default: every Tegument UV Warp node of the material)")
-    attaching.add_argument("--frames", help="frame range S-E (default: each node's own range)")
+    attaching = _node_arguments(commands.add_parser(
+        "warp-attach", help="point Tegument UV Warp nodes at sequences baked elsewhere (a farm's chunks)"))
     attaching.add_argument("--save", action="store_true", help="save the .blend afterwards (unless a node failed)")
     listing = commands.add_parser("list-bakes", help="print every Tegument bake of the .blend as JSON (for farms)")
     listing.add_argument("--output", help="write the JSON to this file instead of stdout")
@@ -59,6 +54,14 @@ def _parser() -> argparse.ArgumentParser:
                          help="also list each bake's tasks: UV Warp nodes in chunks of N frames")
     listing.add_argument("--preroll", type=_count, default=None, metavar="N",
                          help=f"frames a UV Warp chunk solves before its first one (default {farm.DEFAULT_PREROLL})")
+    return parser
+
+
+def _node_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The arguments that pick UV Warp nodes and their frames (``warp-bake``, ``warp-attach``)."""
+    parser.add_argument("--material", help="material holding the node (default: every material with one)")
+    parser.add_argument("--node", help="node name (default: every Tegument UV Warp node of the material)")
+    parser.add_argument("--frames", help="frame range S-E (default: each node's own range)")
     return parser
 
 

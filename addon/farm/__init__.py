@@ -29,10 +29,11 @@ import os
 
 import bpy
 
+from .. import mesh_arrays
 from ..deform import colliders, evaluate
 from ..warp import node as warp_node
 from ..warp import raster
-from ..warp.inputs import uv_layer_name, WarpError
+from ..warp.inputs import WarpError, corner_uvs, uv_layer_name
 
 # Frames a warp chunk solves before its first frame (not written). Measured in
 # blender_tests/test_farm.py: see docs/farm.md for the figures.
@@ -79,6 +80,7 @@ def _deform_bake(obj) -> dict:
         "caches": caches,
         "writes_objects": [c.name for c in compliant],
         "depends_on": [],  # filled in by scene_bakes, which knows every bake
+        # Colliders play their own caches when they have Pyramid Deform (or are compliant in another bake).
         "reads_objects": [c.name for c in colliders.collider_objects(obj) if c != obj],
         "args": ["--command", "tegument", "bake", "--objects", obj.name, "--frames", "{first}-{last}"],
         "chunked": False,
@@ -98,9 +100,6 @@ def _warp_bake(material, node) -> dict:
         except WarpError as error:
             problem = str(error)
         else:
-            from ..warp.inputs import corner_uvs
-            from .. import mesh_arrays
-
             tiles = raster.udim_tiles(corner_uvs(obj.data, layer), mesh_arrays.polygon_sizes(obj.data)) or tiles
     directory = blend_relative(node.directory)
     entry = {
@@ -139,9 +138,7 @@ def scene_bakes(scene=None) -> dict:
             for name in bake["writes_objects"]:
                 writer_of.setdefault(name, bake["id"])
     for bake in bakes:
-        reads = list(bake["reads_objects"])
-        if bake["kind"] == UV_WARP and bake["object"]:
-            reads = [bake["object"]]
+        reads = bake["reads_objects"]
         bake["depends_on"] = sorted({writer_of[name] for name in reads if name in writer_of} - {bake["id"]})
     _check_acyclic(bakes)
     return {
