@@ -18,7 +18,8 @@ WHEEL_DIR := dist/wheels
 EXTENSION_ZIP := dist/tegument-$(VERSION)-linux_x64.zip
 # rust/fuzz is not part of the wheel (and its target/ is large): left out.
 RUST_SOURCES := $(shell find rust -path rust/fuzz -prune -o \( -name '*.rs' -o -name 'Cargo.toml' -o -name 'pyproject.toml' -o -name '*.py' -o -name '*.pyi' \) -print) Cargo.toml
-ADDON_SOURCES := $(shell find addon -name '*.py' -o -name '*.toml')
+# The .js is the Flamenco job type the extension ships (addon/farm/tegument_bake.js).
+ADDON_SOURCES := $(shell find addon -name '*.py' -o -name '*.toml' -o -name '*.js')
 
 .PHONY: all demo docs-pictures test test-rust test-wheel test-blender extension wheel bench venv clean fuzz api-docs
 

@@ -6,11 +6,11 @@ with whole-array ``foreach_get``/``foreach_set``, operators, panels. All
 per-vertex work happens in the wheel.
 """
 
-from . import cli, operators, ui
+from . import cli, farm, operators, ui
 from .deform import colliders, live, properties
 from .warp import node as warp_node
 
-_modules = (properties, colliders, warp_node, operators, ui, live, cli)
+_modules = (properties, colliders, warp_node, operators, ui, live, farm, cli)
 
 
 def register() -> None:

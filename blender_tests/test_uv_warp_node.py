@@ -565,7 +565,7 @@ def test_node_is_in_the_add_menu_and_draws_its_settings(saved):
     assert drawn == expected
     assert all(name in node.bl_rna.properties for name in drawn)
     operators = [args[0] for name, args, _ in log if name == "operator"]
-    assert operators == ["tegument.warp_bind", "tegument.warp_bake"]
+    assert operators == ["tegument.warp_bind", "tegument.warp_bake", "tegument.warp_attach"]
     assert any(name == "label" and "not bound" in kwargs.get("text", "") for name, _, kwargs in log)
 
 

@@ -75,4 +75,22 @@ class TEGUMENT_OT_warp_bind(bpy.types.Operator):
         return {"FINISHED"}
 
 
-classes = (TEGUMENT_OT_warp_bake, TEGUMENT_OT_warp_bind)
+class TEGUMENT_OT_warp_attach(bpy.types.Operator):
+    """Play the node's sequence as it is on disk over the node's frame range: frames a farm baked in chunks, which leave the node as it was"""
+
+    bl_idname = "tegument.warp_attach"
+    bl_label = "Load Baked"
+    bl_options = {"REGISTER", "UNDO"}
+
+    material: StringProperty(name="Material", description="Material holding the node (empty: the active object's active material)")
+    node: StringProperty(name="Node", description="Name of the Tegument UV Warp node (empty: the active node)")
+
+    @jobs.reports_errors
+    def execute(self, context):
+        material, node = bake.find_node(context, self.material, self.node)
+        frames = bake.attach(material, node)
+        self.report({"INFO"}, f"{material.name} › {node.name} plays frames {frames.start}–{frames.stop - 1}")
+        return {"FINISHED"}
+
+
+classes = (TEGUMENT_OT_warp_bake, TEGUMENT_OT_warp_bind, TEGUMENT_OT_warp_attach)

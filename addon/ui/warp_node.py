@@ -41,8 +41,11 @@ def draw(node, context, layout, *, extended: bool = False) -> None:
     buttons = layout.row(align=True)
     bind = buttons.operator("tegument.warp_bind", icon="PINNED")
     bake = buttons.operator("tegument.warp_bake", text="Bake", icon="REC")
+    ops = [bind, bake]
+    if extended:  # rarely needed (after a farm bake): in the sidebar only
+        ops.append(buttons.operator("tegument.warp_attach", text="Load Baked", icon="FILE_REFRESH"))
     if material is not None:
-        for op in (bind, bake):
+        for op in ops:
             op.material, op.node = material.name, node.name
     if obj is not None and obj.type == "MESH" and not is_rest_bound(obj):
         layout.label(text=f"{obj.name} is not bound", icon="ERROR")

@@ -7,6 +7,14 @@ hidden staging folder beside the sequence; :meth:`WarpBakeJob.commit` moves
 them into place (each move atomic) and points the node at them, so until
 then the previous bake stays exactly as it was, and a failed bake leaves
 nothing behind. Cancelling keeps the frames done.
+
+A farm splits a node's frames into chunks (``chunk=True``), baked at once on
+several workers into the one sequence: a chunk moves each frame into place as
+soon as it is solved (atomically, so a worker that dies leaves whole frames),
+and leaves the sequence's other frames, the node and the .blend alone. A chunk
+that does not begin the bake first solves ``preroll`` frames before its first
+one without writing them: the warm start a bake that ran through would have
+had, to within the convergence tolerance (``farm`` says how many).
 """
 
 from __future__ import annotations
@@ -24,7 +32,7 @@ import bpy
 import numpy as np
 
 from .. import jobs, mesh_arrays
-from . import inputs
+from . import inputs, raster
 from . import node as warp_node
 from .inputs import WarpError
 
@@ -78,7 +86,7 @@ def _stored_path(directory_setting: str, filename: str) -> str:
 class WarpBakeJob:
     """Bakes ``frames`` of one UV Warp node, one frame per :meth:`step` (a :class:`jobs.Job`)."""
 
-    def __init__(self, context, material, node, frames: range | None = None):
+    def __init__(self, context, material, node, frames: range | None = None, *, preroll: int = 0, chunk: bool = False):
         import tegument
 
         self.scene = context.scene
@@ -92,6 +100,11 @@ class WarpBakeJob:
             raise WarpError(f"{self.label}: the frame range {self.frames.start}–{self.frames.stop - 1} is empty")
         if self.frames.start < 0:
             raise WarpError(f"{self.label}: frame {self.frames.start} is negative: image sequences number frames from 0")
+        if preroll < 0:
+            raise WarpError(f"{self.label}: a pre-roll of {preroll} frames is negative")
+        self.chunk = chunk
+        # Solved before the first frame, not written; never before frame 0 (where sequences start).
+        self.preroll = range(max(self.frames.start - preroll, 0), self.frames.start)
         self.inputs = data = inputs.read(node, self.label)
         single = len(data.tiles) == 1
         # The wheel takes a plain array for tile 1001 alone and a dict otherwise.
@@ -132,12 +145,8 @@ class WarpBakeJob:
             return float("nan")
         return float(np.mean(self.times)) * (len(self.frames) - self.done)
 
-    def step(self) -> FrameStats:
-        """Solves and stages the next frame."""
-        import tegument
-
-        frame = self.frames[self.done]
-        started = time.perf_counter()
+    def _positions(self, frame: int) -> np.ndarray:
+        """The node's object at ``frame``, checked against the bind."""
         obj = self.inputs.obj
         self.scene.frame_set(frame)
         depsgraph = bpy.context.evaluated_depsgraph_get()
@@ -151,14 +160,37 @@ class WarpBakeJob:
         vertex = mesh_arrays.first_non_finite(positions)
         if vertex is not None:
             raise WarpError(f"{self.label}: at frame {frame} the position of vertex {vertex} of {obj.name} is not finite")
+        return positions
+
+    def _solve(self, frame: int, positions: np.ndarray) -> None:
+        import tegument
+
         try:
             # One solve moves every tile; each tile's result and figures are read by its UDIM.
             self.warp.solve(positions, udim=self.inputs.tiles[0])
+        except tegument.TegumentError as error:
+            raise WarpError(f"{self.label}, frame {frame}: {error}") from None
+
+    def step(self) -> FrameStats:
+        """Solves and stages the next frame (in a chunk: moves it into place)."""
+        import tegument
+
+        started = time.perf_counter()
+        if self.done == 0:
+            # The pre-roll: the warm start of the first frame, counted in its time.
+            for frame in self.preroll:
+                self._solve(frame, self._positions(frame))
+        frame = self.frames[self.done]
+        positions = self._positions(frame)
+        self._solve(frame, positions)
+        try:
             metrics = [self.warp.metrics(positions, udim=udim) for udim in self.inputs.tiles]
             for udim in self.inputs.tiles:
                 self.warp.write_exr(self._staged(udim, frame), udim=udim)
         except tegument.TegumentError as error:
             raise WarpError(f"{self.label}, frame {frame}: {error}") from None
+        if self.chunk:
+            self._move_into_place([frame])
         self.last_positions = positions
         identity, warped, worst, folds = _combine(metrics)
         stats = FrameStats(frame, time.perf_counter() - started, identity, warped, worst, folds)
@@ -173,24 +205,31 @@ class WarpBakeJob:
                 f"fold-overs {stats.foldovers}, ETA {self.eta_seconds():.1f} s")
 
     def outcome(self) -> str:
-        return self.summary.text()
+        text = self.summary.text()
+        if self.preroll:
+            text += f"; pre-roll of {len(self.preroll)} frames ({self.preroll.start}–{self.preroll.stop - 1})"
+        return text
 
     def _staged(self, udim: int, frame: int) -> str:
         return warp_node.frame_file(self.staging, self.stem, udim, frame)
 
-    def commit(self) -> None:
-        """Moves the frames done into place and points the node's inner tree at them."""
+    def _move_into_place(self, frames) -> None:
+        directory = self.inputs.directory
         try:
-            if self.done == 0:
+            for udim in self.inputs.tiles:
+                for frame in frames:
+                    os.replace(self._staged(udim, frame), warp_node.frame_file(directory, self.stem, udim, frame))
+        except OSError as error:
+            raise WarpError(f"{self.label}: cannot move the baked frames into {directory}: {error.strerror}") from None
+
+    def commit(self) -> None:
+        """Moves the frames done into place and points the node's inner tree at them (a chunk's
+        frames are in place already, and a chunk leaves the node as it is)."""
+        try:
+            if self.done == 0 or self.chunk:
                 return
-            directory = self.inputs.directory
             baked = self.frames[: self.done]
-            try:
-                for udim in self.inputs.tiles:
-                    for frame in baked:
-                        os.replace(self._staged(udim, frame), warp_node.frame_file(directory, self.stem, udim, frame))
-            except OSError as error:
-                raise WarpError(f"{self.label}: cannot move the baked frames into {directory}: {error.strerror}") from None
+            self._move_into_place(baked)
             self._remove_stale(baked)
             if self.node.write_heatmap:
                 self._write_heatmaps(baked.stop - 1)
@@ -244,30 +283,59 @@ class WarpBakeJob:
                     os.remove(path)
 
     def _point_node_at(self, baked: range) -> None:
-        node = self.node
-        node.baked_start = baked.start
-        node.baked_frames = len(baked)
-        current = warp_node.tile_images(node)
-        images = {}
-        for udim in self.inputs.tiles:
-            filename = os.path.basename(warp_node.frame_file("", self.stem, udim, baked.start))
-            stored = _stored_path(node.directory, filename)
-            existing = current.get(udim)
-            if existing is not None and existing.filepath != stored:
-                existing = None  # another node's sequence (a copy of this node): leave it alone
-            images[udim] = warp_node.sequence_image(
-                f"{self.stem}_{udim}", warp_node.frame_file(self.inputs.directory, self.stem, udim, baked.start),
-                stored, existing,
-            )
-        warp_node.build_sampler(node, images)
-        node.report = self.summary.text()
+        point_node_at(self.node, self.stem, self.inputs.tiles, self.inputs.directory, baked)
+        self.node.report = self.summary.text()
         if getattr(self, "heatmaps", None):
-            node.report += f"; heat map of frame {baked.stop - 1}: {', '.join(os.path.basename(p) for p in self.heatmaps.values())}"
+            self.node.report += f"; heat map of frame {baked.stop - 1}: {', '.join(os.path.basename(p) for p in self.heatmaps.values())}"
 
 
-def bake_blocking(context, material, node, frames: range | None = None, *, report=print) -> tuple[int, bool, WarpBakeJob]:
+def point_node_at(node, stem: str, tiles: list[int], directory: str, baked: range) -> None:
+    """Makes the node's inner tree sample the sequence ``stem`` of ``tiles`` in ``directory`` over ``baked``."""
+    node.baked_start = baked.start
+    node.baked_frames = len(baked)
+    current = warp_node.tile_images(node)
+    images = {}
+    for udim in tiles:
+        filename = os.path.basename(warp_node.frame_file("", stem, udim, baked.start))
+        stored = _stored_path(node.directory, filename)
+        existing = current.get(udim)
+        if existing is not None and existing.filepath != stored:
+            existing = None  # another node's sequence (a copy of this node): leave it alone
+        images[udim] = warp_node.sequence_image(
+            f"{stem}_{udim}", warp_node.frame_file(directory, stem, udim, baked.start), stored, existing,
+        )
+    warp_node.build_sampler(node, images)
+
+
+def attach(material, node, frames: range | None = None) -> range:
+    """Points the node at a sequence baked elsewhere — a farm's chunks, which leave the node and the
+    .blend alone — once every frame of every tile is there; returns the frames. A WarpError names
+    the first missing file, and the node stays as it was."""
+    label = f"{material.name} › {node.name}"
+    frames = frames if frames is not None else range(node.frame_start, node.frame_end + 1)
+    if len(frames) == 0:
+        raise WarpError(f"{label}: the frame range {frames.start}–{frames.stop - 1} is empty")
+    obj = node.object
+    if obj is None or obj.type != "MESH":
+        raise WarpError(f"{label}: no object: set the node's Object to the deforming mesh")
+    layer = inputs.uv_layer_name(obj, node.uv_map, label)
+    tiles = raster.udim_tiles(inputs.corner_uvs(obj.data, layer), mesh_arrays.polygon_sizes(obj.data))
+    directory = inputs.output_directory(node.directory, label)
+    stem = warp_node.file_stem(material.name, node.name)
+    for udim in tiles:
+        for frame in frames:
+            path = warp_node.frame_file(directory, stem, udim, frame)
+            if not os.path.isfile(path):
+                raise WarpError(f"{label}: frame {frame} of the sequence is missing ({path}): bake it first")
+    point_node_at(node, stem, tiles, directory, frames)
+    node.report = f"{len(frames)} frames baked elsewhere (frames {frames.start}–{frames.stop - 1})"
+    return frames
+
+
+def bake_blocking(context, material, node, frames: range | None = None, *, report=print,
+                  preroll: int = 0, chunk: bool = False) -> tuple[int, bool, WarpBakeJob]:
     """Bakes in the foreground (:func:`jobs.run_blocking`); returns ``(frames written, cancelled, job)``."""
-    job = WarpBakeJob(context, material, node, frames)
+    job = WarpBakeJob(context, material, node, frames, preroll=preroll, chunk=chunk)
     cancelled = jobs.run_blocking(context, job, report=report)
     return job.done, cancelled, job
 
