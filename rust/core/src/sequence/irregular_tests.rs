@@ -225,3 +225,18 @@ fn ring_fitted_vertices_reproduce_rigid_motion_and_uniform_scale() {
     }
 }
 
+
+#[test]
+fn ring_fit_solves_depend_on_their_own_input_only() {
+    // The ring fit keeps each row's rotation from one iteration to the next
+    // within a solve; a solve must still not see the solves before it (the
+    // Python binding is called from several threads, and a bake re-solves).
+    let mesh = tube_with_fin();
+    let bent = elbow(&mesh.positions, 1.5, 0.8);
+    let other = elbow(&mesh.positions, 1.5, -1.3);
+    let mut fresh = Sequence::bind(mesh.input(), DeformerOptions::default()).unwrap();
+    let expected = fresh.solve(&bent, 10, Closeness::Default).unwrap();
+    let mut used = Sequence::bind(mesh.input(), DeformerOptions::default()).unwrap();
+    used.solve(&other, 7, Closeness::Default).unwrap();
+    assert_eq!(used.solve(&bent, 10, Closeness::Default).unwrap(), expected);
+}
