@@ -35,20 +35,29 @@ def is_baking(obj) -> bool:
     return obj.session_uid in _baking
 
 
+def _bind_key(obj, rest, corners, sizes) -> tuple:
+    return (obj.session_uid, obj.tegument.scale_safe, hash(rest.tobytes()), hash(corners.tobytes()), hash(sizes.tobytes()))
+
+
+def remember_deformer(obj, deformer, rest, corners, sizes) -> None:
+    """Keeps the deformer Bind built for the bake that follows: building it again costs as
+    much as the bind (seconds at millions of vertices)."""
+    _deformers.clear()  # one bind at a time is the common case; keep memory bounded
+    _deformers[_bind_key(obj, rest, corners, sizes)] = deformer
+
+
 def build_deformer(obj):
     """The ``tegument.PyramidDeformer`` for the object's bind (cached per bind)."""
     import tegument
 
     rest, corners, sizes = evaluate.bound_mesh(obj)
-    key = (obj.session_uid, obj.tegument.scale_safe, rest.tobytes().__hash__(), corners.tobytes().__hash__(), sizes.tobytes().__hash__())
-    deformer = _deformers.get(key)
+    deformer = _deformers.get(_bind_key(obj, rest, corners, sizes))
     if deformer is None:
         try:
             deformer = tegument.PyramidDeformer(rest, corners, sizes, scale_safe=obj.tegument.scale_safe)
         except tegument.TegumentError as error:
             raise DeformError(f"{obj.name}: {error}") from None
-        _deformers.clear()  # one bind at a time is the common case; keep memory bounded
-        _deformers[key] = deformer
+        remember_deformer(obj, deformer, rest, corners, sizes)
     return deformer, rest, corners, sizes
 
 
@@ -74,6 +83,7 @@ class BakeJob:
         self.start_frame = self.settings.frame_start
         self.frame_before = self.scene.frame_current
         self.times: list[float] = []
+        self.last_phases: dict[str, float] = {}  # the last frame's time by phase (PhaseClock)
         self._existing = None
         self.done = 0
         self._stack = contextlib.ExitStack()
@@ -180,12 +190,15 @@ class BakeJob:
     def step(self) -> int:
         """Solves and writes the next frame; returns it."""
         frame = self.frames[self.done]
-        started = time.perf_counter()
-        solved, self._world = solve_frame(self.scene, self.obj, frame, self.deformer, self.closeness, self.rig, self.options)
+        clock = PhaseClock()
+        solved, self._world = solve_frame(self.scene, self.obj, frame, self.deformer, self.closeness, self.rig, self.options,
+                                          clock=clock)
         self.writer.append(solved)
         for k, writer in self.collider_writers.items():
             writer.append(self.rig.solved_local(k))
-        self.times.append(time.perf_counter() - started)
+        clock.mark("write")
+        self.last_phases = clock.phases
+        self.times.append(clock.total)
         step = self.deformer.last_step
         if step is not None and self.uses_step:
             self.worst_stretch = max(self.worst_stretch, step.worst_stretch)
@@ -299,7 +312,26 @@ class BakeJob:
         self.scene.frame_set(self.frame_before)
 
 
-def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=None) -> tuple[np.ndarray, np.ndarray]:
+class PhaseClock:
+    """Splits one frame's wall time into phases (``BakeJob.last_phases``, the scaling benchmark):
+    each :meth:`mark` books the time since the previous mark to its phase."""
+
+    def __init__(self):
+        self._started = self._last = time.perf_counter()
+        self.phases = {"evaluate": 0.0, "read": 0.0, "solve": 0.0, "write": 0.0}
+
+    def mark(self, phase: str) -> None:
+        now = time.perf_counter()
+        self.phases[phase] = self.phases.get(phase, 0.0) + now - self._last
+        self._last = now
+
+    @property
+    def total(self) -> float:
+        return self._last - self._started
+
+
+def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=None, clock: PhaseClock | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
     """``(object space, world space)`` result of one frame; the caller hides Tegument's modifier.
 
     With colliders (``rig``), dynamics, substeps or strain limits (``options``,
@@ -308,10 +340,12 @@ def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=N
     """
     options = options or {}
     history = bool(rig) or bool(options)
+    clock = clock or PhaseClock()
     import tegument
 
     scene.frame_set(frame)
     depsgraph = bpy.context.evaluated_depsgraph_get()
+    clock.mark("evaluate")
     local, world = evaluate.evaluated_positions(obj, depsgraph)
     if len(local) != deformer.vertex_count:
         raise DeformError(
@@ -324,16 +358,19 @@ def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=N
         raise DeformError(f"{obj.name}: at frame {frame} the input position of vertex {vertex} is not finite")
     matrix = obj.evaluated_get(depsgraph).matrix_world
     iterations = obj.tegument.iterations
+    if rig:
+        rig.update(depsgraph, frame)
+        clock.mark("colliders")
+    clock.mark("read")
     try:
         if history:
-            if rig:
-                rig.update(depsgraph, frame)
             colliders_now = rig.colliders if rig else None
             solved = deformer.step(world, colliders_now, iterations=iterations, closeness=closeness, **options)
         else:
             solved = deformer.solve(world, iterations=iterations, closeness=closeness)
     except tegument.TegumentError as error:
         raise DeformError(f"{obj.name}, frame {frame}: {error}") from None
+    clock.mark("solve")
     return evaluate.to_local(solved, matrix), solved
 
 

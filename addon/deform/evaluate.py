@@ -180,9 +180,12 @@ def store_bind_mesh(obj, rest: np.ndarray, corners: np.ndarray, sizes: np.ndarra
     remove_bind_mesh(obj)  # first: the new one takes its name
     mesh = bpy.data.meshes.new(bind_mesh_name(obj))
     mesh.vertices.add(len(rest))
-    mesh.vertices.foreach_set("co", np.ascontiguousarray(rest, dtype=np.float32).ravel())
+    # Through the generic attributes (block copies), as mesh_arrays reads them: the older
+    # `vertices.foreach_set("co")` and `loops.foreach_set("vertex_index")` go element by element
+    # (seconds at millions of vertices).
+    mesh.attributes["position"].data.foreach_set("vector", np.ascontiguousarray(rest, dtype=np.float32).ravel())
     mesh.loops.add(len(corners))
-    mesh.loops.foreach_set("vertex_index", np.ascontiguousarray(corners, dtype=np.int32))
+    mesh.attributes[".corner_vert"].data.foreach_set("value", np.ascontiguousarray(corners, dtype=np.int32))
     mesh.polygons.add(len(sizes))
     starts = np.concatenate(([0], np.cumsum(sizes)[:-1])).astype(np.int32)
     mesh.polygons.foreach_set("loop_start", starts)

@@ -94,6 +94,7 @@ def bind(context, obj) -> str:
         raise DeformError(f"{obj.name}: {error}") from None
     settings = obj.tegument
     evaluate.store_bind_mesh(obj, rest, corners, sizes)
+    bake.remember_deformer(obj, deformer, rest, corners, sizes)
     settings.bound_vertices = len(rest)
     settings.source_vertices = len(obj.data.vertices)
     warnings = []
