@@ -116,6 +116,7 @@ def summary(rows: Rows) -> list[Line]:
         lines.append(Line(comparison, case, f"+ {feature}", total, note=f"adds {added:+.0f} ms"))
 
     lines.extend(character_lines(rows))
+    lines.extend(scaling_lines(rows))
 
     # UV warp: each grid size against the seed's GPU figure.
     comparison = "UV warp, per frame (warm)"
@@ -193,6 +194,38 @@ def character_lines(rows: Rows) -> list[Line]:
     return lines
 
 
+# The phases of a bake frame as BakeJob records them (addon/deform/bake.py, PhaseClock).
+FRAME_PHASES = ("evaluate", "read", "solve", "write")
+
+
+def scaling_lines(rows: Rows) -> list[Line]:
+    """The bake loop from 100k to 5M vertices (bench/bake_scaling.py): per size, the armature alone,
+    Corrective Smooth and Tegument's whole bake frame, with bind time, bind memory and the frame's
+    phases; the largest size's time per vertex against the smallest's."""
+    comparison = "bake loop at scale (whole frames, 10 it.)"
+    cases = sorted({row["case"] for row in rows.rows if row["benchmark"] == "scaling"},
+                   key=lambda case: rows.value("scaling", re.escape(case), "vertices"))
+    if not cases:
+        raise MissingFigure("the run has no scaling rows (bench/bake_scaling.py)")
+    per_vertex = {case: rows.value("scaling", re.escape(case), "Tegument frame per vertex") for case in cases}
+    lines = []
+    for case in cases:
+        value = lambda metric: rows.value("scaling", re.escape(case), metric)  # noqa: E731
+        phases = ", ".join(f"{phase} {value(f'Tegument frame: {phase}'):.1f}" for phase in FRAME_PHASES)
+        rest = value("Tegument (10 it.): frame") - sum(value(f"Tegument frame: {phase}") for phase in FRAME_PHASES)
+        growth = "" if case == cases[0] else f" ({per_vertex[case] / per_vertex[cases[0]]:.2f}× at {cases[0].split(', ')[-1]})"
+        lines += [
+            Line(comparison, case, "armature only (what both start from)", value("armature only: frame")),
+            Line(comparison, case, "Blender Corrective Smooth", value("Corrective Smooth (10 it.): frame")),
+            Line(comparison, case, "Tegument Pyramid Deform (bake frame)", value("Tegument (10 it.): frame"),
+                 peak_mib=value("bind: peak memory"),
+                 note=f"{value('Tegument frame / Corrective Smooth frame'):.2f}× Corrective Smooth's frame; "
+                      f"{value('Tegument frame per vertex'):.0f} ns per vertex{growth}; ms: {phases}, rest {rest:.1f}; "
+                      f"bind {value('bind'):.2f} s, peak memory {value('bind: peak memory per vertex'):.0f} B per vertex"),
+        ]
+    return lines
+
+
 def number(value: float | None, digits: int = 1) -> str:
     if value is None:
         return ""
@@ -261,7 +294,7 @@ def main() -> None:
     parser.add_argument("--plot", help="path of the plot relative to the Markdown file, to show under the table")
     args = parser.parse_args()
     rows = []
-    for name in ("pyramid", "collide", "flesh", "warp", "blender"):
+    for name in ("pyramid", "collide", "flesh", "warp", "blender", "scaling"):
         path = args.results / f"{name}.json"
         if not path.exists():
             raise SystemExit(f"error: {path} is missing: the {name} benchmark did not run")

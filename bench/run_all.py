@@ -92,6 +92,7 @@ def main() -> int:
         ("flesh", cargo + ["--bench", "flesh"], results_env),
         ("warp", cargo + ["--bench", "warp"], {**results_env, "TEGUMENT_WARP_SIZES": "1024,2048,4096"}),
         ("blender", [python, str(HERE / "blender_bench.py"), "--out", str(args.results), "--zip", str(args.zip)], {}),
+        ("scaling", [python, str(HERE / "bake_scaling.py"), "--out", str(args.results), "--zip", str(args.zip)], {}),
     ]
     run = {"started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"), "steps": []}
     started = time.perf_counter()

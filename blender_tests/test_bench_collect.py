@@ -80,7 +80,26 @@ def run_rows() -> list[dict]:
                  row("warp", case, "bandwidth reference (1 pass)", 2.0 * scale),
                  row("warp", case, "rigid stretch error, identity", 0.3, unit=""),
                  row("warp", case, "rigid stretch error, warped", 0.1, unit="")]
-    return rows + character_rows()
+    return rows + character_rows() + scaling_rows()
+
+
+SCALING = ("armature-bent tube, 100k vertices", "armature-bent tube, 5.00M vertices")
+
+
+def scaling_rows() -> list[dict]:
+    """The rows of bench/bake_scaling.py for two sizes (largest first: the table sorts them)."""
+    rows = []
+    for k, (case, vertices) in enumerate(((SCALING[1], 5_000_000), (SCALING[0], 100_000))):
+        big = 50 if k == 0 else 1
+        rows += [row("scaling", case, "vertices", vertices, unit=""),
+                 row("scaling", case, "armature only: frame", 3.0 * big), row("scaling", case, "Corrective Smooth (10 it.): frame", 20.0 * big),
+                 row("scaling", case, "Tegument (10 it.): frame", 9.0 * big),
+                 row("scaling", case, "Tegument frame / Corrective Smooth frame", 0.45, unit="x"),
+                 row("scaling", case, "Tegument frame per vertex", 90.0 if k else 100.0, unit="ns"),
+                 row("scaling", case, "bind", 0.5 * big, unit="s"), row("scaling", case, "bind: peak memory", 60.0 * big, unit="MiB"),
+                 row("scaling", case, "bind: peak memory per vertex", 600.0, unit="B")]
+        rows += [row("scaling", case, f"Tegument frame: {phase}", (m + 1) * big) for m, phase in enumerate(collect.FRAME_PHASES)]
+    return rows
 
 
 def test_summary_puts_each_comparison_side_by_side():
@@ -114,6 +133,16 @@ def test_the_character_lines_compare_corrective_smooth_and_tegument_on_each_vari
     assert lines[5].note.startswith("0.50× Corrective Smooth's frame; 7 vertices pinned by bind (1137 split at seams); spike max 0.20, 130")
 
 
+def test_the_scaling_lines_go_by_size_with_the_frame_phases_and_the_growth_per_vertex():
+    lines = [line for line in collect.summary(collect.Rows(run_rows())) if line.comparison.startswith("bake loop at scale")]
+    assert [(line.case, line.ms_per_frame) for line in lines] == [
+        (SCALING[0], 3.0), (SCALING[0], 20.0), (SCALING[0], 9.0), (SCALING[1], 150.0), (SCALING[1], 1000.0), (SCALING[1], 450.0)]
+    assert lines[2].peak_mib == 60.0
+    assert lines[2].note == ("0.45× Corrective Smooth's frame; 90 ns per vertex; ms: evaluate 1.0, read 2.0, solve 3.0, write 4.0, "
+                             "rest -1.0; bind 0.50 s, peak memory 600 B per vertex")
+    assert "100 ns per vertex (1.11× at 100k vertices)" in lines[5].note
+
+
 def test_without_the_shared_data_the_character_line_says_why():
     rows = [r for r in run_rows() if not r["case"].startswith("MakeHuman")]
     rows.append(dict(row("blender", "MakeHuman character", "character: shared data", 0, unit=""), note="/x/makehuman: missing base.obj"))
@@ -129,7 +158,7 @@ def test_a_missing_figure_is_named():
 
 def test_command_writes_the_json_and_the_table_with_the_load_of_each_step(tmp_path):
     rows = run_rows()
-    for name in ("pyramid", "collide", "flesh", "warp", "blender"):
+    for name in ("pyramid", "collide", "flesh", "warp", "blender", "scaling"):
         (tmp_path / f"{name}.json").write_text(json.dumps([r for r in rows if r["benchmark"] == name]))
     (tmp_path / "machine.txt").write_text("Test CPU, 2 cores\nBlender 5.0.1\n")
     run = {"started": "2026-11-23T15:00:00+00:00", "seconds": 600.0, "steps": [
