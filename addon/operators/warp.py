@@ -17,14 +17,18 @@ from ..warp.inputs import WarpError
 from .deform import bind_pose
 
 
-class TEGUMENT_OT_warp_bake(jobs.BakeOperator, bpy.types.Operator):
+class NodeArguments:
+    """Which UV Warp node an operator acts on (the command line and scripts name it)."""
+
+    material: StringProperty(name="Material", description="Material holding the node (empty: the active object's active material)")
+    node: StringProperty(name="Node", description="Name of the Tegument UV Warp node (empty: the active node)")
+
+
+class TEGUMENT_OT_warp_bake(NodeArguments, jobs.BakeOperator, bpy.types.Operator):
     """Bake the Tegument UV Warp node's redirection sequence over its frame range (Esc cancels and keeps the frames done)"""
 
     bl_idname = "tegument.warp_bake"
     bl_label = "Bake UV Warp"
-
-    material: StringProperty(name="Material", description="Material holding the node (empty: the active object's active material)")
-    node: StringProperty(name="Node", description="Name of the Tegument UV Warp node (empty: the active node)")
 
     def make_job(self, context) -> bake.WarpBakeJob:
         return bake.WarpBakeJob(context, *bake.find_node(context, self.material, self.node))
@@ -56,15 +60,13 @@ def bind_rest(context, obj) -> str:
     return f"Bound {obj.name}: {len(rest)} vertices"
 
 
-class TEGUMENT_OT_warp_bind(bpy.types.Operator):
+class TEGUMENT_OT_warp_bind(NodeArguments, bpy.types.Operator):
     """Bind the UV Warp node's object: store its current shape as the rest shape whose texture looks right"""
 
     bl_idname = "tegument.warp_bind"
     bl_label = "Bind"
     bl_options = {"REGISTER", "UNDO"}
 
-    material: StringProperty(name="Material", description="Material holding the node (empty: the active object's active material)")
-    node: StringProperty(name="Node", description="Name of the Tegument UV Warp node (empty: the active node)")
 
     @jobs.reports_errors
     def execute(self, context):
@@ -75,15 +77,13 @@ class TEGUMENT_OT_warp_bind(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class TEGUMENT_OT_warp_attach(bpy.types.Operator):
+class TEGUMENT_OT_warp_attach(NodeArguments, bpy.types.Operator):
     """Play the node's sequence as it is on disk over the node's frame range: frames a farm baked in chunks, which leave the node as it was"""
 
     bl_idname = "tegument.warp_attach"
     bl_label = "Load Baked"
     bl_options = {"REGISTER", "UNDO"}
 
-    material: StringProperty(name="Material", description="Material holding the node (empty: the active object's active material)")
-    node: StringProperty(name="Node", description="Name of the Tegument UV Warp node (empty: the active node)")
 
     @jobs.reports_errors
     def execute(self, context):
