@@ -623,7 +623,7 @@ fn cold_solves_never_fold() {
         warp.solve(&def).unwrap();
         let met = &warp.metrics(&def).unwrap()[0];
         assert_eq!((met.foldovers, warp.tiles[0].solver.last_repair), (0, (0, 1.0)), "{k} iterations: {met:?}");
-        assert!(met.stretch_warped.mean < 0.25 * met.stretch_identity.mean, "{k} iterations: {met:?}");
+        assert!(met.stretch_warped.mean < 0.5 * met.stretch_identity.mean, "{k} iterations: {met:?}");
     }
     // The old solver at 32 iterations: its iterations fold and the repair
     // shrinks the whole warp (the fixture does exercise the folds).

@@ -177,9 +177,9 @@ fn drive(lv: &mut Level, n: usize, steps: Steps, mut one: impl FnMut(&mut Level)
     // `p` = x_k, `q` = x_{k−1}.
     let (mut px, mut py) = (lv.dx.clone(), lv.dy.clone());
     let (mut qx, mut qy) = (px.clone(), py.clone());
+    let (mut rx, mut ry) = (px.clone(), py.clone());
     let parallel = lv.w * lv.h >= PARALLEL_TEXELS;
     let mut omega = 1.0f32;
-    // Iterations since the acceleration (re)started.
     let mut since = 0;
     for _ in 0..n {
         std::mem::swap(&mut qx, &mut px);
@@ -200,16 +200,21 @@ fn drive(lv: &mut Level, n: usize, steps: Steps, mut one: impl FnMut(&mut Level)
                     x.iter_mut().zip(q).for_each(step);
                 }
             };
+            // The plain iterate is kept: an extrapolated one that still
+            // folds after the area constraint is replaced by it (4096² cold
+            // solves folded from 3 iterations: the first long steps folded
+            // more than the constraint's few passes untangle).
+            rx.copy_from_slice(&lv.dx);
+            ry.copy_from_slice(&lv.dy);
             extrapolate(o, &mut lv.dx, &qx);
             extrapolate(o, &mut lv.dy, &qy);
-            // An extrapolation that folds a cell is taken back (to the plain
-            // iterate, up to rounding) and the acceleration starts again:
-            // the area constraint's few passes cannot untangle what a long
-            // step folds (4096² cold solves did, from 3 iterations).
+            keep_areas(lv, AREA_PASSES);
             if count_folds(&lv.dx, &lv.dy, lv.w, lv.h, 0.0) > 0 {
-                extrapolate(1.0 / o, &mut lv.dx, &qx);
-                extrapolate(1.0 / o, &mut lv.dy, &qy);
-                since = 0;
+                lv.dx.copy_from_slice(&rx);
+                lv.dy.copy_from_slice(&ry);
+            } else {
+                since += 1;
+                continue;
             }
         }
         since += 1;
