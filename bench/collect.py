@@ -158,7 +158,8 @@ def summary(rows: Rows) -> list[Line]:
 
 
 CHARACTER_CASES = {"OBJ, welded": r"MakeHuman character \(OBJ, welded\), .*",
-                   "glTF round trip": r"MakeHuman character \(glTF round trip, split seams\), .*"}
+                   "glTF round trip": r"MakeHuman character \(glTF round trip, split seams\), .*",
+                   "subdivided": r"MakeHuman character \(Subdivision Surface between Armature and Tegument\), .*"}
 
 
 def character_lines(rows: Rows) -> list[Line]:

@@ -86,9 +86,10 @@ def main() -> int:
     cargo = ["cargo", "bench", "-p", "tegument-core"]
     steps = [
         # Compiled first, so no benchmark is timed while its successors compile.
-        ("build", cargo + ["--no-run", "--bench", "pyramid", "--bench", "collide", "--bench", "flesh", "--bench", "warp",
-                           "--bench", "warp_convergence"], {}),
+        ("build", cargo + ["--no-run", "--bench", "pyramid", "--bench", "convergence", "--bench", "collide", "--bench", "flesh",
+                           "--bench", "warp", "--bench", "warp_convergence"], {}),
         ("pyramid", cargo + ["--bench", "pyramid"], results_env),
+        ("convergence", cargo + ["--bench", "convergence"], results_env),
         ("collide", cargo + ["--bench", "collide"], results_env),
         ("flesh", cargo + ["--bench", "flesh"], results_env),
         ("warp", cargo + ["--bench", "warp"], {**results_env, "TEGUMENT_WARP_SIZES": "1024,2048,4096"}),
@@ -113,6 +114,8 @@ def main() -> int:
         [python, str(HERE / "collect.py"), "--results", str(args.results), "--json", str(args.json), "--markdown", str(args.markdown),
          "--plot", os.path.relpath(args.plot, args.markdown.parent)],
         [python, str(HERE / "plot_bench.py"), "--results", str(args.json), "--out", str(args.plot)],
+        [python, str(HERE / "plot_convergence.py"), "--results", str(args.results / "convergence.json"),
+         "--out", str(args.plot.parent / "pyramid-convergence.png")],
         [python, str(HERE / "plot_warp_convergence.py"), "--results", str(args.results / "warp_convergence_curves.json"),
          "--out", str(args.plot.parent / "uv-warp-convergence.png")],
     ):

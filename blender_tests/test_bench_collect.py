@@ -20,7 +20,8 @@ TUBE = "armature-bent tube, 100k vertices"
 SKIN = "skin 100k vertices vs sphere 20k triangles"
 CORE_SKIN = "skin 100489 v / 199712 tri vs collider 20172 tri"
 FLESH = "skin 100489 v vs collider 20172 tri, step"
-CHARACTERS = ("MakeHuman character (OBJ, welded), 13.4k vertices", "MakeHuman character (glTF round trip, split seams), 14.5k vertices")
+CHARACTERS = ("MakeHuman character (OBJ, welded), 13.4k vertices", "MakeHuman character (glTF round trip, split seams), 14.5k vertices",
+              "MakeHuman character (Subdivision Surface between Armature and Tegument), 53.5k vertices")
 
 
 def character_rows() -> list[dict]:

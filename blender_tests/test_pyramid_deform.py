@@ -59,16 +59,27 @@ def mesh_arrays(obj):
     return rest, corners, sizes
 
 
+def attribute_names(mesh) -> list[str]:
+    return sorted(attribute.name for attribute in mesh.attributes)
+
+
 def test_round_trip_matches_the_wheel(limb, capfd):
     import tegument
 
     obj, _ = limb
+    attributes = attribute_names(obj.data)
     assert bpy.ops.tegument.deform_add() == {"FINISHED"}
     modifier = obj.modifiers[-1]
     assert (modifier.name, modifier.type, modifier.cache_format) == ("Tegument", "MESH_CACHE", "PC2")
     assert obj.tegument.cache_path == "//tegument/Limb.pc2"
-    assert "tegument_rest" in obj.data.attributes
-    assert obj.tegument.bound_vertices == len(obj.data.vertices)
+    # The bind is a mesh of its own, even where the stack keeps the mesh's topology: nothing is
+    # added to the user's mesh.
+    assert attribute_names(obj.data) == attributes and "tegument_rest" not in obj.data.attributes
+    bind = obj.tegument.bind_mesh
+    assert bind is not None and bind.name == "Limb · Tegument bind"
+    assert obj.tegument.bound_vertices == obj.tegument.source_vertices == len(obj.data.vertices) == len(bind.vertices)
+    np.testing.assert_array_equal(np.array([v.co[:] for v in bind.vertices], np.float32), mesh_arrays(obj)[0])
+    assert [p.vertices[:] for p in bind.polygons] == [p.vertices[:] for p in obj.data.polygons]
 
     assert bpy.ops.tegument.bake() == {"FINISHED"}
     out = capfd.readouterr().out
@@ -90,7 +101,9 @@ def test_round_trip_matches_the_wheel(limb, capfd):
     assert bpy.ops.tegument.free_bake() == {"FINISHED"}
     assert not pathlib.Path(path).exists()
     assert bpy.ops.tegument.deform_remove() == {"FINISHED"}
-    assert "Tegument" not in obj.modifiers and "tegument_rest" not in obj.data.attributes
+    assert "Tegument" not in obj.modifiers and obj.tegument.bind_mesh is None
+    assert not [mesh for mesh in bpy.data.meshes if "Tegument bind" in mesh.name], "Remove deletes the bind mesh"
+    assert attribute_names(obj.data) == attributes
 
 
 def test_a_moved_turned_and_scaled_rig_bakes_in_world_space_and_caches_object_space(limb):
@@ -174,6 +187,11 @@ def test_save_reload_play_back_and_render(limb, tmp_path):
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     obj = bpy.data.objects["Limb"]
     assert obj.tegument.bound_vertices == len(obj.data.vertices)
+    # The bind mesh survives the save (the object's pointer to it is a user) with the rest shape.
+    bind = obj.tegument.bind_mesh
+    assert bind is not None and bind.name == "Limb · Tegument bind" and bind.users == 1
+    np.testing.assert_array_equal(np.array([v.co[:] for v in bind.vertices], np.float32), mesh_arrays(obj)[0])
+    assert "tegument_rest" not in obj.data.attributes
     scene = bpy.context.scene
     scene.frame_set(5)
     evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
@@ -305,7 +323,65 @@ def test_missing_closeness_group_and_unbound_mesh_are_reported(limb):
     with pytest.raises(RuntimeError, match='closeness vertex group "renamed" does not exist'):
         bpy.ops.tegument.bake()
     obj.tegument.closeness_group = ""
-    obj.data.attributes.remove(obj.data.attributes["tegument_rest"])
+    bpy.data.meshes.remove(obj.tegument.bind_mesh)  # the bind lost (a script, Purge of orphan data…)
+    assert obj.tegument.bind_mesh is None
     with pytest.raises(RuntimeError, match=r"Limb is not bound: press Bind"):
         bpy.ops.tegument.bake()
     assert not pathlib.Path(bpy.path.abspath(obj.tegument.cache_path)).exists()
+
+
+def make_legacy_bind(obj, *, source_vertices: int) -> np.ndarray:
+    """Turns the object's bind into one made by Tegument before every bind was a bind mesh: the rest
+    positions in the mesh's ``tegument_rest`` point attribute, no bind mesh (files saved before the
+    mesh's own count was stored have ``source_vertices`` 0). Returns the attribute's values."""
+    rest = mesh_arrays(obj)[0]
+    bpy.data.meshes.remove(obj.tegument.bind_mesh)
+    attribute = obj.data.attributes.new("tegument_rest", "FLOAT_VECTOR", "POINT")
+    attribute.data.foreach_set("vector", rest.ravel())
+    obj.tegument.source_vertices = source_vertices
+    return rest
+
+
+@pytest.mark.parametrize("source_vertices", ["stored", 0])
+def test_a_legacy_bind_still_bakes_and_a_rebind_leaves_its_attribute_alone(limb, tmp_path, source_vertices):
+    """A .blend bound by an earlier version (the ``tegument_rest`` attribute only) bakes the same
+    cache as a bind mesh, also after save and reload; Bind moves the bind to a bind mesh and leaves
+    the attribute as it was (removing it would change the user's mesh again); so does Remove."""
+    obj, _ = limb
+    assert bpy.ops.tegument.deform_add() == {"FINISHED"}
+    assert bpy.ops.tegument.bake() == {"FINISHED"}
+    path = bpy.path.abspath(obj.tegument.cache_path)
+    expected, _ = read_pc2(path)
+    expected = expected.copy()
+
+    rest = make_legacy_bind(obj, source_vertices=len(obj.data.vertices) if source_vertices == "stored" else 0)
+    blend = tmp_path / "legacy.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    obj = bpy.data.objects["Limb"]
+    bpy.context.view_layer.objects.active = obj
+    assert obj.tegument.bind_mesh is None and "tegument_rest" in obj.data.attributes
+    assert bpy.ops.tegument.bake() == {"FINISHED"}
+    np.testing.assert_array_equal(read_pc2(path)[0], expected)
+
+    # The legacy bind's checks still hold: an edit of the mesh asks for a rebind.
+    if source_vertices == "stored":
+        obj.data.vertices.add(1)
+        with pytest.raises(RuntimeError, match=r"the mesh has \d+ vertices but was bound with \d+: rebind it"):
+            bpy.ops.tegument.bake()
+        bpy.ops.wm.open_mainfile(filepath=str(blend))
+        obj = bpy.data.objects["Limb"]
+        bpy.context.view_layer.objects.active = obj
+
+    snapshot = {a.name: (a.domain, a.data_type) for a in obj.data.attributes}
+    assert bpy.ops.tegument.bind() == {"FINISHED"}
+    assert obj.tegument.bind_mesh is not None
+    assert {a.name: (a.domain, a.data_type) for a in obj.data.attributes} == snapshot
+    kept = np.empty(len(rest) * 3, np.float32)
+    obj.data.attributes["tegument_rest"].data.foreach_get("vector", kept)
+    np.testing.assert_array_equal(kept.reshape(-1, 3), rest)
+    assert bpy.ops.tegument.bake() == {"FINISHED"}
+    np.testing.assert_array_equal(read_pc2(path)[0], expected)
+
+    assert bpy.ops.tegument.deform_remove() == {"FINISHED"}
+    assert obj.tegument.bind_mesh is None and "tegument_rest" in obj.data.attributes

@@ -128,10 +128,15 @@ def aspect_ratio(mask: np.ndarray) -> float:
 
 
 def mesh_inputs(obj):
-    """The wheel's inputs, read independently of the add-on."""
+    """The wheel's inputs, read independently of the add-on: the rest shape is Pyramid Deform's
+    bind mesh where it has the mesh's vertices, else UV Warp's own tegument_rest attribute."""
     mesh = obj.data
     rest = np.empty(len(mesh.vertices) * 3, np.float32)
-    mesh.attributes["tegument_rest"].data.foreach_get("vector", rest)
+    bind = obj.tegument.bind_mesh
+    if bind is not None and len(bind.vertices) == len(mesh.vertices):
+        bind.vertices.foreach_get("co", rest)
+    else:
+        mesh.attributes["tegument_rest"].data.foreach_get("vector", rest)
     corners = np.array([loop.vertex_index for loop in mesh.loops], np.int32)
     sizes = np.array([p.loop_total for p in mesh.polygons], np.int32)
     uvs = np.array([d.uv[:] for d in mesh.uv_layers.active.data], np.float32)
@@ -588,3 +593,51 @@ def test_a_rigidity_image_of_another_size_or_storage_is_resampled_to_the_grid(sa
     (full_before, full_after), (half_before, half_after) = stretch["Full"], stretch["Half"]
     assert half_after * 5 < half_before, reports
     assert abs(half_after - full_after) < 0.5 * full_after + 0.01, reports
+
+
+def not_bound_hint(node) -> bool:
+    from bl_ext.user_default.tegument.ui import warp_node
+
+    log = []
+    warp_node.draw(node, bpy.context, RecordingLayout(log))
+    return any(name == "label" and "not bound" in kwargs.get("text", "") for name, _, kwargs in log)
+
+
+def test_pyramid_deforms_bind_mesh_is_the_warps_rest_shape(saved, tmp_path):
+    """With Pyramid Deform bound on the mesh's own vertices, UV Warp reads that bind mesh (the node
+    is bound, the mesh gets no attribute) and its Bind renews it; without one, UV Warp's Bind
+    stores its own tegument_rest attribute."""
+    import tegument
+
+    obj = saved
+    material, node = warp_material(obj)
+    node.rigidity_image = float_image("Rigidity", disc(RIGID_RADIUS))
+    attributes = sorted(a.name for a in obj.data.attributes)
+    assert not_bound_hint(node)
+
+    bpy.context.scene.frame_set(1)
+    bpy.context.view_layer.objects.active = obj
+    assert bpy.ops.tegument.deform_add() == {"FINISHED"}
+    bound = obj.tegument.bind_mesh
+    assert bound is not None and len(bound.vertices) == len(obj.data.vertices)
+    assert not not_bound_hint(node)
+    assert bpy.ops.tegument.warp_bake(material=material.name, node=node.name) == {"FINISHED"}
+    assert sorted(a.name for a in obj.data.attributes) == attributes, "the warp's bind is the bind mesh"
+
+    # The node's Bind, squashed (Bind Pose: Evaluated), renews the same bind mesh, not the mesh.
+    obj.tegument.bind_source = "EVALUATED"
+    bpy.context.scene.frame_set(3)
+    bind(material, node)
+    assert obj.tegument.bind_mesh == bound and sorted(a.name for a in obj.data.attributes) == attributes
+    rest = mesh_inputs(obj)[0]
+    np.testing.assert_allclose(rest, evaluated(obj, 3), atol=1e-6)
+    assert np.ptp(rest[:, 0]) == pytest.approx(1.0, abs=1e-5), "the squashed pose is the rest shape now"
+    assert obj.tegument.bound_vertices == obj.tegument.source_vertices == len(obj.data.vertices)
+    assert bpy.ops.tegument.bake() == {"FINISHED"}, "Pyramid Deform bakes from the renewed bind"
+
+    # Without Pyramid Deform, the node's Bind stores UV Warp's own attribute.
+    assert bpy.ops.tegument.deform_remove() == {"FINISHED"}
+    assert obj.tegument.bind_mesh is None and not_bound_hint(node)
+    bind(material, node)
+    assert "tegument_rest" in obj.data.attributes and not not_bound_hint(node)
+    np.testing.assert_allclose(mesh_inputs(obj)[0], rest, atol=1e-6)

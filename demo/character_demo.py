@@ -6,9 +6,10 @@ Three variants of the hard-posed character (``character.HARD_POSE``), each as a 
 - ``"obj"``: loaded from MakeHuman's OBJ (:func:`character.load_character`): welded, closed;
 - ``"gltf"``: the same after a round trip through Blender's own glTF exporter and importer, which
   splits the vertices at every UV seam (the mesh arrives with open edges along the seams);
-- ``"subdivided"``: the OBJ character with one level of Subdivision Surface applied at rest
-  (~50k vertices). Applied, not left as a modifier between the Armature and Tegument: the
-  add-on binds the mesh's own vertices and refuses a stack above it that changes their count.
+- ``"subdivided"``: the OBJ character with a Subdivision Surface modifier (level 1) between the
+  Armature and Tegument (~53k vertices evaluated, the mesh itself keeps its ~13k): Tegument binds
+  and bakes the stack above it, and the measures here are taken on that evaluated mesh
+  (:func:`rest_topology`, :func:`upstream_local`).
 
 Plus two small open meshes bent by a two-bone armature: a sleeve (a tube open at both ends) and a
 disc with a hole. :func:`figures` measures skinning (the input) against Tegument's cache with
@@ -60,12 +61,9 @@ def build(variant: str, workdir: pathlib.Path) -> tuple[bpy.types.Object, bpy.ty
         obj = next(o for o in bpy.data.objects if o.type == "MESH")
         rig = next(o for o in bpy.data.objects if o.type == "ARMATURE")
     elif variant == "subdivided":
-        # First in the stack, so it applies to the rest mesh and interpolates the weights.
+        # After the Armature (which deforms the ~13k-vertex cage), before Tegument (added last).
         subdivision = obj.modifiers.new("Subdivision", "SUBSURF")
         subdivision.levels = subdivision.render_levels = 1
-        _select_only(obj)
-        bpy.ops.object.modifier_move_to_index(modifier=subdivision.name, index=0)
-        bpy.ops.object.modifier_apply(modifier=subdivision.name)
     scene = bpy.context.scene
     scene.frame_start, scene.frame_end = POSE_FRAMES
     scene.frame_set(POSE_FRAMES[0])
@@ -192,12 +190,32 @@ def topology(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return rest.reshape(-1, 3), corners, sizes
 
 
+def rest_topology(obj, frame: int = POSE_FRAMES[0]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`topology` of what Tegument deforms: the mesh's own where the stack above Tegument
+    keeps its vertices, otherwise that stack evaluated at ``frame`` (the rest pose), read without
+    the add-on (a Subdivision Surface after the Armature: the subdivided rest)."""
+    own = topology(obj.data)
+    modifier = obj.modifiers.get("Tegument")
+    shown = modifier.show_viewport if modifier else False
+    if modifier:
+        modifier.show_viewport = False
+    try:
+        bpy.context.scene.frame_set(frame)
+        evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        if len(evaluated.data.vertices) == len(own[0]):
+            return own
+        return topology(evaluated.data)
+    finally:
+        if modifier:
+            modifier.show_viewport = shown
+
+
 def pinned_count(obj) -> int:
-    """The vertices bind left following the input, as the add-on reports them (its warning text
-    "N vertices follow the rig ..."; 0 when there is no such warning)."""
-    for part in obj.tegument.warnings.split(";"):
+    """The vertices bind left following the input, as the add-on reports them (its bind warning
+    "N vertices follow the rig: …"; 0 when there is no such warning)."""
+    for part in obj.tegument.bind_warnings.split(";"):
         words = part.split()
-        if "follow" in words and words[0].isdigit():
+        if len(words) > 2 and words[0].isdigit() and words[1] in ("vertex", "vertices") and words[2].startswith("follow"):
             return int(words[0])
     return 0
 
@@ -223,15 +241,14 @@ def add_and_bake(obj, cache_path: str, frames=POSE_FRAMES) -> dict:
     if bpy.ops.tegument.deform_add() != {"FINISHED"}:
         raise RuntimeError(f"Add Pyramid Deform failed on {obj.name}: {obj.tegument.warnings}")
     settings = obj.tegument
-    # Read now: the bake replaces the warnings with its own (collider notes).
-    pinned, warnings = pinned_count(obj), settings.warnings
+    pinned, warnings = pinned_count(obj), settings.bind_warnings
     settings.cache_path = cache_path
     settings.frame_start, settings.frame_end = frames
     started = time.perf_counter()
     if bpy.ops.tegument.bake() != {"FINISHED"}:
         raise RuntimeError(f"the bake of {obj.name} failed (its message is above)")
     wall = time.perf_counter() - started
-    return {"vertices": len(obj.data.vertices), "pinned": pinned, "warnings": warnings,
+    return {"vertices": settings.bound_vertices, "pinned": pinned, "warnings": warnings,
             "iterations": settings.iterations, "closeness": round(settings.closeness, 4),
             "ms_per_frame": settings.last_frame_ms,
             "ms_per_frame_wall": 1000 * wall / (frames[1] - frames[0] + 1)}

@@ -39,17 +39,7 @@ def build_deformer(obj):
     """The ``tegument.PyramidDeformer`` for the object's bind (cached per bind)."""
     import tegument
 
-    rest = evaluate.rest_positions(obj)
-    mesh = obj.data
-    # Edit Mode carries the rest attribute over to added vertices (with zeros),
-    # so its length alone does not show an edit: the count stored at bind does.
-    bound = obj.tegument.bound_vertices or len(rest)
-    if len(rest) != len(mesh.vertices) or bound != len(mesh.vertices):
-        raise DeformError(
-            f"{obj.name}: the mesh has {len(mesh.vertices)} vertices but was bound with {bound}: rebind it"
-        )
-    corners = mesh_arrays.corner_verts(mesh)
-    sizes = mesh_arrays.polygon_sizes(mesh)
+    rest, corners, sizes = evaluate.bound_mesh(obj)
     key = (obj.session_uid, obj.tegument.scale_safe, rest.tobytes().__hash__(), corners.tobytes().__hash__(), sizes.tobytes().__hash__())
     deformer = _deformers.get(key)
     if deformer is None:
@@ -289,7 +279,9 @@ class BakeJob:
         settings.audit_edges_crossing = self.audit_totals["edges_crossing"]
         settings.audit_collider_edges_crossing = self.audit_totals["collider_edges_crossing"]
         settings.pinched_vertices = self.most_pinched
-        notes = list(self.rig.warnings)
+        # The bind's warnings stay: the bake adds its own notes after them.
+        notes = [settings.bind_warnings] if settings.bind_warnings else []
+        notes += self.rig.warnings
         if self.most_pinched:
             notes.append(f"{self.most_pinched} vertices pinched between colliders")
         settings.warnings = "; ".join(notes)
@@ -324,8 +316,8 @@ def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=N
     if len(local) != deformer.vertex_count:
         raise DeformError(
             f"{obj.name}: at frame {frame} the modifier stack above Tegument gives {len(local)} vertices, "
-            f"but the bind has {deformer.vertex_count}: a modifier above Tegument changes the topology "
-            "(move it below Tegument, or rebind)"
+            f"but the bind has {deformer.vertex_count}: the topology above Tegument changed since the bind "
+            "(rebind, or move the modifier that changes it below Tegument)"
         )
     vertex = mesh_arrays.first_non_finite(world)
     if vertex is not None:

@@ -72,24 +72,178 @@ def to_local(world: np.ndarray, matrix) -> np.ndarray:
     return _apply(world, np.linalg.inv(np.array(matrix, dtype=np.float64)))
 
 
-def rest_positions(obj) -> np.ndarray:
-    """The bound rest positions (object space), or a DeformError saying to bind."""
+def _rest_layer(obj):
     attribute = obj.data.attributes.get(REST_ATTRIBUTE)
     if attribute is None or attribute.data_type != "FLOAT_VECTOR" or attribute.domain != "POINT":
-        raise DeformError(f"{obj.name} is not bound: press Bind (tegument.bind) first")
+        return None
+    return attribute
+
+
+def rest_attribute(obj) -> np.ndarray | None:
+    """The rest positions in the ``tegument_rest`` point attribute of ``obj.data`` (object space),
+    or None. UV Warp's own bind where Pyramid Deform has none of the mesh's vertices, and the bind
+    of files bound by Tegument before every bind was a bind mesh (a legacy bind)."""
+    attribute = _rest_layer(obj)
+    if attribute is None:
+        return None
     rest = np.empty((len(attribute.data), 3), dtype=np.float32)
     attribute.data.foreach_get("vector", rest.ravel())
     return rest
 
 
+def mesh_vertex_bind(obj) -> bpy.types.Mesh | None:
+    """Pyramid Deform's bind mesh where it has the vertices of ``obj.data`` (the stack above
+    Tegument keeps the mesh's vertex count), else None: the bind UV Warp shares."""
+    mesh = obj.tegument.bind_mesh
+    return mesh if mesh is not None and len(mesh.vertices) == len(obj.data.vertices) else None
+
+
+def rest_positions(obj) -> np.ndarray:
+    """The rest shape UV Warp reads (object space): Pyramid Deform's bind mesh where it has the
+    mesh's vertex count, else the ``tegument_rest`` attribute UV Warp's Bind wrote; a DeformError
+    saying to bind when there is neither. Pyramid Deform reads :func:`bound_mesh`."""
+    mesh = mesh_vertex_bind(obj)
+    if mesh is not None:
+        return mesh_arrays.positions(mesh)
+    rest = rest_attribute(obj)
+    if rest is None:
+        raise DeformError(f"{obj.name} is not bound: press Bind (tegument.bind) first")
+    return rest
+
+
+def is_rest_bound(obj) -> bool:
+    """Whether :func:`rest_positions` has a rest shape to give (UV Warp's "not bound" hint)."""
+    return mesh_vertex_bind(obj) is not None or _rest_layer(obj) is not None
+
+
 def store_rest(obj, rest: np.ndarray) -> None:
-    """Stores the rest positions in the mesh so the bind survives save and reload."""
+    """UV Warp's Bind: the rest positions of the mesh's own vertices. Into Pyramid Deform's bind
+    mesh where it has those vertices (one rest shape for both, ``obj.data`` untouched), else into
+    the ``tegument_rest`` point attribute of ``obj.data`` (saved with the file)."""
+    bound = mesh_vertex_bind(obj)
+    if bound is not None and len(rest) == len(bound.vertices):
+        if bound.users > 1:  # shared with a duplicate of the object: that one's bind stays as it is
+            bound = bound.copy()
+            bound.name = bind_mesh_name(obj)
+            obj.tegument.bind_mesh = bound
+        bound.vertices.foreach_set("co", np.ascontiguousarray(rest, dtype=np.float32).ravel())
+        bound.update()
+        return
     mesh = obj.data
     attribute = mesh.attributes.get(REST_ATTRIBUTE)
     if attribute is not None:
         mesh.attributes.remove(attribute)
     attribute = mesh.attributes.new(REST_ATTRIBUTE, "FLOAT_VECTOR", "POINT")
     attribute.data.foreach_set("vector", np.ascontiguousarray(rest, dtype=np.float32).ravel())
+
+
+# Modifiers that only move vertices. With Bind Pose "Original" and a stack above Tegument that
+# changes the topology, the rest shape is that stack evaluated with these left out: the mesh's own
+# positions through the generating modifiers (Subdivision Surface, Remesh…), not the current pose.
+DEFORM_ONLY = frozenset({
+    "ARMATURE", "CAST", "CLOTH", "CORRECTIVE_SMOOTH", "CURVE", "DISPLACE", "HOOK", "LAPLACIANDEFORM",
+    "LAPLACIANSMOOTH", "LATTICE", "MESH_CACHE", "MESH_DEFORM", "SHRINKWRAP", "SIMPLE_DEFORM", "SMOOTH",
+    "SOFT_BODY", "SURFACE_DEFORM", "WARP", "WAVE",
+})
+
+
+def mesh_topology(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(positions, corner_verts, polygon_sizes)`` of a mesh datablock (original or evaluated)."""
+    return mesh_arrays.positions(mesh), mesh_arrays.corner_verts(mesh), mesh_arrays.polygon_sizes(mesh)
+
+
+def upstream_topology(obj, depsgraph_of, *, without_deform: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`mesh_topology` of the stack above Tegument's modifier, now; ``without_deform`` also
+    leaves out the deform-only modifiers above it (:data:`DEFORM_ONLY`). ``depsgraph_of()`` gives the
+    evaluated depsgraph (called inside, once the modifiers are hidden)."""
+    with upstream_only(obj), hidden_in_viewport(
+        [m for m in obj.modifiers if m.type in DEFORM_ONLY] if without_deform else []
+    ):
+        return mesh_topology(obj.evaluated_get(depsgraph_of()).data)
+
+
+def keeps_topology(mesh, corners: np.ndarray, sizes: np.ndarray, vertex_count: int) -> bool:
+    """Whether ``(vertex_count, corners, sizes)`` is the topology of ``mesh`` (same order)."""
+    return (vertex_count == len(mesh.vertices) and np.array_equal(sizes, mesh_arrays.polygon_sizes(mesh))
+            and np.array_equal(corners, mesh_arrays.corner_verts(mesh)))
+
+
+def bind_mesh_name(obj) -> str:
+    return f"{obj.name} · Tegument bind"
+
+
+def store_bind_mesh(obj, rest: np.ndarray, corners: np.ndarray, sizes: np.ndarray) -> bpy.types.Mesh:
+    """Stores Pyramid Deform's bind (rest positions and topology of the stack above Tegument,
+    whether or not it is ``obj.data``'s) in a Mesh datablock of its own, referenced by
+    ``obj.tegument.bind_mesh`` (a user of it: it is saved with the file); ``obj.data`` is not
+    touched. Replaces an earlier bind mesh."""
+    remove_bind_mesh(obj)  # first: the new one takes its name
+    mesh = bpy.data.meshes.new(bind_mesh_name(obj))
+    mesh.vertices.add(len(rest))
+    mesh.vertices.foreach_set("co", np.ascontiguousarray(rest, dtype=np.float32).ravel())
+    mesh.loops.add(len(corners))
+    mesh.loops.foreach_set("vertex_index", np.ascontiguousarray(corners, dtype=np.int32))
+    mesh.polygons.add(len(sizes))
+    starts = np.concatenate(([0], np.cumsum(sizes)[:-1])).astype(np.int32)
+    mesh.polygons.foreach_set("loop_start", starts)
+    mesh.update(calc_edges=True)
+    obj.tegument.bind_mesh = mesh
+    return mesh
+
+
+def remove_bind_mesh(obj) -> None:
+    """Forgets (and deletes, unless something else uses it) the object's bind mesh."""
+    mesh = obj.tegument.bind_mesh
+    if mesh is None:
+        return
+    obj.tegument.bind_mesh = None
+    if mesh.users == 0:
+        bpy.data.meshes.remove(mesh)
+
+
+def bound_mesh(obj) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(rest positions, corner_verts, polygon_sizes)`` of the object's bind: the bind mesh, or for
+    a file bound before every bind was one (a legacy bind) ``obj.data`` with its ``tegument_rest``
+    attribute. A DeformError says to bind, or to rebind after an edit of ``obj.data``."""
+    settings = obj.tegument
+    mesh = obj.data
+    # What the bind saw of obj.data (files bound before it was stored: the bind's own count).
+    source = settings.source_vertices or settings.bound_vertices
+    if settings.bind_mesh is not None:
+        rest, corners, sizes = mesh_topology(settings.bind_mesh)
+        source = source or len(rest)
+        if source != len(mesh.vertices):
+            raise DeformError(
+                f"{obj.name}: the mesh has {len(mesh.vertices)} vertices but was bound with {source}: rebind it"
+            )
+        return rest, corners, sizes
+    rest = rest_attribute(obj)
+    if rest is None:
+        raise DeformError(f"{obj.name} is not bound: press Bind (tegument.bind) first")
+    # Edit Mode carries the rest attribute over to added vertices (with zeros),
+    # so its length alone does not show an edit: the count stored at bind does.
+    bound = source or len(rest)
+    if len(rest) != len(mesh.vertices) or bound != len(mesh.vertices):
+        raise DeformError(
+            f"{obj.name}: the mesh has {len(mesh.vertices)} vertices but was bound with {bound}: rebind it"
+        )
+    return rest, mesh_arrays.corner_verts(mesh), mesh_arrays.polygon_sizes(mesh)
+
+
+def group_weights(obj, group) -> np.ndarray:
+    """Weights of a vertex group per bound vertex: on ``obj.data`` where the bind has its vertices
+    (a legacy bind, or a stack above Tegument that keeps them), else on the stack above Tegument
+    (which carries the weights over, interpolated by Subdivision Surface)."""
+    bind = obj.tegument.bind_mesh
+    if bind is None or len(bind.vertices) == len(obj.data.vertices):
+        return mesh_arrays.vertex_group_weights(obj.data, group.index)
+    with upstream_only(obj):
+        evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).data
+        weights = mesh_arrays.vertex_group_weights(evaluated, group.index)
+    if len(weights) != len(bind.vertices):
+        raise DeformError(f"{obj.name}: the modifier stack above Tegument gives {len(weights)} vertices, "
+                          f"the bind has {len(bind.vertices)}: rebind it")
+    return weights
 
 
 def closeness_weights(obj) -> float | np.ndarray:
@@ -100,7 +254,7 @@ def closeness_weights(obj) -> float | np.ndarray:
     group = obj.vertex_groups.get(settings.closeness_group)
     if group is None:
         raise DeformError(f"{obj.name}: the closeness vertex group \"{settings.closeness_group}\" does not exist")
-    return (settings.closeness * mesh_arrays.vertex_group_weights(obj.data, group.index)).astype(np.float32)
+    return (settings.closeness * group_weights(obj, group)).astype(np.float32)
 
 
 def cache_file(obj) -> str:
@@ -118,7 +272,7 @@ def max_stretch(obj) -> float | np.ndarray | None:
     group = obj.vertex_groups.get(settings.max_stretch_group)
     if group is None:
         raise DeformError(f"{obj.name}: the max stretch vertex group \"{settings.max_stretch_group}\" does not exist")
-    weights = mesh_arrays.vertex_group_weights(obj.data, group.index)
+    weights = group_weights(obj, group)
     with np.errstate(divide="ignore"):
         return np.where(weights > 0, settings.max_stretch / np.maximum(weights, 1e-30), np.inf).astype(np.float32)
 

@@ -39,7 +39,7 @@ def on_frame_change(scene, depsgraph=None):
             try:
                 bake.bake_blocking(bpy.context, obj, range(frame, frame + 1), keep_existing=True, report=lambda line: None)
             except (evaluate.DeformError, pc2.CacheError) as error:
-                settings.warnings = f"live: {error}"
+                settings.warnings = "; ".join(filter(None, (settings.bind_warnings, f"live: {error}")))
     finally:
         _state["busy"] = False
 

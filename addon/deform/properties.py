@@ -127,9 +127,29 @@ class TEGUMENT_PG_deform(bpy.types.PropertyGroup):
         "(independent of the solver); the totals show below",
     )
     # Status, written by bind and bake, shown in the panel.
-    bound_vertices: IntProperty(name="Bound Vertices", default=0, options={"HIDDEN"})
+    bound_vertices: IntProperty(
+        name="Bound Vertices", default=0, options={"HIDDEN"},
+        description="Vertices of the bind: those of the stack above Tegument at bind time",
+    )
+    source_vertices: IntProperty(
+        name="Mesh Vertices at Bind", default=0, options={"HIDDEN"},
+        description="Vertices of the object's own mesh at bind time: a later edit of it shows as another count",
+    )
+    bind_mesh: PointerProperty(
+        name="Bind Mesh", type=bpy.types.Mesh, options={"HIDDEN"},
+        description="Pyramid Deform's bind: the rest shape and topology of the modifiers above Tegument, a mesh of "
+        "its own so that the object's mesh is not changed (empty: not bound, or bound by an earlier version "
+        "in the tegument_rest attribute of the object's mesh)",
+    )
     last_frame_ms: FloatProperty(name="Time per Frame", default=0.0, options={"HIDDEN"})
-    warnings: StringProperty(name="Warnings", default="", options={"HIDDEN"})
+    bind_warnings: StringProperty(
+        name="Bind Warnings", default="", options={"HIDDEN"},
+        description="What the last bind found: vertices that follow the rig (by kind), non-manifold parts",
+    )
+    warnings: StringProperty(
+        name="Warnings", default="", options={"HIDDEN"},
+        description="The bind's warnings followed by the last bake's notes (colliders, pinched vertices)",
+    )
     # Audit totals of the last bake with colliders, over all its frames.
     audit_vertices_inside: IntProperty(name="Vertices Inside", default=0, options={"HIDDEN"})
     audit_edges_crossing: IntProperty(name="Edges Crossing", default=0, options={"HIDDEN"})

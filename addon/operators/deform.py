@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 
 import bpy
+import numpy as np
 
 from .. import jobs, mesh_arrays, pc2
 from ..deform import bake, colliders, evaluate
@@ -19,7 +20,7 @@ from . import polls
 
 
 def bind_pose(context, obj):
-    """The positions a bind stores (Bind Pose): the mesh's own, or what the modifiers above
+    """The positions UV Warp's bind stores (Bind Pose): the mesh's own, or what the modifiers above
     Tegument make of them, which may have another vertex count (each caller says what to do)."""
     if obj.tegument.bind_source == "EVALUATED":
         with evaluate.upstream_only(obj):
@@ -27,33 +28,86 @@ def bind_pose(context, obj):
     return mesh_arrays.positions(obj.data)
 
 
+# How bind names each kind of pinned vertex (the wheel's `pinned_reasons` keys): (one, several).
+PIN_KINDS = {
+    "boundary": ("boundary corner", "boundary corners"),
+    "non_manifold": ("non-manifold", "non-manifold"),
+    "isolated": ("isolated", "isolated"),
+    "low_valence": ("with fewer than 3 neighbours", "with fewer than 3 neighbours"),
+    "high_valence": ("with too many neighbours", "with too many neighbours"),
+    "zero_area": ("with a flat one-ring", "with flat one-rings"),
+    "not_star_shaped": ("with a folded one-ring", "with folded one-rings"),
+    "inexact": ("not encodable in single precision", "not encodable in single precision"),
+}
+
+
+def pinned_by_kind(deformer) -> str:
+    """"12 vertices follow the rig: 8 boundary corners, 4 non-manifold" ("" when none do), most first."""
+    reasons = {name: len(vertices) for name, vertices in deformer.pinned_reasons.items() if len(vertices)}
+    total = sum(reasons.values())
+    if not total:
+        return ""
+    kinds = ", ".join(
+        f"{count} {PIN_KINDS.get(name, (name, name))[count != 1]}"
+        for name, count in sorted(reasons.items(), key=lambda item: (-item[1], item[0]))
+    )
+    return f"{total} {'vertex follows' if total == 1 else 'vertices follow'} the rig: {kinds}"
+
+
+def bind_shape(context, obj) -> tuple:
+    """``(rest, corner_verts, polygon_sizes, keeps_topology)`` of the stack above Tegument's
+    modifier now: what Pyramid Deform binds. Bind Pose *Original* takes the mesh's own positions
+    (through the generating modifiers, without the deforming ones, when the stack changes the
+    topology); *Evaluated* the positions the stack gives at the current frame."""
+    depsgraph_of = context.evaluated_depsgraph_get
+    evaluated, corners, sizes = evaluate.upstream_topology(obj, depsgraph_of)
+    keeps = evaluate.keeps_topology(obj.data, corners, sizes, len(evaluated))
+    if obj.tegument.bind_source == "EVALUATED":
+        return evaluated, corners, sizes, keeps
+    if keeps:
+        return mesh_arrays.positions(obj.data), corners, sizes, keeps
+    rest, rest_corners, rest_sizes = evaluate.upstream_topology(obj, depsgraph_of, without_deform=True)
+    if len(rest) != len(evaluated) or not (np.array_equal(rest_sizes, sizes) and np.array_equal(rest_corners, corners)):
+        raise DeformError(
+            f"{obj.name}: the modifier stack above Tegument gives {len(evaluated)} vertices posed and {len(rest)} "
+            "without its deform modifiers (a modifier whose topology depends on the pose, such as Remesh after "
+            "an Armature); set Bind Pose to Evaluated, or move that modifier"
+        )
+    return rest, corners, sizes, keeps
+
+
 def bind(context, obj) -> str:
-    """Stores the rest pose and checks it can be encoded; returns a status message."""
+    """Binds the rest shape and topology of the stack above Tegument and checks they can be
+    encoded; returns a status message.
+
+    The bind is always a Mesh datablock of its own (``obj.tegument.bind_mesh``: rest positions and
+    topology), whether that stack keeps ``obj.data``'s topology or changes it (Subdivision Surface,
+    Remesh…): ``obj.data`` is not touched. A ``tegument_rest`` attribute on it (a bind made by an
+    earlier version, or UV Warp's own bind) is left alone: the bind mesh takes precedence."""
     import tegument
 
-    rest = bind_pose(context, obj)
-    if len(rest) != len(obj.data.vertices):
-        raise DeformError(
-            f"{obj.name}: the modifier stack gives {len(rest)} vertices, the mesh has {len(obj.data.vertices)}; "
-            "bind to the original positions or move topology-changing modifiers below Tegument"
-        )
-    corners = mesh_arrays.corner_verts(obj.data)
-    sizes = mesh_arrays.polygon_sizes(obj.data)
+    rest, corners, sizes, keeps = bind_shape(context, obj)
     try:
         deformer = tegument.PyramidDeformer(rest, corners, sizes, scale_safe=obj.tegument.scale_safe)
         report = tegument.Mesh(rest, corners, sizes).report
     except tegument.TegumentError as error:
         raise DeformError(f"{obj.name}: {error}") from None
-    evaluate.store_rest(obj, rest)
-    obj.tegument.bound_vertices = len(rest)
-    pinned = len(deformer.pinned_vertices)
+    settings = obj.tegument
+    evaluate.store_bind_mesh(obj, rest, corners, sizes)
+    settings.bound_vertices = len(rest)
+    settings.source_vertices = len(obj.data.vertices)
     warnings = []
+    pinned = pinned_by_kind(deformer)
     if pinned:
-        warnings.append(f"{pinned} vertices follow the rig (a border corner, a non-manifold spot or a one-ring that cannot be encoded)")
+        warnings.append(pinned)
     if not report.is_clean:
         warnings.append("the mesh has non-manifold parts (run Check Mesh)")
-    obj.tegument.warnings = "; ".join(warnings)
-    return f"Bound {obj.name}: {len(rest)} vertices" + (f" ({'; '.join(warnings)})" if warnings else "")
+    settings.bind_warnings = settings.warnings = "; ".join(warnings)
+    where = "" if keeps else f" (the modifier stack's; the mesh has {len(obj.data.vertices)})"
+    # Split seams (glTF/FBX/USD imports) are welded for the solver: said, not warned about.
+    seams = len(rest) - deformer.welded_vertex_count
+    welded = f", {seams} on split seams welded" if seams else ""
+    return f"Bound {obj.name}: {len(rest)} vertices{where}{welded}" + (f" ({'; '.join(warnings)})" if warnings else "")
 
 
 class TEGUMENT_OT_deform_add(bpy.types.Operator):
@@ -96,11 +150,11 @@ class TEGUMENT_OT_deform_remove(bpy.types.Operator):
     def execute(self, context):
         obj = context.active_object
         obj.modifiers.remove(evaluate.tegument_modifier(obj))
-        attribute = obj.data.attributes.get(evaluate.REST_ATTRIBUTE)
-        if attribute is not None:
-            obj.data.attributes.remove(attribute)
-        obj.tegument.bound_vertices = 0
-        obj.tegument.warnings = ""
+        # The bind mesh only: a tegument_rest attribute on obj.data (a legacy bind, or UV Warp's
+        # bind) is left alone, so that Remove never changes the user's mesh.
+        evaluate.remove_bind_mesh(obj)
+        obj.tegument.bound_vertices = obj.tegument.source_vertices = 0
+        obj.tegument.warnings = obj.tegument.bind_warnings = ""
         self.report({"INFO"}, f"Removed Pyramid Deform from {obj.name}")
         return {"FINISHED"}
 

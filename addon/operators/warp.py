@@ -31,7 +31,9 @@ class TEGUMENT_OT_warp_bake(jobs.BakeOperator, bpy.types.Operator):
 
 
 def bind_rest(context, obj) -> str:
-    """Stores the rest shape in the `tegument_rest` attribute, the same bind Pyramid Deform reads.
+    """Stores the rest shape of the mesh's own vertices: into Pyramid Deform's bind mesh where it
+    has those vertices (one rest shape for both; ``obj.data`` untouched), else into the
+    ``tegument_rest`` point attribute of ``obj.data`` (UV Warp's own bind).
 
     Unlike Pyramid Deform's Bind it does not build the pyramid encoding: the
     warp needs only the positions, and a mesh the deformer cannot encode can
@@ -44,8 +46,13 @@ def bind_rest(context, obj) -> str:
     vertex = mesh_arrays.first_non_finite(rest)
     if vertex is not None:
         raise WarpError(f"{obj.name}: vertex {vertex} has a non-finite position")
+    # Pyramid Deform's bind is renewed where it is the same rest shape: its bind mesh with the
+    # mesh's vertices, or a legacy bind (the attribute itself). A bind mesh of another topology
+    # (Subdivision Surface above Tegument) is left alone.
+    shared = obj.tegument.bind_mesh is None or evaluate.mesh_vertex_bind(obj) is not None
     evaluate.store_rest(obj, rest)
-    obj.tegument.bound_vertices = len(rest)
+    if shared:
+        obj.tegument.bound_vertices = obj.tegument.source_vertices = len(rest)
     return f"Bound {obj.name}: {len(rest)} vertices"
 
 

@@ -10,6 +10,13 @@ from ..deform import evaluate
 from .panel import MeshPropertiesPanel, toggled
 
 
+def warning_lines(settings) -> list[str]:
+    """One line per warning: the bind's, then the bake's (``warnings`` holds both once baked)."""
+    lines = [part.strip() for part in settings.warnings.split("; ") if part.strip()]
+    bind = [part.strip() for part in settings.bind_warnings.split("; ") if part.strip()]
+    return bind + [line for line in lines if line not in bind]
+
+
 class TEGUMENT_PT_modifier(MeshPropertiesPanel, bpy.types.Panel):
     bl_label = "Tegument"
     bl_context = "modifier"
@@ -56,7 +63,9 @@ class TEGUMENT_PT_modifier(MeshPropertiesPanel, bpy.types.Panel):
             buttons.operator("tegument.free_bake", icon="TRASH")
             cached = pc2.frame_count(evaluate.cache_file(obj))
             status = layout.column(align=True)
-            status.label(text=f"Bound: {settings.bound_vertices} vertices · cached: {cached} frames"
+            bind = settings.bind_mesh
+            stack = " of the modifier stack" if bind is not None and len(bind.vertices) != len(obj.data.vertices) else ""
+            status.label(text=f"Bound: {settings.bound_vertices} vertices{stack} · cached: {cached} frames"
                          + (f" · {settings.last_frame_ms:.1f} ms/frame" if settings.last_frame_ms else ""), icon="INFO")
             if settings.collider_collection is not None and settings.audit and cached:
                 status.label(
@@ -73,8 +82,9 @@ class TEGUMENT_PT_modifier(MeshPropertiesPanel, bpy.types.Panel):
                 if settings.max_recession:
                     extras.append(f"colliders receded up to {settings.max_recession:.3g}")
                 status.label(text=" · ".join(extras), icon="INFO")
-            if settings.warnings:
-                status.label(text=settings.warnings, icon="ERROR")
+            # The bind's warnings (pinned vertices by kind…) first, then the last bake's notes.
+            for warning in warning_lines(settings):
+                status.label(text=warning, icon="ERROR")
         layout.operator("tegument.check_mesh", icon="CHECKMARK")
         text = context.window_manager.tegument_check_result
         if text:

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from ..deform.properties import REST_ATTRIBUTE
+from ..deform.evaluate import is_rest_bound
 
 
 def _material_of(node):
@@ -44,7 +44,7 @@ def draw(node, context, layout, *, extended: bool = False) -> None:
     if material is not None:
         for op in (bind, bake):
             op.material, op.node = material.name, node.name
-    if obj is not None and obj.type == "MESH" and REST_ATTRIBUTE not in obj.data.attributes:
+    if obj is not None and obj.type == "MESH" and not is_rest_bound(obj):
         layout.label(text=f"{obj.name} is not bound", icon="ERROR")
     if node.baked_frames:
         layout.label(text=f"Baked frames {node.baked_start}–{node.baked_start + node.baked_frames - 1}", icon="INFO")

@@ -34,6 +34,25 @@ pub struct EdgeLimits {
     limit: Vec<f32>,
 }
 
+/// Checks ε: 0 or more (infinite for no limit), one per vertex when per vertex.
+pub fn validate_max_stretch(stretch: MaxStretch<'_>, vertex_count: usize) -> Result<()> {
+    let check = |what: String, eps: f32| -> Result<()> {
+        if eps.is_nan() || eps < 0.0 {
+            return Err(Error::invalid(format!("{what} is {eps}; it must be 0 or more (infinite for no limit)")));
+        }
+        Ok(())
+    };
+    match stretch {
+        MaxStretch::Uniform(eps) => check("max stretch".into(), eps),
+        MaxStretch::PerVertex(eps) => {
+            if eps.len() != vertex_count {
+                return Err(Error::invalid(format!("max stretch has {} values but the mesh has {vertex_count} vertices", eps.len())));
+            }
+            eps.iter().enumerate().try_for_each(|(v, &e)| check(format!("max stretch of vertex {v}"), e))
+        }
+    }
+}
+
 impl EdgeLimits {
     /// Limits for `edges` of a mesh at rest at `rest_positions`.
     pub fn new(edges: &[[u32; 2]], rest_positions: &[Vec3], stretch: MaxStretch<'_>) -> Result<Self> {
@@ -42,26 +61,10 @@ impl EdgeLimits {
         if let Some(e) = edges.iter().position(|e| e.iter().any(|&v| v as usize >= n)) {
             return Err(Error::invalid(format!("edge {e} refers to a vertex beyond the {n} vertices")));
         }
-        let check = |what: String, eps: f32| -> Result<()> {
-            if eps.is_nan() || eps < 0.0 {
-                return Err(Error::invalid(format!("{what} is {eps}; it must be 0 or more (infinite for no limit)")));
-            }
-            Ok(())
-        };
+        validate_max_stretch(stretch, n)?;
         let per_vertex: Option<&[f32]> = match stretch {
-            MaxStretch::Uniform(eps) => {
-                check("max stretch".into(), eps)?;
-                None
-            }
-            MaxStretch::PerVertex(eps) => {
-                if eps.len() != n {
-                    return Err(Error::invalid(format!("max stretch has {} values but the mesh has {n} vertices", eps.len())));
-                }
-                for (v, &e) in eps.iter().enumerate() {
-                    check(format!("max stretch of vertex {v}"), e)?;
-                }
-                Some(eps)
-            }
+            MaxStretch::Uniform(_) => None,
+            MaxStretch::PerVertex(eps) => Some(eps),
         };
         let rest: Vec<f32> = edges
             .iter()

@@ -9,7 +9,7 @@ use pyo3::types::PyDict;
 use tegument_core::collide::{AuditParams, ColliderSettings};
 use tegument_core::warp::WarpSettings;
 use tegument_core::collide::Collider as CoreCollider;
-use tegument_core::pyramid::{Closeness, DeformerOptions};
+use tegument_core::pyramid::{Closeness, DeformerOptions, PinReason};
 use tegument_core::sequence::{
     Dynamics as CoreDynamics, Sequence as Core, StepOptions, StepReport, StrainMode, StrainOptions,
 };
@@ -25,10 +25,12 @@ use crate::convert::{float_array_arg, indices_to_py, int_array_arg, positions_ar
 /// ``rest_positions`` float32 ``(N, 3)``, ``corner_verts`` int32 ``(L,)`` and
 /// ``polygon_sizes`` int32 ``(P,)`` describe the mesh at rest in Blender's
 /// layout. ``scale_safe`` stores edge elevation angles instead of plain heights,
-/// so that a uniformly scaled input is reproduced exactly. Boundary,
-/// non-manifold and degenerate vertices cannot be encoded: they follow the
-/// input and are listed in ``pinned_vertices``. Raises ``TegumentError`` on
-/// bad input.
+/// so that a uniformly scaled input is reproduced exactly. Vertices that
+/// coincide at rest (split seams of imported meshes) are welded for the
+/// solver, so seams stay closed; the mesh arrays themselves are only read.
+/// Open borders are encoded with open one-rings; corners, non-manifold and
+/// degenerate spots that cannot be encoded follow the input and are listed in
+/// ``pinned_vertices``. Raises ``TegumentError`` on bad input.
 #[pyclass(module = "tegument", name = "PyramidDeformer", frozen)]
 pub struct PyramidDeformer {
     // A mutex rather than `&mut self`: solves run without the GIL, and another
@@ -95,13 +97,44 @@ impl PyramidDeformer {
         self.vertex_count
     }
 
+    /// Number of vertices the solver works on: the mesh's, with vertices
+    /// that coincide at rest (split UV or sharp-normal seams, as glTF, FBX and
+    /// USD importers deliver them) welded into one. Results come back per
+    /// mesh vertex, the same position for every member of a seam.
+    #[getter]
+    fn welded_vertex_count(&self, py: Python<'_>) -> PyResult<usize> {
+        self.with(py, |core| Ok(core.welded_vertex_count()))
+    }
+
     /// int32 ``(K,)``: the vertices the bind could not encode (boundary,
     /// non-manifold, degenerate or very high valence one-rings), ascending.
     /// They follow the input positions exactly.
     #[getter]
     fn pinned_vertices<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<i32>>> {
-        let pinned = self.with(py, |core| Ok(core.deformer().pinned_vertices()))?;
+        let pinned = self.with(py, |core| Ok(core.pinned_vertices()))?;
         Ok(indices_to_py(py, &pinned))
+    }
+
+    /// ``{reason: int32 (K,)}``: the pinned vertices by why the bind could not
+    /// encode them, each array ascending; only reasons that occur are keys.
+    /// Reasons: ``boundary`` (a border corner without a usable one-ring),
+    /// ``non_manifold``, ``isolated``, ``low_valence`` (fewer than 3
+    /// neighbours), ``high_valence``, ``zero_area`` (a one-ring without
+    /// area), ``not_star_shaped`` (the vertex does not project inside its
+    /// ring), ``inexact`` (not reproducible in single precision). Together
+    /// they hold exactly ``pinned_vertices``.
+    #[getter]
+    fn pinned_reasons<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let pinned = self.with(py, |core| Ok(core.pinned()))?;
+        let dict = PyDict::new(py);
+        for reason in PinReason::ALL {
+            let mut vertices: Vec<u32> = pinned.iter().filter(|&&(_, r)| r == reason).map(|&(v, _)| v).collect();
+            if !vertices.is_empty() {
+                vertices.sort_unstable();
+                dict.set_item(reason.name(), indices_to_py(py, &vertices))?;
+            }
+        }
+        Ok(dict)
     }
 
     /// Solves one frame and returns float32 ``(N, 3)`` positions.
@@ -129,7 +162,7 @@ impl PyramidDeformer {
             let flat = writable.as_slice_mut().expect("a new C-contiguous array");
             let out: &mut [glam::Vec3] = bytemuck::cast_slice_mut(flat);
             out.copy_from_slice(&input);
-            self.with(py, move |core| core.deformer_mut().solve_into(&input, out, iterations, weights.as_closeness(), None))?;
+            self.with(py, move |core| core.solve_into(&input, out, iterations, weights.as_closeness(), None))?;
         }
         Ok(output)
     }
@@ -216,7 +249,7 @@ impl PyramidDeformer {
     /// ``(N, 3)`` in units per second, or ``None``.
     #[getter]
     fn velocity<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArray2<f32>>>> {
-        let velocity = self.with(py, |core| Ok(core.velocity().map(|v| v.to_vec())))?;
+        let velocity = self.with(py, |core| Ok(core.velocity()))?;
         Ok(velocity.map(|v| positions_to_py(py, &v)))
     }
 
@@ -272,7 +305,7 @@ impl PyramidDeformer {
     /// relative to the mean rest edge length. 0 at rest and under rigid motion.
     fn residual(&self, py: Python<'_>, positions: &Bound<'_, PyAny>) -> PyResult<f64> {
         let positions = positions_arg("positions", positions, Some(self.vertex_count))?;
-        Ok(self.with(py, move |core| core.deformer().residual(&positions))? as f64)
+        Ok(self.with(py, move |core| core.residual(&positions))? as f64)
     }
 
     fn __repr__(&self) -> String {

@@ -233,17 +233,24 @@ def test_boundaries_are_encoded_and_pinned_vertices_follow_the_input():
     assert deformer.vertex_count == len(rest)
     assert deformer.pinned_vertices.dtype == np.int32
     assert deformer.pinned_vertices.size == 0, "the open ends are encoded, not pinned"
-    # A quad grid's corners have two neighbours: they are what stays pinned.
+    # A quad grid's corners have two neighbours and no ring to encode: they keep their offset from
+    # those neighbours (a ring fit) and bend with the sheet instead of following the input.
     flat, grid_corners, grid_sizes = grid_arrays(6, 5)
     grid = tegument.PyramidDeformer(flat, grid_corners, grid_sizes)
-    pinned = grid.pinned_vertices
-    np.testing.assert_array_equal(pinned, [0, 6, 35, 41])
+    assert grid.pinned_vertices.size == 0
     bent = flat.copy()
     bent[:, 2] = 0.4 * np.sin(2.0 * bent[:, 0]) + 0.2 * bent[:, 1] ** 2
     out = grid.solve(bent, closeness=0.0)
-    assert max_distance(out[pinned], bent[pinned]) < 1e-5
-    free = np.setdiff1d(np.arange(len(flat)), pinned)
-    assert max_distance(out[free], bent[free]) > 1e-3, "the encoded border must not follow the input"
+    sheet_corners = [0, 6, 35, 41]
+    assert max_distance(out[sheet_corners], bent[sheet_corners]) > 1e-3, "the corners must not follow the input"
+    # Only a vertex with fewer than two neighbours (here a loose one) is pinned: it follows the input.
+    loose = np.vstack([flat, [[5.0, 5.0, 0.0]]]).astype(np.float32)
+    with_loose = tegument.PyramidDeformer(loose, grid_corners, grid_sizes)
+    np.testing.assert_array_equal(with_loose.pinned_vertices, [len(flat)])
+    assert list(with_loose.pinned_reasons) == ["isolated"]
+    moved = np.vstack([bent, [[5.0, 5.0, 1.0]]]).astype(np.float32)
+    out = with_loose.solve(moved, closeness=0.0)
+    assert max_distance(out[-1:], moved[-1:]) < 1e-5
     closed = tegument.PyramidDeformer(*quad_sphere_arrays())
     assert closed.pinned_vertices.size == 0
 
@@ -348,3 +355,74 @@ def test_solve_refuses_bad_input(bound):
         deformer.residual(nan)
     # Still usable after all of that.
     np.testing.assert_allclose(deformer.solve(rest), rest, atol=1e-5)
+
+
+def test_pinned_reasons_name_the_kind_of_every_pinned_vertex():
+    # Only vertices with fewer than two neighbours are pinned (they follow the input): here a loose
+    # vertex and the lone corner of a polygon whose other corners repeat.
+    positions, corners, sizes = grid_arrays(6, 5)
+    positions = np.vstack([positions, [[9.0, 9.0, 0.0]]]).astype(np.float32)
+    grid = tegument.PyramidDeformer(positions, corners, sizes)
+    reasons = grid.pinned_reasons
+    assert list(reasons) == ["isolated"]
+    assert reasons["isolated"].dtype == np.int32
+    np.testing.assert_array_equal(reasons["isolated"], grid.pinned_vertices)
+    np.testing.assert_array_equal(grid.pinned_vertices, [len(positions) - 1])
+    # Three faces on one edge: its two ends are non-manifold, but they have neighbours: not pinned.
+    positions = np.array([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (1, 0, 1), (0, 0, 1), (0, -1, 0), (1, -1, 0)], np.float32)
+    corners = np.array([0, 1, 2, 3, 1, 0, 5, 4, 0, 1, 7, 6], np.int32)
+    fin = tegument.PyramidDeformer(positions, corners, np.array([4, 4, 4], np.int32))
+    assert fin.pinned_reasons == {} and fin.pinned_vertices.size == 0
+    closed = tegument.PyramidDeformer(*quad_sphere_arrays())
+    assert closed.pinned_reasons == {}
+
+
+# ---------------------------------------------------------------- split seams (issue 26)
+
+
+def split_by_side(positions: np.ndarray, corners: np.ndarray, sizes: np.ndarray):
+    """The mesh split along x = 0 as a glTF importer splits a UV seam: the faces on the +x side
+    get their own copies of the vertices they share with the -x side. Returns the split arrays
+    and, per split vertex, the original vertex."""
+    starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+    side = np.array([positions[corners[s:s + n]].mean(axis=0)[0] > 0 for s, n in zip(starts, sizes)])
+    face_of_corner = np.repeat(np.arange(len(sizes)), sizes)
+    negative = np.zeros(len(positions), bool)
+    negative[corners[~side[face_of_corner]]] = True
+    shared = np.flatnonzero(negative & np.isin(np.arange(len(positions)), corners[side[face_of_corner]]))
+    copy_of = {v: len(positions) + k for k, v in enumerate(shared)}
+    split_corners = corners.copy()
+    for c in np.flatnonzero(side[face_of_corner]):
+        split_corners[c] = copy_of.get(int(corners[c]), corners[c])
+    original = np.concatenate((np.arange(len(positions)), shared))
+    return positions[original].copy(), split_corners, sizes, original
+
+
+def test_split_seams_are_welded_and_stay_closed():
+    rest, corners, sizes = quad_sphere_arrays(8)
+    split_rest, split_corners, split_sizes, original = split_by_side(rest, corners, sizes)
+    assert len(split_rest) > len(rest) + 20
+    whole = tegument.PyramidDeformer(rest, corners, sizes)
+    split = tegument.PyramidDeformer(split_rest, split_corners, split_sizes)
+    assert split.vertex_count == len(split_rest) and split.welded_vertex_count == len(rest)
+    assert len(split.pinned_vertices) == 0, "the seam's vertices have whole rings once welded"
+
+    bend = lambda p: p + np.stack([0 * p[:, 0], 0 * p[:, 0], 0.6 * p[:, 0] ** 2], 1).astype(np.float32)  # noqa: E731
+    solved = split.solve(bend(split_rest))
+    assert solved.shape == split_rest.shape and np.isfinite(solved).all()
+    np.testing.assert_allclose(solved, whole.solve(bend(rest))[original], atol=1e-6)
+    stepped = split.step(bend(split_rest), closeness=np.full(len(split_rest), 0.05, np.float32))
+    for copy, first in enumerate(original):
+        assert np.array_equal(stepped[copy], stepped[first]), f"seam vertex {copy} left vertex {first}"
+    with pytest.raises(tegument.TegumentError, match=rf"closeness: expected float32 \({len(split_rest)},\)"):
+        split.solve(split_rest, closeness=np.full(len(rest), 0.05, np.float32))
+
+
+def test_the_users_arrays_are_only_read():
+    rest, corners, sizes = quad_sphere_arrays(6)
+    split_rest, split_corners, split_sizes, _ = split_by_side(rest, corners, sizes)
+    copies = [a.copy() for a in (split_rest, split_corners, split_sizes)]
+    deformer = tegument.PyramidDeformer(split_rest, split_corners, split_sizes)
+    deformer.step(split_rest * np.float32(1.1))
+    for before, after in zip(copies, (split_rest, split_corners, split_sizes)):
+        assert before.tobytes() == after.tobytes()

@@ -39,13 +39,17 @@ pub fn triangle_edges(triangles: &[[u32; 3]]) -> Vec<[u32; 2]> {
     edges
 }
 
-/// Fan triangulation of every polygon.
+/// Fan triangulation of every polygon (triangles with two equal corners left out).
 pub fn fan_triangles(corner_verts: &[i32], offsets: &[u32]) -> Vec<[u32; 3]> {
     let mut tris = Vec::with_capacity(corner_verts.len());
     for w in offsets.windows(2) {
         let poly = &corner_verts[w[0] as usize..w[1] as usize];
         for k in 1..poly.len() - 1 {
-            tris.push([poly[0] as u32, poly[k] as u32, poly[k + 1] as u32]);
+            let t = [poly[0] as u32, poly[k] as u32, poly[k + 1] as u32];
+            // Two equal corners (a polygon welded onto itself) cover nothing.
+            if t[0] != t[1] && t[1] != t[2] && t[2] != t[0] {
+                tris.push(t);
+            }
         }
     }
     tris

@@ -18,7 +18,7 @@ pub use elements::{fan_triangles, polygon_edges, triangle_edges, vertex_incidenc
 pub use topology::{Topology, TopologyReport};
 pub use transform::transform_points;
 pub use validate::{all_finite, as_vec3, validate_positions, MeshInput};
-pub use weld::{Weld, WELD_TOLERANCE};
+pub use weld::{Weld, SLIVER_RATIO, WELD_TOLERANCE};
 
 #[cfg(test)]
 mod tests;

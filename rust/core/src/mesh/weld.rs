@@ -17,6 +17,10 @@ use rayon::prelude::*;
 /// rounding of positions written out and read back in single precision.
 pub const WELD_TOLERANCE: f32 = 1e-6;
 
+/// Edges shorter than this fraction of their neighbours' are slivers, welded
+/// for the solver ([`Weld::by_distance_and_slivers`]).
+pub const SLIVER_RATIO: f32 = 0.01;
+
 /// The map from a mesh's vertices to the welded vertices the solver sees.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Weld {
@@ -34,6 +38,38 @@ impl Weld {
     pub fn by_distance(rest: &[Vec3], tolerance: f32) -> Weld {
         let reach = f64::from(tolerance) * diagonal(rest);
         let pairs = if reach > 0.0 { close_pairs(rest, reach) } else { Vec::new() };
+        Weld::from_pairs(rest.len(), &pairs)
+    }
+
+    /// [`Weld::by_distance`], and also the two ends of every edge of the
+    /// polygons (`corner_verts` cut at `offsets`) shorter than `sliver_ratio`
+    /// times the mean length of the other edges at both of its ends: a sliver
+    /// whose two sides no ring, fit or encoding can keep apart without
+    /// tearing, so the solver moves them as one (they end up on the same
+    /// point, less than `sliver_ratio` of an edge from where they were).
+    pub fn by_distance_and_slivers(rest: &[Vec3], corner_verts: &[i32], offsets: &[u32], tolerance: f32, sliver_ratio: f32) -> Weld {
+        let reach = f64::from(tolerance) * diagonal(rest);
+        let mut pairs = if reach > 0.0 { close_pairs(rest, reach) } else { Vec::new() };
+        let edges = super::polygon_edges(corner_verts, offsets);
+        let length = |[a, b]: [u32; 2]| f64::from((rest[a as usize] - rest[b as usize]).length());
+        let mut sum = vec![0.0f64; rest.len()];
+        let mut degree = vec![0u32; rest.len()];
+        for &e in &edges {
+            for v in e {
+                sum[v as usize] += length(e);
+                degree[v as usize] += 1;
+            }
+        }
+        for &e in &edges {
+            let l = length(e);
+            let others = e.map(|v| {
+                let v = v as usize;
+                if degree[v] > 1 { (sum[v] - l) / f64::from(degree[v] - 1) } else { f64::INFINITY }
+            });
+            if l < f64::from(sliver_ratio) * others[0].min(others[1]) {
+                pairs.push((e[0], e[1]));
+            }
+        }
         Weld::from_pairs(rest.len(), &pairs)
     }
 
@@ -261,6 +297,20 @@ mod tests {
         weld.scatter(&gathered, &mut out);
         assert_eq!(out[1], out[3]);
         assert_eq!(weld.expand(&[1, 3]), vec![1, 3, 5]);
+    }
+
+    #[test]
+    fn sliver_edges_are_welded_and_ordinary_short_ones_are_not() {
+        // A row of three quads whose middle one is a sliver 1e-4 wide, beside one a fifth as wide.
+        let xs = [0.0f32, 1.0, 1.0001, 2.0, 2.2];
+        let rest: Vec<Vec3> = xs.iter().flat_map(|&x| [Vec3::new(x, 0.0, 0.0), Vec3::new(x, 1.0, 0.0)]).collect();
+        let corners: Vec<i32> = (0..4).flat_map(|q| [2 * q, 2 * q + 2, 2 * q + 3, 2 * q + 1]).collect();
+        let offsets: Vec<u32> = (0..=4).map(|q| 4 * q).collect();
+        let weld = Weld::by_distance_and_slivers(&rest, &corners, &offsets, WELD_TOLERANCE, SLIVER_RATIO);
+        assert_eq!(weld.welded_count(), rest.len() - 2);
+        assert_eq!(weld.members(weld.welded_of(2) as usize), &[2, 4]);
+        assert_eq!(weld.members(weld.welded_of(3) as usize), &[3, 5]);
+        assert_eq!(weld.members(weld.welded_of(8) as usize), &[8]);
     }
 
     #[test]

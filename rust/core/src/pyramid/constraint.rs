@@ -24,13 +24,20 @@ pub struct PyramidTargets {
     rows: Rows,
     /// The encoding laid out for the four-lane kernel (`project_rows`).
     packed: Packed,
+    /// Row `e`: the ring's mean-value weights, how the target's ring mean
+    /// moves with the neighbours (see [`Constraint::coupling`]).
+    coupling: Rows,
 }
 
 impl PyramidTargets {
     pub fn new(encoding: Arc<Encoding>) -> Self {
         let rows = Rows::identity(encoding.vertices());
         let packed = Packed::new(&encoding);
-        PyramidTargets { encoding, rows, packed }
+        let mut coupling = Rows::new();
+        for e in 0..encoding.len() {
+            coupling.push(encoding.ring(e).iter().copied().zip(encoding.weights(e).iter().copied()));
+        }
+        PyramidTargets { encoding, rows, packed, coupling }
     }
 }
 
@@ -64,6 +71,10 @@ impl Constraint for PyramidTargets {
     ) -> bool {
         self.packed.solve_chunk(context.positions, rows, chunk, out);
         true
+    }
+
+    fn coupling(&self) -> Option<&Rows> {
+        Some(&self.coupling)
     }
 }
 

@@ -4,8 +4,13 @@
 //! `(1 − c_i)·‖pyramid row_i‖² + c_i·‖x_i − input_i‖²`. So `c = 1` follows the
 //! input exactly and `c = 0` keeps only the local shape; with per-vertex
 //! targets the fixed point is literally `x_i = (1 − c_i)·target_i + c_i·input_i`.
-//! Pinned vertices (see [`PinReason`]) have no pyramid row and `c = 1`: they
-//! follow the input, and their neighbours reconstruct around them.
+//! Vertices the encoding cannot describe (see [`PinReason`]) have no pyramid
+//! row. Bound from a mesh, those with at least two edge neighbours get a ring
+//! fit row instead ([`super::ring_fit`]), weighted `1 − c_i` like a pyramid
+//! row: they deform with their neighbourhood. The others (isolated, a single
+//! neighbour; or every one of them on a deformer built from a bare encoding)
+//! are pinned: `c = 1`, they follow the input, and their neighbours
+//! reconstruct around them.
 
 use std::sync::Arc;
 
@@ -15,6 +20,7 @@ use rayon::prelude::*;
 use super::constraint::{PyramidLaplacian, PyramidTargets};
 use super::encode::{encode, Encoding, PinReason};
 use super::project::residual;
+use super::ring_fit::{RingFit, RingFitVertices};
 use crate::mesh::{validate_positions, MeshInput, Topology};
 use crate::solve::{self, ConstraintId, IterationHook, Solver, SystemKind};
 use crate::{Error, Result};
@@ -37,6 +43,11 @@ pub const MIN_CLOSENESS: f32 = 1e-8;
 /// them off the input; a large weight makes "follow the input" hard in both
 /// formulations (the diagonal formulation normalises it away).
 pub const PINNED_CLOSENESS: f32 = 1e4;
+
+/// Anderson window that goes with the coarse correction when a caller turns
+/// acceleration on ([`PyramidDeformer::set_accelerated`]). Off by default:
+/// see docs/pyramid-deform.md for what it buys and what it costs (issue 28).
+pub const ACCELERATED_ANDERSON_WINDOW: usize = 5;
 
 /// Most iterations one solve accepts; more is certainly a mistake.
 pub const MAX_ITERATIONS: usize = 100_000;
@@ -95,8 +106,20 @@ pub struct PyramidDeformer {
     encoding: Arc<Encoding>,
     formulation: Formulation,
     pinned_mask: Vec<bool>,
+    /// Vertices carried from a nearly coincident neighbour by their ring fit:
+    /// closeness would pull the pair of a sliver apart by `c` times the
+    /// shape correction, so they have none (just [`MIN_CLOSENESS`]).
+    anchored_mask: Vec<bool>,
+    /// Vertices that follow the input, with the reason, ascending.
+    pinned: Vec<(u32, PinReason)>,
+    /// Vertices without a pyramid row held by a ring fit, with the reason
+    /// they have none, ascending.
+    ring_fitted: Vec<(u32, PinReason)>,
     solver: Solver,
     pyramid: ConstraintId,
+    /// The ring fit rows, only when some vertex has one: a second varying
+    /// constraint costs the fused step its single-kernel path.
+    ring_fit: Option<ConstraintId>,
     closeness: ConstraintId,
     /// The closeness the solver's weights were last set from, so that a
     /// frame with the same closeness as the last one skips rebuilding and
@@ -120,15 +143,40 @@ impl PyramidDeformer {
     pub fn bind(mesh: MeshInput<'_>, options: DeformerOptions) -> Result<Self> {
         let topology = Topology::build(mesh)?;
         let encoding = Arc::new(encode(&topology, mesh.positions, options.scale_safe)?);
-        Self::from_encoding(encoding, options.formulation)
+        let split = RingFitVertices::split(&topology, encoding.pinned());
+        let ring_fit = if split.fitted.is_empty() {
+            None
+        } else {
+            let vertices: Vec<u32> = split.fitted.iter().map(|&(v, _)| v).collect();
+            Some(RingFit::new(&topology, mesh.positions, &vertices, options.scale_safe))
+        };
+        Self::build(encoding, options.formulation, split, ring_fit)
     }
 
-    /// A deformer over an existing encoding (shared, e.g. to compare formulations).
+    /// A deformer over an existing encoding (shared, e.g. to compare
+    /// formulations). Without the topology there is no ring fit: every
+    /// vertex the encoding pins follows the input.
     pub fn from_encoding(encoding: Arc<Encoding>, formulation: Formulation) -> Result<Self> {
+        let split = RingFitVertices { fitted: Vec::new(), pinned: encoding.pinned().to_vec() };
+        Self::build(encoding, formulation, split, None)
+    }
+
+    fn build(
+        encoding: Arc<Encoding>,
+        formulation: Formulation,
+        split: RingFitVertices,
+        ring_fit: Option<RingFit>,
+    ) -> Result<Self> {
         let n = encoding.vertex_count();
         let mut pinned_mask = vec![false; n];
-        for &(v, _) in encoding.pinned() {
+        for &(v, _) in &split.pinned {
             pinned_mask[v as usize] = true;
+        }
+        let mut anchored_mask = vec![false; n];
+        if let Some(fit) = &ring_fit {
+            for v in fit.anchored() {
+                anchored_mask[v as usize] = true;
+            }
         }
         let mut solver = Solver::new(n);
         let pyramid_rows = encoding.len();
@@ -137,13 +185,24 @@ impl PyramidDeformer {
             Formulation::Laplacian => Box::new(PyramidLaplacian::new(encoding.clone())),
         };
         let pyramid = solver.add(constraint, vec![1.0; pyramid_rows])?;
+        let ring_fit = match ring_fit {
+            Some(fit) => {
+                let rows = fit.vertices().len();
+                Some(solver.add(Box::new(fit), vec![1.0; rows])?)
+            }
+            None => None,
+        };
         let closeness = solver.add(Box::new(solve::Closeness::all(n)), vec![1.0; n])?;
         let mut deformer = PyramidDeformer {
             encoding,
             formulation,
             pinned_mask,
+            anchored_mask,
+            pinned: split.pinned,
+            ring_fitted: split.fitted,
             solver,
             pyramid,
+            ring_fit,
             closeness,
             applied: None,
             closeness_weights: Vec::new(),
@@ -164,14 +223,20 @@ impl PyramidDeformer {
         self.formulation
     }
 
-    /// Vertices the bind could not encode; they follow the input.
+    /// Vertices that follow the input (no pyramid row and no ring fit), ascending.
     pub fn pinned_vertices(&self) -> Vec<u32> {
-        self.encoding.pinned_vertices()
+        self.pinned.iter().map(|&(v, _)| v).collect()
     }
 
-    /// Pinned vertices with the reason.
+    /// Pinned vertices with the reason the encoding gave.
     pub fn pinned(&self) -> &[(u32, PinReason)] {
-        self.encoding.pinned()
+        &self.pinned
+    }
+
+    /// Vertices without a pyramid row that deform with their neighbourhood
+    /// through a ring fit, with the reason they have no pyramid row, ascending.
+    pub fn ring_fitted(&self) -> &[(u32, PinReason)] {
+        &self.ring_fitted
     }
 
     /// Factorises the global system now (otherwise the first solve does).
@@ -211,24 +276,15 @@ impl PyramidDeformer {
                 vec![c; n]
             }
             Closeness::PerVertex(weights) => {
-                if weights.len() != n {
-                    return Err(Error::invalid(format!(
-                        "closeness has {} weights but the mesh has {n} vertices",
-                        weights.len()
-                    )));
-                }
-                if let Some(v) = weights.iter().position(|c| !(0.0..=1.0).contains(c)) {
-                    return Err(Error::invalid(format!(
-                        "closeness of vertex {v} is {}; it must be between 0 and 1",
-                        weights[v]
-                    )));
-                }
+                validate_closeness(weights, n)?;
                 weights.to_vec()
             }
         };
-        for (c, &pinned) in per_vertex.iter_mut().zip(&self.pinned_mask) {
+        for ((c, &pinned), &anchored) in per_vertex.iter_mut().zip(&self.pinned_mask).zip(&self.anchored_mask) {
             *c = if pinned {
                 PINNED_CLOSENESS
+            } else if anchored {
+                MIN_CLOSENESS
             } else {
                 c.max(MIN_CLOSENESS)
             };
@@ -240,6 +296,14 @@ impl PyramidDeformer {
             .map(|&v| 1.0 - per_vertex[v as usize].min(1.0))
             .collect();
         self.solver.set_weights(self.pyramid, &pyramid)?;
+        if let Some(id) = self.ring_fit {
+            let fit: Vec<f32> = self
+                .ring_fitted
+                .iter()
+                .map(|&(v, _)| 1.0 - per_vertex[v as usize].min(1.0))
+                .collect();
+            self.solver.set_weights(id, &fit)?;
+        }
         self.solver.set_weights(self.closeness, &per_vertex)?;
         self.closeness_weights = per_vertex;
         self.applied = Some(match closeness {
@@ -254,6 +318,19 @@ impl PyramidDeformer {
     /// last `window` iterates (0: plain iterations).
     pub fn set_anderson_window(&mut self, window: usize) {
         self.solver.set_anderson_window(window);
+    }
+
+    /// The accelerated solver (coarse correction + Anderson over
+    /// [`ACCELERATED_ANDERSON_WINDOW`] iterates) or the plain one.
+    pub fn set_accelerated(&mut self, on: bool) {
+        self.set_coarse_correction(on);
+        self.set_anderson_window(if on { ACCELERATED_ANDERSON_WINDOW } else { 0 });
+    }
+
+    /// Turns the solver's coarse-level correction on or off (see
+    /// `solve::coarse`; only the per-vertex-target formulation has one).
+    pub fn set_coarse_correction(&mut self, on: bool) {
+        self.solver.set_coarse_correction(on);
     }
 
     /// Solves one frame starting from `input` and returns the result.
@@ -306,6 +383,23 @@ impl PyramidDeformer {
     pub fn residual(&self, positions: &[Vec3]) -> Result<f32> {
         mean_residual(&self.encoding, positions)
     }
+}
+
+/// Checks per-vertex closeness weights: one per vertex, each in `[0, 1]`.
+pub fn validate_closeness(weights: &[f32], vertex_count: usize) -> Result<()> {
+    if weights.len() != vertex_count {
+        return Err(Error::invalid(format!(
+            "closeness has {} weights but the mesh has {vertex_count} vertices",
+            weights.len()
+        )));
+    }
+    if let Some(v) = weights.iter().position(|c| !(0.0..=1.0).contains(c)) {
+        return Err(Error::invalid(format!(
+            "closeness of vertex {v} is {}; it must be between 0 and 1",
+            weights[v]
+        )));
+    }
+    Ok(())
 }
 
 /// [`PyramidDeformer::residual`] for an encoding.

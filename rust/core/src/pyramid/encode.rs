@@ -45,6 +45,25 @@ const MIN_WEDGE: f64 = 1e-3;
 /// neighbour distance have no usable normal.
 const MIN_RELATIVE_AREA: f64 = 1e-8;
 
+/// Steepest rest elevation of an edge over the ring's plane (its tangent)
+/// that the pyramid coordinates are trusted with. Beyond it the ring is folded
+/// at rest (a sharp crease or step): the ring's normal, and with it every
+/// lifted target, turns fast with the neighbours, and under bending the
+/// converged result spikes there (a 90° cuff step: tangents 1.5 and 2.5,
+/// spike growing with iterations to twice the input's). Smooth surfaces stay
+/// far below (a 24-sided tube: 0.13). Such vertices get a ring fit instead
+/// ([`super::ring_fit`]).
+pub const MAX_REST_ELEVATION: f64 = 1.0;
+
+/// Shortest projected distance to a neighbour, relative to the ring's mean,
+/// that the mean-value weights are trusted with. A nearly coincident neighbour
+/// (a sliver polygon) takes almost all of the weight (they go as `1/r`), so
+/// the pair of vertices locks onto each other and barely feels the rest of
+/// either ring: under bending it lags behind as a spike (a column of quads
+/// squeezed to 2e-3 of their width: spike 0.37 against the input's 0.32).
+/// Such vertices get a ring fit instead, which weighs neighbours equally.
+pub const MIN_RELATIVE_NEIGHBOUR_DISTANCE: f64 = 0.02;
+
 struct Ring {
     weights: Vec<f32>,
     tangents: Vec<f32>,
@@ -162,6 +181,13 @@ fn encode_vertex(
     };
     let raw = mean_value_weights(&d, normal)?;
     let r: Vec<f64> = d.iter().map(|d| d.length()).collect();
+    let mean_r = r[..k].iter().sum::<f64>() / k as f64;
+    if r[..k].iter().any(|&r| !(r >= MIN_RELATIVE_NEIGHBOUR_DISTANCE * mean_r)) {
+        return Err(PinReason::NotStarShaped);
+    }
+    if (0..k).any(|j| !((height - heights[j]).abs() <= MAX_REST_ELEVATION * r[j])) {
+        return Err(PinReason::Folded);
+    }
     // Only real neighbours are stored: the virtual one's weight goes to the
     // neighbours it is an affine combination of, so weights still sum to 1 and
     // reproduce the projected vertex, which is all both lifts rely on.

@@ -20,14 +20,48 @@ pub enum PinReason {
     /// The ring polygon has (next to) no area, so no normal.
     ZeroArea,
     /// The projected vertex is not strictly inside the kernel of its projected
-    /// ring (or coincides with a neighbour): mean-value weights are unreliable.
+    /// ring, or (nearly) coincides with a neighbour (see
+    /// [`super::encode::MIN_RELATIVE_NEIGHBOUR_DISTANCE`]): mean-value weights
+    /// are unreliable.
     NotStarShaped,
+    /// The ring is folded at rest (a sharp crease or step): some edge rises
+    /// steeper than [`super::encode::MAX_REST_ELEVATION`] over the ring's
+    /// plane, where pyramid coordinates are ill-conditioned.
+    Folded,
     /// The encoding does not reproduce the rest position in f32 (safety net,
     /// like StretchMesh's bind-time self-test).
     Inexact,
 }
 
 impl PinReason {
+    /// Every reason, in declaration order.
+    pub const ALL: [PinReason; 9] = [
+        PinReason::Boundary,
+        PinReason::NonManifold,
+        PinReason::Isolated,
+        PinReason::LowValence,
+        PinReason::HighValence,
+        PinReason::ZeroArea,
+        PinReason::NotStarShaped,
+        PinReason::Folded,
+        PinReason::Inexact,
+    ];
+
+    /// A stable identifier (snake case) for scripts and reports; [`Self::describe`] is the prose.
+    pub fn name(self) -> &'static str {
+        match self {
+            PinReason::Boundary => "boundary",
+            PinReason::NonManifold => "non_manifold",
+            PinReason::Isolated => "isolated",
+            PinReason::LowValence => "low_valence",
+            PinReason::HighValence => "high_valence",
+            PinReason::ZeroArea => "zero_area",
+            PinReason::NotStarShaped => "not_star_shaped",
+            PinReason::Folded => "folded",
+            PinReason::Inexact => "inexact",
+        }
+    }
+
     pub fn describe(self) -> &'static str {
         match self {
             PinReason::Boundary => "boundary corner without a usable one-ring",
@@ -37,6 +71,7 @@ impl PinReason {
             PinReason::HighValence => "too many neighbours",
             PinReason::ZeroArea => "one-ring without area",
             PinReason::NotStarShaped => "one-ring not star-shaped around the vertex",
+            PinReason::Folded => "one-ring folded at rest (sharp crease or step)",
             PinReason::Inexact => "encoding not reproducible in single precision",
         }
     }

@@ -10,6 +10,10 @@
 //!   are pinned and listed with the reason.
 //! * [`project`]: Algorithm 1 of the seed, the target of one vertex given the
 //!   current positions of its neighbours.
+//! * [`ring_fit`]: the rows of vertices the encoding cannot describe but
+//!   whose edge neighbours can carry them (non-manifold, bow-ties, folded or
+//!   flat rings, poles): their rest offset from the neighbours' mean, moved
+//!   by the neighbours' best-fit rotation (and scale).
 //! * [`constraint`]: the two formulations as [`crate::solve::Constraint`]s.
 //! * [`deformer`]: bind (topology, encoding, the prefactored solver), solve,
 //!   residual.
@@ -28,13 +32,15 @@ pub mod encode;
 pub mod encoding;
 pub mod kernel;
 pub mod project;
+pub mod ring_fit;
 
 pub use constraint::{PyramidLaplacian, PyramidTargets};
+pub use ring_fit::RingFit;
 pub use deformer::{
     mean_residual, Closeness, DeformerOptions, Formulation, PyramidDeformer, DEFAULT_CLOSENESS,
-    MAX_ITERATIONS, MIN_CLOSENESS,
+    MAX_ITERATIONS, MIN_CLOSENESS, validate_closeness,
 };
-pub use encode::{encode, Encoding, PinReason, MAX_VALENCE};
+pub use encode::{encode, Encoding, PinReason, MAX_REST_ELEVATION, MAX_VALENCE};
 
 #[cfg(test)]
 mod open_ring_tests;

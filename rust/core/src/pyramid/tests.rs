@@ -136,13 +136,12 @@ fn high_valence_pole_is_pinned() {
         mesh.polygon_sizes.extend([3, 3]);
     }
     let deformer = bind(&mesh, true, Formulation::VertexTargets);
-    assert_eq!(
-        deformer.pinned(),
-        &[
-            (k as u32, PinReason::HighValence),
-            (k as u32 + 1, PinReason::HighValence)
-        ]
-    );
+    // Not encoded, but each pole has 70 edge neighbours: a ring fit carries
+    // it, nothing follows the input.
+    assert!(deformer.pinned().is_empty(), "{:?}", deformer.pinned());
+    for pole in [k as u32, k as u32 + 1] {
+        assert!(deformer.ring_fitted().contains(&(pole, PinReason::HighValence)), "{:?}", deformer.ring_fitted());
+    }
 }
 
 #[test]
@@ -714,22 +713,97 @@ fn fused_step_equals_the_general_step_to_the_bit() {
     }
 }
 
+fn rms_distance(a: &[Vec3], b: &[Vec3]) -> f64 {
+    (a.iter().zip(b).map(|(p, q)| (*p - *q).as_dvec3().length_squared()).sum::<f64>() / a.len() as f64).sqrt()
+}
+
+/// The solver as it was before issue 28: plain local/global iterations.
+fn plain(deformer: &mut PyramidDeformer) {
+    deformer.set_accelerated(false);
+}
+
+fn accelerated(mesh: &PolyMesh) -> PyramidDeformer {
+    let mut deformer = bind(mesh, true, Formulation::VertexTargets);
+    deformer.set_accelerated(true);
+    deformer
+}
+
 #[test]
-fn anderson_acceleration_reaches_the_same_solution_in_far_fewer_iterations() {
-    // Issue 28: the slow modes of a low-closeness solve. Anderson's method must
-    // converge to the plain iteration's fixed point, much sooner.
+fn accelerated_solver_reaches_the_plain_fixed_point() {
+    // Issue 28: the coarse correction and Anderson's method change how fast
+    // the solve gets there, never where it goes.
     let length = 4.0;
     let mesh = cylinder(48, 60, 0.5, length);
     let input = candy_wrapper(&mesh, length, 90f32.to_radians(), 80f32.to_radians());
-    let mut deformer = bind(&mesh, true, Formulation::VertexTargets);
-    let converged = deformer.solve(&input, 4000, Closeness::Uniform(0.05)).unwrap();
-    let scale = max_distance(&converged, &input);
-    deformer.set_anderson_window(5);
-    let accelerated = deformer.solve(&input, 400, Closeness::Uniform(0.05)).unwrap();
-    assert!(max_distance(&accelerated, &converged) < 1e-3 * scale, "a different fixed point");
-    let error = |out: &[Vec3]| max_distance(out, &converged) / scale;
-    let fast = error(&deformer.solve(&input, 15, Closeness::Uniform(0.05)).unwrap());
-    deformer.set_anderson_window(0);
-    let plain = error(&deformer.solve(&input, 15, Closeness::Uniform(0.05)).unwrap());
-    assert!(fast < 0.05 && fast < 0.25 * plain, "15 iterations: accelerated {fast}, plain {plain}");
+    for closeness in [0.05, 0.01] {
+        let mut deformer = accelerated(&mesh);
+        let accelerated = deformer.solve(&input, 400, Closeness::Uniform(closeness)).unwrap();
+        plain(&mut deformer);
+        let converged = deformer.solve(&input, 8000, Closeness::Uniform(closeness)).unwrap();
+        let scale = rms_distance(&converged, &input);
+        let difference = rms_distance(&accelerated, &converged) / scale;
+        assert!(difference < 2e-3, "closeness {closeness}: fixed points differ by {difference} of the displacement");
+    }
+}
+
+#[test]
+fn accelerated_solver_converges_in_the_default_iterations_at_low_closeness() {
+    // Issue 28's figure: convergence error ≤ 5% at the default iteration
+    // count, here on a 6k-vertex tube at closeness 0.01, where plain
+    // iterations have gone about a sixth of the way.
+    let mesh = cylinder(64, 100, 0.5, 4.0);
+    let input = candy_wrapper(&mesh, 4.0, 60f32.to_radians(), 90f32.to_radians());
+    let iterations = crate::sequence::StepOptions::default().iterations;
+    let mut deformer = accelerated(&mesh);
+    let closeness = Closeness::Uniform(0.01);
+    let converged = deformer.solve(&input, 2000, closeness).unwrap();
+    let scale = rms_distance(&converged, &input);
+    let error = rms_distance(&deformer.solve(&input, iterations, closeness).unwrap(), &converged) / scale;
+    plain(&mut deformer);
+    let old = rms_distance(&deformer.solve(&input, iterations, closeness).unwrap(), &converged) / scale;
+    assert!(error <= 0.05, "{iterations} iterations: convergence error {error} (plain {old})");
+    assert!(old > 0.5, "plain iterations converge faster than expected here: {old}");
+}
+
+#[test]
+fn accelerated_solve_with_a_hook_that_moves_positions() {
+    // The stepper's in-loop collision pass moves vertices after every
+    // iteration. A floor the tube is bent through: the hook pushes vertices
+    // back above it. The accelerated solve must stay finite, respect the
+    // floor and end where the plain solve with the same hook ends.
+    let length = 4.0;
+    let mesh = cylinder(32, 40, 0.5, length);
+    let input = candy_wrapper(&mesh, length, 0.0, 90f32.to_radians());
+    let floor = input.iter().map(|p| p.y).fold(f32::MAX, f32::min) + 0.3;
+    let mut floor_hook = |_: usize, _: &[Vec3], after: &mut [Vec3]| -> crate::Result<()> {
+        for p in after.iter_mut() {
+            p.y = p.y.max(floor);
+        }
+        Ok(())
+    };
+    let input: Vec<Vec3> = input.iter().map(|p| Vec3::new(p.x, p.y.max(floor), p.z)).collect();
+    let run = |deformer: &mut PyramidDeformer, iterations: usize, hook: &mut dyn crate::solve::IterationHook| {
+        let mut x = input.clone();
+        deformer.set_closeness(Closeness::Uniform(0.05)).unwrap();
+        deformer.solver_mut().solve(&input, &mut x, iterations, Some(hook)).unwrap();
+        x
+    };
+    let mut deformer = accelerated(&mesh);
+    let accelerated = run(&mut deformer, 300, &mut floor_hook);
+    let short = run(&mut deformer, 10, &mut floor_hook);
+    plain(&mut deformer);
+    let reference = run(&mut deformer, 6000, &mut floor_hook);
+    for x in [&accelerated, &short] {
+        assert!(x.iter().all(|p| p.is_finite() && p.y >= floor));
+    }
+    let scale = rms_distance(&reference, &input);
+    let difference = rms_distance(&accelerated, &reference) / scale;
+    assert!(difference < 5e-3, "with the hook the accelerated solve ends {difference} of the displacement away");
+}
+
+#[test]
+fn every_pin_reason_has_its_own_name() {
+    let names: std::collections::HashSet<&str> = PinReason::ALL.iter().map(|r| r.name()).collect();
+    assert_eq!(names.len(), PinReason::ALL.len());
+    assert!(PinReason::ALL.iter().all(|r| !r.describe().is_empty()));
 }

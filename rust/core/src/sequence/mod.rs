@@ -39,22 +39,28 @@
 //! both [`crate::collide`] and [`crate::solve`]; [`crate::pyramid`] only says
 //! which constraints the solver holds.
 //!
-//! Files: [`step`] (the frame and its substeps), [`options`] (what a step is
-//! asked and reports), [`dynamics`], [`compliance`], [`strain_pass`].
+//! Vertices that coincide at rest (split seams) are welded at bind: the
+//! solver and the passes work on the welded mesh, and [`seams`] is the public
+//! boundary that takes and returns the mesh's own vertices.
+//!
+//! Files: [`seams`] (the public boundary, in the mesh's vertices), [`step`]
+//! (the frame and its substeps), [`options`] (what a step is asked and
+//! reports), [`dynamics`], [`compliance`], [`strain_pass`].
 
 pub mod compliance;
 pub mod dynamics;
 pub mod options;
+mod seams;
 mod step;
 mod strain_pass;
 
 use glam::Vec3;
 
 use crate::collide::{Collider, Skin};
-use crate::mesh::{polygon_edges, validate_positions, MeshInput};
+use crate::mesh::{polygon_edges, MeshInput, Weld, SLIVER_RATIO, WELD_TOLERANCE};
 use crate::pyramid::{DeformerOptions, PyramidDeformer};
 use crate::solve::ConstraintId;
-use crate::{Error, Result};
+use crate::Result;
 
 pub use dynamics::{Dynamics, MAX_SUBSTEPS, STIFFNESS_DENSITY};
 pub use options::{StepOptions, StepReport, StrainMode, StrainOptions};
@@ -63,6 +69,10 @@ use step::CarriedPlanes;
 
 /// A bound mesh and the state of the sequence of frames being solved.
 pub struct Sequence {
+    /// The mesh's vertices → the welded ones everything below works on (the
+    /// identity for a mesh without split seams).
+    weld: Weld,
+    /// Bound on the welded mesh.
     deformer: PyramidDeformer,
     // Bind-time data of the collision and strain passes.
     /// Edges and triangles for the collision passes (vertices only when
@@ -97,16 +107,30 @@ pub struct Sequence {
 }
 
 impl Sequence {
-    /// Binds `mesh` at rest ([`PyramidDeformer::bind`]) with the skin, edges
-    /// and areas the collision, strain and dynamics passes need.
+    /// Welds the vertices of `mesh` that coincide at rest (within
+    /// [`WELD_TOLERANCE`] of its size) and the ends of sliver edges (shorter
+    /// than [`SLIVER_RATIO`] of their neighbours), binds the welded mesh
+    /// ([`PyramidDeformer::bind`]) and builds the skin, edges and areas the
+    /// collision, strain and dynamics passes need.
     pub fn bind(mesh: MeshInput<'_>, options: DeformerOptions) -> Result<Self> {
-        let deformer = PyramidDeformer::bind(mesh, options)?;
-        let skin = Skin::from_mesh(mesh)?;
+        let offsets = mesh.validate()?; // before welding: finite positions, indices in range
+        let weld = Weld::by_distance_and_slivers(mesh.positions, mesh.corner_verts, &offsets, WELD_TOLERANCE, SLIVER_RATIO);
+        let (positions, corner_verts);
+        let welded = if weld.is_identity() {
+            mesh
+        } else {
+            positions = weld.gather(mesh.positions);
+            corner_verts = weld.corners(mesh.corner_verts);
+            MeshInput { positions: &positions, corner_verts: &corner_verts, polygon_sizes: mesh.polygon_sizes }
+        };
+        let deformer = PyramidDeformer::bind(welded, options)?;
+        let skin = Skin::from_mesh(welded)?;
         let mut sequence = Self::new(deformer);
-        sequence.rest = mesh.positions.to_vec();
-        sequence.mesh_edges = polygon_edges(mesh.corner_verts, &mesh.validate()?);
-        sequence.vertex_area = vertex_areas(mesh.positions, skin.triangles());
+        sequence.rest = welded.positions.to_vec();
+        sequence.mesh_edges = polygon_edges(welded.corner_verts, &welded.validate()?);
+        sequence.vertex_area = vertex_areas(welded.positions, skin.triangles());
         sequence.skin = skin;
+        sequence.weld = weld;
         Ok(sequence)
     }
 
@@ -115,6 +139,7 @@ impl Sequence {
     pub fn new(deformer: PyramidDeformer) -> Self {
         let n = deformer.vertex_count();
         Sequence {
+            weld: Weld::identity(n),
             deformer,
             skin: Skin::vertices_only(n),
             rest: Vec::new(),
@@ -130,18 +155,15 @@ impl Sequence {
         }
     }
 
+    /// The deformer of the welded mesh: its vertices are
+    /// [`Self::weld`]'s welded ones.
     pub fn deformer(&self) -> &PyramidDeformer {
         &self.deformer
     }
 
-    /// The deformer, e.g. for a plain [`PyramidDeformer::solve`], which
-    /// neither reads nor changes the sequence's state.
+    /// The deformer of the welded mesh, e.g. for solver settings.
     pub fn deformer_mut(&mut self) -> &mut PyramidDeformer {
         &mut self.deformer
-    }
-
-    pub fn vertex_count(&self) -> usize {
-        self.deformer.vertex_count()
     }
 }
 
@@ -152,33 +174,6 @@ impl Sequence {
         self.history = None;
         self.velocity = None;
         self.last_input = None;
-    }
-
-    /// Makes `positions` the last output, as if a step had produced them:
-    /// a bake resuming after frames already cached starts from the last of
-    /// them (at rest, and without substep interpolation from the input
-    /// before it). They must be free of collisions for the next step's
-    /// guarantee.
-    pub fn set_history(&mut self, positions: &[Vec3]) -> Result<()> {
-        let n = self.deformer.vertex_count();
-        if positions.len() != n {
-            return Err(Error::invalid(format!("history: {} vertices given, the deformer has {n}", positions.len())));
-        }
-        validate_positions("history", positions)?;
-        self.history = Some(positions.to_vec());
-        self.velocity = None;
-        self.last_input = None;
-        Ok(())
-    }
-
-    /// The last output of [`Self::step`], if any.
-    pub fn history(&self) -> Option<&[Vec3]> {
-        self.history.as_deref()
-    }
-
-    /// Velocities at the end of the last dynamic step, if any.
-    pub fn velocity(&self) -> Option<&[Vec3]> {
-        self.velocity.as_deref()
     }
 }
 
@@ -203,3 +198,7 @@ fn vertex_areas(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<f32> {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod seam_tests;
+#[cfg(test)]
+mod irregular_tests;

@@ -19,20 +19,14 @@ use crate::strain::EdgeLimits;
 use crate::{Error, Result};
 
 impl Sequence {
-    /// Solves the next frame of a sequence against `colliders` (already
-    /// [`Collider::update`]-d to this frame) and remembers the result as the
-    /// start of the next one. The first call, and the first after
-    /// [`Self::reset`], starts from `input` itself, which should then be free
-    /// of collisions. Compliant colliders are solved too: their `current`
-    /// positions are the result (where they receded), their animated ones
-    /// the goals.
-    pub fn step(
+    /// [`Self::step`] in welded vertices (see [`super::seams`]).
+    pub(super) fn step_welded(
         &mut self,
         input: &[Vec3],
         colliders: &mut [&mut Collider],
         options: &StepOptions<'_>,
     ) -> Result<(Vec<Vec3>, StepReport)> {
-        let n = self.vertex_count();
+        let n = self.deformer.vertex_count();
         if input.len() != n {
             return Err(Error::invalid(format!("input: {} vertices given, the deformer has {n}", input.len())));
         }
@@ -504,11 +498,11 @@ mod tests {
     fn without_colliders_step_is_the_solve_and_reset_forgets() {
         let mut scene = scene();
         let input: Vec<Vec3> = scene.skin.positions.iter().map(|p| *p + Vec3::new(0.0, 0.0, p.x * p.x)).collect();
-        let solved = scene.deformer.deformer_mut().solve(&input, 10, Closeness::Default).unwrap();
+        let solved = scene.deformer.solve(&input, 10, Closeness::Default).unwrap();
         let (stepped, report) = scene.deformer.step(&input, &mut [], &StepOptions::default()).unwrap();
         assert_eq!(solved, stepped);
         assert_eq!(report, StepReport::default());
-        assert_eq!(scene.deformer.history(), Some(&stepped[..]));
+        assert_eq!(scene.deformer.history(), Some(stepped.clone()));
         scene.deformer.reset();
         assert!(scene.deformer.history().is_none());
         assert!(scene.deformer.step(&input[1..], &mut [], &StepOptions::default()).is_err());

@@ -189,6 +189,17 @@ pub trait Constraint: Send + Sync {
         false
     }
 
+    /// How the projection of each row moves with the positions, to first
+    /// order, as rows (row `r`: `∂p_r/∂x ≈ Σ a_j e_j`; same row count as
+    /// [`Constraint::rows`]), for the coarse correction (`solve::coarse`).
+    /// Only the part that couples vertices matters and it may be
+    /// approximate (pyramid targets: the ring's mean-value weights, leaving
+    /// out the turning of the normal). `None` (the default): the projection
+    /// does not follow other vertices, or the constraint does not say.
+    fn coupling(&self) -> Option<&Rows> {
+        None
+    }
+
     /// Replaces the targets of a constraint whose rows project to settable
     /// fixed targets (`solve::Targets`): how a caller holding only a
     /// `ConstraintId` updates an inertia term. `None` when the constraint

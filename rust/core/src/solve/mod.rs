@@ -21,6 +21,7 @@
 
 mod anderson;
 mod closeness;
+mod coarse;
 mod constraint;
 mod solver;
 mod system;

@@ -6,6 +6,7 @@ use faer::sparse::linalg::cholesky::SymbolicCholesky;
 use glam::Vec3;
 
 use super::anderson::Anderson;
+use super::coarse::Coarse;
 use super::constraint::{Constraint, Context};
 use super::system::{RowBlock, System, SystemKind};
 use crate::mesh::validate_positions;
@@ -65,6 +66,12 @@ pub struct Solver {
     /// Anderson window (0: plain iterations) and its history buffers.
     anderson_window: usize,
     anderson: Option<Anderson>,
+    /// Whether to build and run the coarse correction, and the built level
+    /// (rebuilt with the system).
+    coarse_enabled: bool,
+    coarse: Option<Coarse>,
+    /// An accelerated iteration's positions before the hook ran.
+    before_hook: Vec<Vec3>,
 }
 
 impl Solver {
@@ -80,7 +87,29 @@ impl Solver {
             work: Vec::new(),
             anderson_window: 0,
             anderson: None,
+            coarse_enabled: false,
+            coarse: None,
+            before_hook: Vec::new(),
         }
+    }
+
+    /// Turns the coarse-level correction on or off (see [`super::coarse`]);
+    /// it only runs with a diagonal global matrix and a constraint that
+    /// reports its [`super::Constraint::coupling`].
+    pub fn set_coarse_correction(&mut self, on: bool) {
+        if on != self.coarse_enabled {
+            self.coarse_enabled = on;
+            self.coarse = None;
+            if let Some(system) = self.system.take() {
+                self.symbolic = system.symbolic().or(self.symbolic.take());
+            }
+        }
+    }
+
+    /// Unknowns of the coarse level (0 when there is none); builds the system if needed.
+    pub fn coarse_len(&mut self) -> Result<usize> {
+        self.prepare()?;
+        Ok(self.coarse.as_ref().map_or(0, Coarse::len))
     }
 
     /// Accelerates the iterations with Anderson's method over the last
@@ -174,6 +203,18 @@ impl Solver {
             )?;
             let variable_rows: usize = variable.iter().map(|b| b.rows.len()).sum();
             let constant_rows: usize = constant.iter().map(|b| b.rows.len()).sum();
+            self.coarse = match (self.coarse_enabled, system.diagonal_inverse()) {
+                (true, Some(inverse)) => {
+                    let couplings: Vec<_> = self
+                        .entries
+                        .iter()
+                        .filter(|e| !e.constraint.is_constant())
+                        .map(|e| e.constraint.coupling())
+                        .collect();
+                    Coarse::build(self.vertex_count, &variable, &couplings, inverse)?
+                }
+                _ => None,
+            };
             self.symbolic = system.symbolic();
             self.system = Some(system);
             self.variable_projections = vec![Vec3::ZERO; variable_rows];
@@ -272,6 +313,8 @@ impl Solver {
             }
         };
 
+        let accelerated = anderson.is_some() || self.coarse.is_some();
+        let mut hook_moved = false;
         // Ping-pong between the caller's buffer and our own, copying at most once.
         let mut in_work = false;
         for iteration in 0..iterations {
@@ -288,11 +331,31 @@ impl Solver {
                 }
                 system.solve(&self.rhs_constant, &self.variable_projections, next);
             }
+            // Acceleration extrapolates the map `G`; a hook that moved
+            // positions changed the map (contacts hold vertices against
+            // it), and extrapolating across that would move the fixed
+            // point. Such iterations run plain and forget the history.
+            if !hook_moved {
+                if let Some(coarse) = self.coarse.as_mut() {
+                    coarse.correct(current, next);
+                }
+            }
             if let Some(history) = anderson.as_deref_mut() {
-                history.accelerate(current, next);
+                if hook_moved {
+                    history.restart();
+                } else {
+                    history.accelerate(current, next);
+                }
             }
             if let Some(hook) = hook.as_deref_mut() {
+                if accelerated {
+                    self.before_hook.clear();
+                    self.before_hook.extend_from_slice(next);
+                }
                 hook.after_iteration(iteration, current, next)?;
+                if accelerated {
+                    hook_moved = bytemuck::cast_slice::<Vec3, u32>(&self.before_hook) != bytemuck::cast_slice::<Vec3, u32>(next);
+                }
             }
             in_work = !in_work;
         }

@@ -212,6 +212,14 @@ impl System {
         }
     }
 
+    /// `1 / Σ w` per vertex of a diagonal system; `None` for a coupled one.
+    pub fn diagonal_inverse(&self) -> Option<&[f32]> {
+        match &self.factor {
+            Factor::Diagonal { inverse, .. } => Some(inverse),
+            Factor::Cholesky { .. } => None,
+        }
+    }
+
     /// Number of stored entries of the Cholesky factor (0 for a diagonal system).
     pub fn factor_nnz(&self) -> usize {
         match &self.factor {
@@ -250,8 +258,13 @@ impl System {
             // block then row order: the same sums as the gather below), divide.
             out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, o)| {
                 let base = c * CHUNK;
-                if let ([block], [(constraint, _)]) = (blocks.as_slice(), constraints) {
-                    // One varying constraint: it may run the whole step itself.
+                if let (Some((block, others)), Some(((constraint, _), other_constraints))) =
+                    (blocks.split_first(), constraints.split_first())
+                {
+                    // The first varying constraint may run the whole step itself;
+                    // the rows of the others (few: ring fits of irregular
+                    // vertices) are then added on top, `w·t·(1/Σw)` each, which
+                    // keeps the fast kernel for the mesh's bulk.
                     let rows = block.chunk_rows[c] as usize..block.chunk_rows[c + 1] as usize;
                     let chunk = DiagonalChunk {
                         base,
@@ -260,6 +273,12 @@ impl System {
                         weights: &block.weight[rows.clone()],
                     };
                     if constraint.solve_chunk(context, rows, &chunk, o) {
+                        for (block, &(constraint, _)) in others.iter().zip(other_constraints) {
+                            for r in block.chunk_rows[c] as usize..block.chunk_rows[c + 1] as usize {
+                                let v = block.vertex[r] as usize;
+                                o[v - base] += constraint.project_row(context, r) * (block.weight[r] * inverse[v]);
+                            }
+                        }
                         return;
                     }
                 }
@@ -408,6 +427,29 @@ fn cholesky<'a>(
             }
         }
     }
+    let (symbolic, values) = factorize_lower(n, entries, symbolic)?;
+    let req = symbolic.solve_in_place_scratch::<f64>(1, Par::Seq);
+    let scratch = [
+        MemBuffer::new(req),
+        MemBuffer::new(req),
+        MemBuffer::new(req),
+    ];
+    Ok(Factor::Cholesky {
+        symbolic,
+        values,
+        columns: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
+        scratch,
+    })
+}
+
+/// Sums the duplicates of the lower-triangle entries `(column, row, value)`
+/// (in insertion order: deterministic) and factorises the matrix by sparse
+/// Cholesky, reusing `symbolic` when it fits.
+pub(crate) fn factorize_lower(
+    n: usize,
+    mut entries: Vec<(u32, u32, f64)>,
+    symbolic: Option<Arc<SymbolicCholesky<usize>>>,
+) -> Result<(Arc<SymbolicCholesky<usize>>, Vec<f64>)> {
     // Stable sort: duplicates are summed in insertion order, deterministically.
     entries.par_sort_by_key(|&(col, row, _)| (col, row));
     let mut col_ptr = vec![0usize; n + 1];
@@ -469,16 +511,5 @@ fn cholesky<'a>(
                     .to_string(),
             )
         })?;
-    let req = symbolic.solve_in_place_scratch::<f64>(1, Par::Seq);
-    let scratch = [
-        MemBuffer::new(req),
-        MemBuffer::new(req),
-        MemBuffer::new(req),
-    ];
-    Ok(Factor::Cholesky {
-        symbolic,
-        values,
-        columns: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
-        scratch,
-    })
+    Ok((symbolic, values))
 }

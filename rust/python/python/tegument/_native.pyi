@@ -174,10 +174,12 @@ class PyramidDeformer:
     ``rest_positions`` float32 ``(N, 3)``, ``corner_verts`` int32 ``(L,)`` and
     ``polygon_sizes`` int32 ``(P,)`` describe the mesh at rest in Blender's
     layout. ``scale_safe`` stores edge elevation angles instead of plain heights,
-    so that a uniformly scaled input is reproduced exactly. Boundary,
-    non-manifold and degenerate vertices cannot be encoded: they follow the
-    input and are listed in ``pinned_vertices``. Raises ``TegumentError`` on
-    bad input.
+    so that a uniformly scaled input is reproduced exactly. Vertices that
+    coincide at rest (split seams of imported meshes) are welded for the
+    solver, so seams stay closed; the mesh arrays themselves are only read.
+    Open borders are encoded with open one-rings; corners, non-manifold and
+    degenerate spots that cannot be encoded follow the input and are listed in
+    ``pinned_vertices``. Raises ``TegumentError`` on bad input.
     """
     def __init__(self, rest_positions: Floats, corner_verts: Indices, polygon_sizes: Indices, scale_safe: bool = ...) -> None: ...
     @property
@@ -193,6 +195,17 @@ class PyramidDeformer:
         vertices), ``compliant_skin_vertices`` (skin vertices giving way to
         compliant colliders) and ``max_recession`` (largest distance of a
         compliant collider vertex from its animated position).
+        """
+    @property
+    def pinned_reasons(self) -> dict[str, Int32]:
+        """``{reason: int32 (K,)}``: the pinned vertices by why the bind could not
+        encode them, each array ascending; only reasons that occur are keys.
+        Reasons: ``boundary`` (a border corner without a usable one-ring),
+        ``non_manifold``, ``isolated``, ``low_valence`` (fewer than 3
+        neighbours), ``high_valence``, ``zero_area`` (a one-ring without
+        area), ``not_star_shaped`` (the vertex does not project inside its
+        ring), ``inexact`` (not reproducible in single precision). Together
+        they hold exactly ``pinned_vertices``.
         """
     @property
     def pinned_vertices(self) -> Int32:
@@ -257,6 +270,13 @@ class PyramidDeformer:
     @property
     def vertex_count(self) -> int:
         """Number of vertices of the bound mesh."""
+    @property
+    def welded_vertex_count(self) -> int:
+        """Number of vertices the solver works on: the mesh's, with vertices
+        that coincide at rest (split UV or sharp-normal seams, as glTF, FBX and
+        USD importers deliver them) welded into one. Results come back per
+        mesh vertex, the same position for every member of a seam.
+        """
 
 class UvWarp:
     """Content-aware UV warp of one mesh (seed 001: hierarchical position-based
