@@ -14,14 +14,17 @@
 //!    redirection texture's texels inside the chart;
 //! 3. fold-overs of the new solver's cold solves at every iteration count
 //!    1..64 at 2048² and 4096², before the end-of-solve repair (which then
-//!    has nothing to do) and after.
+//!    has nothing to do) and after;
+//! 4. bakes that differ only in iteration count: frames 0..10 of the warm
+//!    benchmark at 4, 8 and 16 iterations against 64, the largest
+//!    convergence-style difference per frame (issue 28 asks at most 5 %).
 //!
 //! Rows go to `bench/results/warp_convergence.json`, the curves to
 //! `bench/results/warp_convergence_curves.json` (drawn by
 //! `bench/plot_warp_convergence.py`). Environment: `TEGUMENT_WARP_THREADS`
 //! (2), `TEGUMENT_WARP_FRAME_SIZES` (1024,2048), `TEGUMENT_WARP_CONV_SIZES`
 //! (1024,2048), `TEGUMENT_WARP_FOLD_SIZES` (2048,4096), `TEGUMENT_WARP_FOLD_MAX`
-//! (64), `TEGUMENT_WARP_CONVERGE_CAP` (finest iterations for `x_∞`, 1500).
+//! (64), `TEGUMENT_WARP_BAKE_SIZES` (1024), `TEGUMENT_WARP_CONVERGE_CAP` (finest iterations for `x_∞`, 1500).
 
 mod common;
 
@@ -189,6 +192,35 @@ fn main() {
             report.add(&case, "cold solves that needed the fold repair", raw as f64, "", threads, &note);
             report.add(&case, "fold-overs, summed over the cold solves", after as f64, "", threads, &note);
             report.add(&case, "worst rigid stretch over the cold solves", worst, "", threads, &note);
+        }
+        // 4. Bakes that differ only in iteration count (issue 28: at most 5 %
+        //    apart beyond the default): frames 0..=10, warm, against 64 iterations.
+        for n in env_list("TEGUMENT_WARP_BAKE_SIZES", "1024") {
+            let case = format!("{n}x{n} cylinder, bake of frames 0-10 (warm)");
+            let bake = |k: usize| {
+                let mut w = warp(&m, n, false, true);
+                w.settings.iterations = k as u32;
+                let t = Instant::now();
+                let frames: Vec<Vec<f32>> = (0..=10)
+                    .map(|f| {
+                        w.solve(&pose(&m, f)).expect("solve");
+                        w.tiles[0].redirection.clone()
+                    })
+                    .collect();
+                let ms = t.elapsed().as_secs_f64() * 1e3 / 11.0;
+                let q = &w.metrics(&strongest).expect("metrics")[0];
+                (frames, w.tiles[0].validity().to_vec(), ms, q.stretch_warped.mean, q.foldovers)
+            };
+            let (reference, valid, ms64, stretch64, folds64) = bake(64);
+            for k in [4usize, 8, 16] {
+                let (frames, _, ms, stretch, folds) = bake(k);
+                let d: Vec<f64> = frames.iter().zip(&reference).map(|(a, b)| convergence_error(a, b, &valid, n)).collect();
+                eprintln!("  {n}² bake {k} vs 64 iterations, per frame: {d:.3?}");
+                let (first, last) = (d[0], d[d.len() - 1]);
+                let worst = d.iter().cloned().fold(0.0, f64::max);
+                report.add(&case, &format!("{k} iterations against 64: largest difference per frame"), worst, "", threads, &format!("target <= 0.05; frame 0 (cold) {first:.3}, frame 10 {last:.3}; {ms:.0} ms per frame; last frame rigid stretch {stretch:.4}, folds {folds}"));
+            }
+            report.add(&case, "64 iterations: last frame rigid stretch", stretch64, "", threads, &format!("{ms64:.0} ms per frame; folds {folds64}"));
         }
     });
     report.add("machine", &common::machine(), f64::NAN, "", threads, "");
