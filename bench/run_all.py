@@ -1,11 +1,12 @@
 """`make bench`: every benchmark in one run, then one table.
 
 Steps, in order, each as a child process: build the Rust benchmarks; the pyramid solver, collision,
-flesh (dynamics, strain limits, compliant colliders) and UV warp benchmarks (``rust/core/benches``, rows in ``bench/results/<name>.json``); the Blender
+flesh (dynamics, strain limits, compliant colliders), UV warp and UV warp convergence benchmarks (``rust/core/benches``, rows in ``bench/results/<name>.json``); the Blender
 benchmark (``bench/blender_bench.py``: Pyramid Deform against Corrective Smooth, collisions against
 Cloth and Shrinkwrap + Corrective Smooth, in real Blender with the built extension). Then
 ``bench/collect.py`` merges the rows into ``bench/results.json`` and ``docs/performance-table.md``
-and ``bench/plot_bench.py`` draws ``docs/images/benchmark.png``.
+and ``bench/plot_bench.py`` draws ``docs/images/benchmark.png``, ``bench/plot_warp_convergence.py``
+``docs/images/uv-warp-convergence.png``.
 
 The machine may be shared, so each step records its wall time, ``uptime`` before and after, and
 how many cores *other* processes kept busy meanwhile (all CPU time the kernel counted, minus this
@@ -85,12 +86,16 @@ def main() -> int:
     cargo = ["cargo", "bench", "-p", "tegument-core"]
     steps = [
         # Compiled first, so no benchmark is timed while its successors compile.
-        ("build", cargo + ["--no-run", "--bench", "pyramid", "--bench", "convergence", "--bench", "collide", "--bench", "flesh", "--bench", "warp"], {}),
+        ("build", cargo + ["--no-run", "--bench", "pyramid", "--bench", "convergence", "--bench", "collide", "--bench", "flesh",
+                           "--bench", "warp", "--bench", "warp_convergence"], {}),
         ("pyramid", cargo + ["--bench", "pyramid"], results_env),
         ("convergence", cargo + ["--bench", "convergence"], results_env),
         ("collide", cargo + ["--bench", "collide"], results_env),
         ("flesh", cargo + ["--bench", "flesh"], results_env),
         ("warp", cargo + ["--bench", "warp"], {**results_env, "TEGUMENT_WARP_SIZES": "1024,2048,4096"}),
+        # Issue 28: the old and the new UV warp solver, cold and warm, in one run (long: the
+        # fold sweep solves 4096² from the identity 64 times).
+        ("warp_convergence", cargo + ["--bench", "warp_convergence"], results_env),
         ("blender", [python, str(HERE / "blender_bench.py"), "--out", str(args.results), "--zip", str(args.zip)], {}),
         ("scaling", [python, str(HERE / "bake_scaling.py"), "--out", str(args.results), "--zip", str(args.zip)], {}),
     ]
@@ -112,6 +117,8 @@ def main() -> int:
         [python, str(HERE / "plot_bench.py"), "--results", str(args.json), "--out", str(args.plot)],
         [python, str(HERE / "plot_convergence.py"), "--results", str(args.results / "convergence.json"),
          "--out", str(args.plot.parent / "pyramid-convergence.png")],
+        [python, str(HERE / "plot_warp_convergence.py"), "--results", str(args.results / "warp_convergence_curves.json"),
+         "--out", str(args.plot.parent / "uv-warp-convergence.png")],
     ):
         if subprocess.run(command, cwd=ROOT).returncode != 0:
             return 1

@@ -260,6 +260,37 @@ impl UvWarp {
         Ok(())
     }
 
+    /// Continues the last solve on the finest level, `iterations` at a time,
+    /// until no node moves more than `tolerance` texels in one iteration or
+    /// `max_iterations` have run, then repairs folds and inverts: the
+    /// converged warp `x_∞` the convergence error is measured against.
+    /// Returns the iterations run and the largest change of a node in the
+    /// last of them. For benchmarks and tests.
+    #[doc(hidden)]
+    pub fn converge(&mut self, deformed: &[Vec3], tolerance: f32, max_iterations: usize) -> Result<(usize, f32)> {
+        self.mesh.check_positions("deformed positions", deformed)?;
+        let (mut run, mut last) = (0, 0.0f32);
+        for tile in &mut self.tiles {
+            let gd = tile.layout.triangle_metrics(&self.mesh, deformed);
+            let (mut done, mut change) = (0, 0.0f32);
+            while done < max_iterations {
+                let step = 16.min(max_iterations - done);
+                change = tile.solver.iterate_finest(&tile.layout.ids, &gd, step, &self.settings);
+                done += step;
+                if change < tolerance {
+                    break;
+                }
+            }
+            tile.solver.repair();
+            let (w, h) = (self.width, self.height);
+            let lv = &tile.solver.levels[0];
+            invert::invert(&lv.dx, &lv.dy, w, h, udim_offset(tile.layout.udim), &mut tile.redirection);
+            run = run.max(done);
+            last = last.max(change);
+        }
+        Ok((run, last))
+    }
+
     /// Forgets the previous frame: the next solve starts from the identity.
     pub fn reset(&mut self) {
         for tile in &mut self.tiles {

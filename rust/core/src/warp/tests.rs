@@ -596,3 +596,162 @@ fn fast_kernels_match_the_reference_kernels() {
         }
     }
 }
+
+/// The benchmark's scene (`benches/warp.rs`): 256 × 128 quads, square scales
+/// over 25 % of the chart, at its strongest bend (the +X side squashed to
+/// half), default settings solved from the identity.
+fn benchmark_cylinder(n: usize, legacy: bool) -> (Vec<Vec3>, UvWarp) {
+    let m = super::fixtures::uv_cylinder(256, 128, 1.0, std::f32::consts::TAU, 0.05);
+    let rig = super::fixtures::scales_map(n, n, 24);
+    let settings = WarpSettings { warm_start: false, ..Default::default() };
+    let mut warp = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &rig, mask: None }], settings).unwrap();
+    warp.tiles[0].solver.legacy = legacy;
+    (bend(&m.positions, 2, 0, 0.0, 0.0, 0.5), warp)
+}
+
+/// The tests' own scene at grid size `n`: the cylinder of [`cylinder`] with
+/// the rigid squares of [`squares`] (scaled to `n`), at full bend, default
+/// settings solved from the identity.
+fn squares_cylinder(n: usize) -> (Vec<Vec3>, UvWarp) {
+    let m = cylinder();
+    let s = 0.06;
+    let r = rectangles(n, n, &[(0.7 - s, 0.5 - s, 0.7 + s, 0.5 + s), (0.3 - s, 0.5 - s, 0.3 + s, 0.5 + s)]);
+    let settings = WarpSettings { warm_start: false, ..Default::default() };
+    let warp = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &r, mask: None }], settings).unwrap();
+    (bent(&m, 1.0), warp)
+}
+
+/// Cold solves at each of `counts` iterations: no fold-over, nothing for the
+/// end-of-solve repair to do (the iterations themselves never folded), and
+/// the warp still does its job. Returns the solves that broke that.
+fn cold_fold_failures(def: &[Vec3], warp: &mut UvWarp, counts: impl IntoIterator<Item = u32>) -> Vec<String> {
+    let mut failures = Vec::new();
+    for k in counts {
+        warp.settings.iterations = k;
+        warp.solve(def).unwrap();
+        let met = &warp.metrics(def).unwrap()[0];
+        let repair = warp.tiles[0].solver.last_repair;
+        if met.foldovers != 0 || repair != (0, 1.0) || met.stretch_warped.mean >= 0.5 * met.stretch_identity.mean {
+            failures.push(format!("{}², {k} iterations: folds {}, repair {repair:?}, rigid stretch {:.4} (identity {:.4})", warp.width, met.foldovers, met.stretch_warped.mean, met.stretch_identity.mean));
+        }
+    }
+    failures
+}
+
+/// Cold solves whose iterations themselves never fold (issue 28: the old
+/// solver's cold solves folded at 2048² from 8 iterations, at 1024² from
+/// 24). CI's share of the sweep: every count 1..64 at 1024² on the
+/// benchmark's scene, at 2048² the counts where the old solver folded
+/// first and a long solve, on both scenes, and the squares at 4096² with
+/// the default count. The full sweep, every count 1..64
+/// at 2048² and 4096² on both scenes, is `cold_solves_never_fold_full_sweep`
+/// (ignored: about half an hour) and the `warp_convergence` benchmark (the
+/// benchmark's scene, recorded by `make bench`).
+#[test]
+fn cold_solves_never_fold() {
+    let (def, mut warp) = benchmark_cylinder(1024, false);
+    let mut failures = cold_fold_failures(&def, &mut warp, 1..=64);
+    let (def, mut warp) = benchmark_cylinder(2048, false);
+    failures.extend(cold_fold_failures(&def, &mut warp, [4, 8, 32]));
+    let (def, mut warp) = squares_cylinder(2048);
+    failures.extend(cold_fold_failures(&def, &mut warp, [4, 8, 13, 32]));
+    // Four area passes per iteration left a folded cell here (and at 2048²
+    // with 13 iterations), which the repair flattened: rigid stretch 0.37.
+    let (def, mut warp) = squares_cylinder(4096);
+    failures.extend(cold_fold_failures(&def, &mut warp, [4]));
+    assert!(failures.is_empty(), "{failures:#?}");
+    // The old solver at 32 iterations: its iterations fold and the repair
+    // shrinks the whole warp (the fixture does exercise the folds).
+    let (def, mut old) = benchmark_cylinder(1024, true);
+    old.settings.iterations = 32;
+    old.solve(&def).unwrap();
+    let met = &old.metrics(&def).unwrap()[0];
+    assert!(old.tiles[0].solver.last_repair.1 < 1.0, "{:?} {met:?}", old.tiles[0].solver.last_repair);
+}
+
+#[test]
+#[ignore = "about half an hour: every iteration count 1..64 at 2048² and 4096², two scenes (run with --ignored --release)"]
+fn cold_solves_never_fold_full_sweep() {
+    let mut failures = Vec::new();
+    for n in [2048, 4096] {
+        let (def, mut warp) = benchmark_cylinder(n, false);
+        failures.extend(cold_fold_failures(&def, &mut warp, 1..=64));
+        let (def, mut warp) = squares_cylinder(n);
+        failures.extend(cold_fold_failures(&def, &mut warp, 1..=64));
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// At default settings (4 iterations, the node's default 1024² grid) a cold
+/// solve's rigid stretch error is within 10 % of the converged warp's (the
+/// same solve continued on the finest level for 500 more iterations; the
+/// `warp_convergence` benchmark continues further).
+#[test]
+fn cold_default_solve_is_within_ten_percent_of_converged() {
+    let n = 1024;
+    let (def, mut warp) = benchmark_cylinder(n, false);
+    assert_eq!(warp.settings.iterations, WarpSettings::default().iterations);
+    warp.solve(&def).unwrap();
+    let cold = warp.metrics(&def).unwrap()[0].stretch_warped.mean;
+    warp.settings.iterations = 64;
+    warp.solve(&def).unwrap();
+    warp.converge(&def, 1e-7 * n as f32, 500).unwrap();
+    let met = &warp.metrics(&def).unwrap()[0];
+    let converged = met.stretch_warped.mean;
+    eprintln!("rigid stretch: cold default {cold:.4}, converged {converged:.4} (identity {:.4})", met.stretch_identity.mean);
+    assert_eq!(met.foldovers, 0, "{met:?}");
+    assert!((cold / converged - 1.0).abs() <= 0.10, "cold {cold:.4} against converged {converged:.4}");
+}
+
+/// RMS|a − b| ÷ RMS|b − identity| over the texels inside the chart: the
+/// issue's convergence error of redirection `a` when `b` is the converged one.
+fn redirection_difference(a: &[f32], b: &[f32], valid: &[u8], n: usize) -> f64 {
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (t, _) in valid.iter().enumerate().filter(|(_, &v)| v != 0) {
+        let id = [((t % n) as f64 + 0.5) / n as f64, ((t / n) as f64 + 0.5) / n as f64];
+        for c in 0..2 {
+            num += (a[2 * t + c] as f64 - b[2 * t + c] as f64).powi(2);
+            den += (b[2 * t + c] as f64 - id[c]).powi(2);
+        }
+    }
+    (num / den.max(1e-300)).sqrt()
+}
+
+/// Issue 28: bakes that differ only in an iteration count at or beyond the
+/// default differ by at most 5 % (convergence error of the shorter bake's
+/// frames against the longer one's). The benchmark cylinder's warm bake,
+/// frames 0..=10 of `benches/warp.rs`, at 256² (the same gaps show at 1024²,
+/// see docs/performance.md).
+///
+/// Not met yet: 4 against 64 iterations differ by 0.26–0.31 per frame at 256²
+/// (0.10–0.23 at 1024²), 16 against 64 by 0.09–0.18. Warm solves run
+/// `iterations` on the levels down to 256² only and lag behind the motion,
+/// and continued iterations keep moving the scales along a slow mode the
+/// cascade without a coarse-grid correction does not settle.
+#[test]
+#[ignore = "fails today: the UV warp half of issue 28 is unfinished (see the doc comment)"]
+fn bakes_beyond_the_default_iteration_count_agree_within_five_percent() {
+    let n = 256;
+    let m = super::fixtures::uv_cylinder(256, 128, 1.0, std::f32::consts::TAU, 0.05);
+    let rig = super::fixtures::scales_map(n, n, 24);
+    let bake = |k: u32| {
+        let settings = WarpSettings { iterations: k, warm_start: true, ..Default::default() };
+        let mut warp = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &rig, mask: None }], settings).unwrap();
+        let frames: Vec<Vec<f32>> = (0..=10)
+            .map(|f| {
+                warp.solve(&bend(&m.positions, 2, 0, 0.0, 0.0, 0.5 * (0.6 + 0.04 * f as f32))).unwrap();
+                warp.tiles[0].redirection.clone()
+            })
+            .collect();
+        (frames, warp.tiles[0].validity().to_vec())
+    };
+    let default = WarpSettings::default().iterations;
+    let (reference, valid) = bake(64);
+    let mut worst = Vec::new();
+    for k in [default, 2 * default, 16] {
+        let (frames, _) = bake(k);
+        let d = frames.iter().zip(&reference).map(|(a, b)| redirection_difference(a, b, &valid, n)).fold(0.0, f64::max);
+        worst.push((k, d));
+    }
+    assert!(worst.iter().all(|&(_, d)| d <= 0.05), "largest difference per frame against 64 iterations: {worst:?}");
+}

@@ -1,0 +1,231 @@
+//! UV warp convergence (issue 28), the old solver against the new one in
+//! one run, on the benchmark cylinder of `benches/warp.rs` (256 × 128 quads,
+//! square scales over 25 % of the chart) at its strongest bend (curvature
+//! 0.5: the +X side squashed to half), default settings but for the
+//! iteration count:
+//!
+//! 1. warm frame times, old and new frames taken in turn (the machine is
+//!    shared: only a comparison in one run means anything), 1024² and 2048²;
+//! 2. cold solves (from the identity) by iteration count, each solver
+//!    against its own converged warp `x_∞` (the same solve continued on the
+//!    finest level until no node moves more than 1e-7 of the grid size in
+//!    an iteration, or a cap): time, rigid stretch error, fold-overs and the
+//!    convergence error RMS|r_k − r_∞| / RMS|r_∞ − identity| over the
+//!    redirection texture's texels inside the chart;
+//! 3. fold-overs of the new solver's cold solves at every iteration count
+//!    1..64 at 2048² and 4096², before the end-of-solve repair (which then
+//!    has nothing to do) and after;
+//! 4. bakes that differ only in iteration count: frames 0..10 of the warm
+//!    benchmark at 4, 8 and 16 iterations against 64, the largest
+//!    convergence-style difference per frame (issue 28 asks at most 5 %).
+//!
+//! Rows go to `bench/results/warp_convergence.json`, the curves to
+//! `bench/results/warp_convergence_curves.json` (drawn by
+//! `bench/plot_warp_convergence.py`). Environment: `TEGUMENT_WARP_THREADS`
+//! (2), `TEGUMENT_WARP_FRAME_SIZES` (1024,2048), `TEGUMENT_WARP_CONV_SIZES`
+//! (1024,2048), `TEGUMENT_WARP_FOLD_SIZES` (2048,4096), `TEGUMENT_WARP_FOLD_MAX`
+//! (64), `TEGUMENT_WARP_BAKE_SIZES` (1024), `TEGUMENT_WARP_CONVERGE_CAP` (finest iterations for `x_∞`, 1500).
+
+mod common;
+
+use std::time::Instant;
+
+use tegument_core::warp::fixtures::{bend, scales_map, uv_cylinder, UvPolyMesh};
+use tegument_core::warp::{TileMaps, UvWarp, WarpSettings};
+
+const ITERATIONS: [usize; 12] = [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64];
+
+fn env_list(name: &str, default: &str) -> Vec<usize> {
+    std::env::var(name).unwrap_or_else(|_| default.into()).split(',').filter_map(|s| s.trim().parse().ok()).collect()
+}
+
+fn env_num(name: &str, default: usize) -> usize {
+    std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
+fn mesh() -> UvPolyMesh {
+    uv_cylinder(256, 128, 1.0, std::f32::consts::TAU, 0.05)
+}
+
+/// The warm benchmark's pose of frame `f` (`benches/warp.rs`); frame 10 is the strongest bend.
+fn pose(m: &UvPolyMesh, frame: usize) -> Vec<glam::Vec3> {
+    bend(&m.positions, 2, 0, 0.0, 0.0, 0.5 * (0.6 + 0.04 * frame as f32))
+}
+
+fn warp(m: &UvPolyMesh, n: usize, legacy: bool, warm: bool) -> UvWarp {
+    let rig = scales_map(n, n, 24);
+    let settings = WarpSettings { warm_start: warm, ..Default::default() };
+    let mut w = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &rig, mask: None }], settings).expect("warp");
+    w.tiles[0].solver.legacy = legacy;
+    w
+}
+
+fn name(legacy: bool) -> &'static str {
+    if legacy {
+        "old"
+    } else {
+        "new"
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[v.len() / 2]
+}
+
+/// RMS|r − inf| / RMS|inf − identity| over texels inside the chart.
+fn convergence_error(r: &[f32], inf: &[f32], valid: &[u8], n: usize) -> f64 {
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (t, _) in valid.iter().enumerate().filter(|(_, &v)| v != 0) {
+        let id = [((t % n) as f64 + 0.5) / n as f64, ((t / n) as f64 + 0.5) / n as f64];
+        for c in 0..2 {
+            let (a, b) = (r[2 * t + c] as f64, inf[2 * t + c] as f64);
+            num += (a - b).powi(2);
+            den += (b - id[c]).powi(2);
+        }
+    }
+    (num / den.max(1e-300)).sqrt()
+}
+
+fn json_list(v: &[f64]) -> String {
+    format!("[{}]", v.iter().map(|x| format!("{x}")).collect::<Vec<_>>().join(", "))
+}
+
+fn main() {
+    let threads = env_num("TEGUMENT_WARP_THREADS", 2);
+    let cap = env_num("TEGUMENT_WARP_CONVERGE_CAP", 1500);
+    let mut report = common::Report::new("warp_convergence");
+    let mut curves: Vec<String> = Vec::new();
+    let m = mesh();
+    let strongest = pose(&m, 10);
+    common::with_threads(threads, || {
+        // 1. Warm frame times, old and new in turn.
+        for n in env_list("TEGUMENT_WARP_FRAME_SIZES", "1024,2048") {
+            let case = format!("{n}x{n} cylinder, warm frames");
+            let mut warps = [warp(&m, n, true, true), warp(&m, n, false, true)];
+            let mut first = [0.0; 2];
+            for (k, w) in warps.iter_mut().enumerate() {
+                let t = Instant::now();
+                w.solve(&pose(&m, 0)).expect("solve");
+                first[k] = t.elapsed().as_secs_f64() * 1e3;
+            }
+            let mut times = [Vec::new(), Vec::new()];
+            for f in 1..=10 {
+                let p = pose(&m, f);
+                for (k, w) in warps.iter_mut().enumerate() {
+                    let t = Instant::now();
+                    w.solve(&p).expect("solve");
+                    times[k].push(t.elapsed().as_secs_f64() * 1e3);
+                }
+            }
+            for (k, w) in warps.iter().enumerate() {
+                let q = &w.metrics(&strongest).expect("metrics")[0];
+                let legacy = k == 0;
+                let target = if n == 1024 { "target <= 40 ms" } else { "target <= 160 ms" };
+                report.add(&case, &format!("frame (warm), {} solver", name(legacy)), median(times[k].clone()), "ms", threads, &format!("{target}; median of 10, frames of both solvers in turn"));
+                report.add(&case, &format!("first frame (cold, 4 iterations), {} solver", name(legacy)), first[k], "ms", threads, "");
+                report.add(&case, &format!("rigid stretch after 10 warm frames, {} solver", name(legacy)), q.stretch_warped.mean, "", threads, &format!("folds {}", q.foldovers));
+            }
+        }
+        // 2. Cold solves by iteration count against each solver's own x_∞.
+        for n in env_list("TEGUMENT_WARP_CONV_SIZES", "1024,2048") {
+            let case = format!("{n}x{n} cylinder, cold, strongest bend");
+            for legacy in [true, false] {
+                let mut w = warp(&m, n, legacy, false);
+                let valid = w.tiles[0].validity().to_vec();
+                let mut runs = Vec::new();
+                for &k in &ITERATIONS {
+                    w.settings.iterations = k as u32;
+                    let t = Instant::now();
+                    w.solve(&strongest).expect("solve");
+                    let ms = t.elapsed().as_secs_f64() * 1e3;
+                    let q = &w.metrics(&strongest).expect("metrics")[0];
+                    let (passes, scale) = w.tiles[0].solver.last_repair;
+                    eprintln!("  {n}² {} k={k}: {ms:.0} ms, rigid stretch {:.4}, folds {} (repair {passes} passes, scale {scale})", name(legacy), q.stretch_warped.mean, q.foldovers);
+                    runs.push((k, ms, q.stretch_warped.mean, passes > 0 || scale < 1.0, w.tiles[0].redirection.clone()));
+                }
+                // x_∞: the 64-iteration solve continued on the finest level.
+                w.settings.iterations = 64;
+                w.solve(&strongest).expect("solve");
+                let t = Instant::now();
+                let (done, change) = w.converge(&strongest, 1e-7 * n as f32, cap).expect("converge");
+                let q = &w.metrics(&strongest).expect("metrics")[0];
+                let conv = q.stretch_warped.mean;
+                eprintln!("  {n}² {} x_∞: {done} more iterations ({:.0} s), last change {change:.2e} texel, rigid stretch {conv:.4}", name(legacy), t.elapsed().as_secs_f64());
+                let inf = w.tiles[0].redirection.clone();
+                let errors: Vec<f64> = runs.iter().map(|r| convergence_error(&r.4, &inf, &valid, n)).collect();
+                let who = name(legacy);
+                report.add(&case, &format!("rigid stretch, converged, {who} solver"), conv, "", threads, &format!("x_inf: +{done} finest iterations, last change {change:.1e} texel (tolerance {:.1e})", 1e-7 * n as f64));
+                for (r, e) in runs.iter().zip(&errors) {
+                    if [1, 4, 8, 16, 64].contains(&r.0) {
+                        report.add(&case, &format!("{} iterations, {who} solver: rigid stretch", r.0), r.2, "", threads, &format!("{:.0} ms; convergence error {e:.3}; {:+.1} % of converged; repair needed: {}", r.1, 100.0 * (r.2 / conv - 1.0), r.3));
+                    }
+                }
+                curves.push(format!(
+                    "  {{\"grid\": {n}, \"solver\": \"{who}\", \"iterations\": {}, \"ms\": {}, \"rigid_stretch\": {}, \"convergence_error\": {}, \"repaired\": {}, \"converged_rigid_stretch\": {conv}, \"converge_iterations\": {done}, \"converge_last_change\": {change}}}",
+                    json_list(&runs.iter().map(|r| r.0 as f64).collect::<Vec<_>>()),
+                    json_list(&runs.iter().map(|r| r.1).collect::<Vec<_>>()),
+                    json_list(&runs.iter().map(|r| r.2).collect::<Vec<_>>()),
+                    json_list(&errors),
+                    json_list(&runs.iter().map(|r| r.3 as u8 as f64).collect::<Vec<_>>()),
+                ));
+            }
+        }
+        // 3. Fold-overs of the new solver's cold solves, every count 1..=64.
+        let max = env_num("TEGUMENT_WARP_FOLD_MAX", 64);
+        for n in env_list("TEGUMENT_WARP_FOLD_SIZES", "2048,4096") {
+            let case = format!("{n}x{n} cylinder, cold, strongest bend");
+            let mut w = warp(&m, n, false, false);
+            let (mut raw, mut after, mut worst) = (0usize, 0usize, 0.0f64);
+            let t = Instant::now();
+            for k in 1..=max {
+                w.settings.iterations = k as u32;
+                w.solve(&strongest).expect("solve");
+                let q = &w.metrics(&strongest).expect("metrics")[0];
+                let (passes, scale) = w.tiles[0].solver.last_repair;
+                raw += (passes > 0 || scale < 1.0) as usize;
+                after += q.foldovers;
+                worst = worst.max(q.stretch_warped.mean);
+                eprintln!("  {n}² new k={k}: rigid stretch {:.4}, folds {}, repair ({passes}, {scale})", q.stretch_warped.mean, q.foldovers);
+            }
+            let note = format!("iteration counts 1..{max}, new solver; {:.0} s", t.elapsed().as_secs_f64());
+            report.add(&case, "cold solves that needed the fold repair", raw as f64, "", threads, &note);
+            report.add(&case, "fold-overs, summed over the cold solves", after as f64, "", threads, &note);
+            report.add(&case, "worst rigid stretch over the cold solves", worst, "", threads, &note);
+        }
+        // 4. Bakes that differ only in iteration count (issue 28: at most 5 %
+        //    apart beyond the default): frames 0..=10, warm, against 64 iterations.
+        for n in env_list("TEGUMENT_WARP_BAKE_SIZES", "1024") {
+            let case = format!("{n}x{n} cylinder, bake of frames 0-10 (warm)");
+            let bake = |k: usize| {
+                let mut w = warp(&m, n, false, true);
+                w.settings.iterations = k as u32;
+                let t = Instant::now();
+                let frames: Vec<Vec<f32>> = (0..=10)
+                    .map(|f| {
+                        w.solve(&pose(&m, f)).expect("solve");
+                        w.tiles[0].redirection.clone()
+                    })
+                    .collect();
+                let ms = t.elapsed().as_secs_f64() * 1e3 / 11.0;
+                let q = &w.metrics(&strongest).expect("metrics")[0];
+                (frames, w.tiles[0].validity().to_vec(), ms, q.stretch_warped.mean, q.foldovers)
+            };
+            let (reference, valid, ms64, stretch64, folds64) = bake(64);
+            for k in [4usize, 8, 16] {
+                let (frames, _, ms, stretch, folds) = bake(k);
+                let d: Vec<f64> = frames.iter().zip(&reference).map(|(a, b)| convergence_error(a, b, &valid, n)).collect();
+                eprintln!("  {n}² bake {k} vs 64 iterations, per frame: {d:.3?}");
+                let (first, last) = (d[0], d[d.len() - 1]);
+                let worst = d.iter().cloned().fold(0.0, f64::max);
+                report.add(&case, &format!("{k} iterations against 64: largest difference per frame"), worst, "", threads, &format!("target <= 0.05; frame 0 (cold) {first:.3}, frame 10 {last:.3}; {ms:.0} ms per frame; last frame rigid stretch {stretch:.4}, folds {folds}"));
+            }
+            report.add(&case, "64 iterations: last frame rigid stretch", stretch64, "", threads, &format!("{ms64:.0} ms per frame; folds {folds64}"));
+        }
+    });
+    report.add("machine", &common::machine(), f64::NAN, "", threads, "");
+    report.save();
+    let path = common::results_dir().join("warp_convergence_curves.json");
+    std::fs::write(&path, format!("[\n{}\n]\n", curves.join(",\n"))).expect("write curves");
+    println!("curves: {}", path.display());
+}
