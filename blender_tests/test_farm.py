@@ -311,7 +311,8 @@ def test_a_farm_bake_equals_a_local_bake_and_survives_killed_tasks(shot, tmp_pat
 
 
 def test_preroll_is_what_keeps_chunks_within_the_tolerance(shot, tmp_path):
-    """Without a pre-roll a chunk's cold start is visibly off; with the default one it is within 5 %."""
+    """A chunk's cold start differs from the bake that ran through; the default pre-roll brings it
+    within 5 % with a wide margin (at least ten times closer than without)."""
     blend, local = shot
     farm = blend.parent
     alice = worker([str(blend), "--command", "tegument", "bake", "--objects", "Alice"])
@@ -328,7 +329,7 @@ def test_preroll_is_what_keeps_chunks_within_the_tolerance(shot, tmp_path):
         # A chunk writes its own frames and nothing else.
         assert sequence(farm / "tegument" / "warp") == [f"{STEM}_{f:04d}.exr" for f in range(13, 25)]
     print(f"worst convergence error of chunk 13-24: no pre-roll {errors[0]:.4f}, pre-roll {preroll} {errors[preroll]:.4f}")
-    assert errors[preroll] <= TOLERANCE < errors[0], errors
+    assert errors[preroll] <= TOLERANCE and errors[preroll] * 10 <= errors[0], errors
 
 
 # ------------------------------------------------------------------ in one process: the listing and bad input

@@ -512,11 +512,11 @@ def test_a_bug_during_a_bake_is_a_message_and_restores_everything(baked_ball, ca
     bake = addon().deform.bake
     calls = []
 
-    def broken(scene, o, frame, *args):
+    def broken(scene, o, frame, *args, **kwargs):
         calls.append(frame)
         if len(calls) == 2:
             raise ZeroDivisionError("simulated bug")
-        return real(scene, o, frame, *args)
+        return real(scene, o, frame, *args, **kwargs)
 
     real = bake.solve_frame
     monkeypatch.setattr(bake, "solve_frame", broken)
@@ -563,9 +563,9 @@ def test_live_playback_does_not_re_solve_the_frames_of_a_bake(baked_ball, capfd,
     solved = []
     real = bake.solve_frame
 
-    def counting(scene, o, frame, *args):
+    def counting(scene, o, frame, *args, **kwargs):
         solved.append(frame)
-        return real(scene, o, frame, *args)
+        return real(scene, o, frame, *args, **kwargs)
 
     monkeypatch.setattr(bake, "solve_frame", counting)
     assert run_operator(bpy.ops.tegument.bake, capfd)[0] == "FINISHED"
