@@ -67,7 +67,6 @@ class TEGUMENT_OT_warp_bind(NodeArguments, bpy.types.Operator):
     bl_label = "Bind"
     bl_options = {"REGISTER", "UNDO"}
 
-
     @jobs.reports_errors
     def execute(self, context):
         _, node = bake.find_node(context, self.material, self.node)
@@ -83,7 +82,6 @@ class TEGUMENT_OT_warp_attach(NodeArguments, bpy.types.Operator):
     bl_idname = "tegument.warp_attach"
     bl_label = "Load Baked"
     bl_options = {"REGISTER", "UNDO"}
-
 
     @jobs.reports_errors
     def execute(self, context):
