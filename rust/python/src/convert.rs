@@ -242,8 +242,49 @@ pub fn positions_arg(name: &str, obj: &Bound<'_, PyAny>, expected_count: Option<
 /// `(N, 3)` points, values not checked (for pure transforms, which
 /// carry a non-finite value through for the caller to report in its terms).
 pub fn points_arg(name: &str, obj: &Bound<'_, PyAny>, expected_count: Option<usize>) -> PyResult<Vec<Vec3>> {
+    let mut points = Vec::new();
+    points_into(name, obj, expected_count, &mut points)?;
+    Ok(points)
+}
+
+/// [`points_arg`] into `points`, whose allocation is reused. A bake reads
+/// millions of positions every frame, and a fresh buffer of that size costs
+/// more in page faults than copying into it.
+pub fn points_into(name: &str, obj: &Bound<'_, PyAny>, expected_count: Option<usize>, points: &mut Vec<Vec3>) -> PyResult<()> {
+    points.clear();
+    if let Ok(typed) = obj.cast::<PyArray2<f32>>() {
+        let shape = typed.shape();
+        let shape_ok = shape[1] == 3 && expected_count.is_none_or(|n| n == shape[0]);
+        if shape_ok && typed.is_c_contiguous() {
+            let readonly = typed
+                .try_readonly()
+                .map_err(|e| TegumentError::new_err(format!("{name}: the array is being written elsewhere ({e})")))?;
+            let flat = readonly.as_slice().map_err(|e| TegumentError::new_err(format!("{name}: {e}")))?;
+            points.extend_from_slice(bytemuck::cast_slice(flat));
+            return Ok(());
+        }
+    }
+    // Any other dtype or layout: one converting pass (the messages are array_values').
     let (_, flat) = array_values::<f32>(name, obj, &[expected_count, Some(3)])?;
-    Ok(flat.chunks_exact(3).map(|c| Vec3::new(c[0], c[1], c[2])).collect())
+    points.extend_from_slice(bytemuck::cast_slice(&flat));
+    Ok(())
+}
+
+/// `out`, an optional float32 `(N, 3)` array a result is written into
+/// instead of a new one (a bake reuses one per frame): C-contiguous and
+/// writable, or refused naming what it is.
+pub fn out_arg<'py>(out: &Bound<'py, PyAny>, count: usize) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    let fail = || {
+        TegumentError::new_err(format!(
+            "out: expected a writable C-contiguous float32 array of shape ({count}, 3); got {}",
+            describe(out)
+        ))
+    };
+    let array = out.cast::<PyArray2<f32>>().map_err(|_| fail())?;
+    if array.shape() != [count, 3] || !array.is_c_contiguous() || array.try_readwrite().is_err() {
+        return Err(fail());
+    }
+    Ok(array.clone())
 }
 
 /// A `(4, 4)` matrix in row-major order (what `numpy.array` makes of a
@@ -303,10 +344,17 @@ pub fn deprecated(py: Python<'_>, message: &str) -> PyResult<()> {
 
 /// `(N, 3)` float32 array from vectors.
 pub fn positions_to_py<'py>(py: Python<'py>, positions: &[Vec3]) -> Bound<'py, PyArray2<f32>> {
-    let flat: Vec<f32> = bytemuck::cast_slice::<Vec3, f32>(positions).to_vec();
-    Array2::from_shape_vec((positions.len(), 3), flat)
-        .expect("length is 3 × count by construction")
-        .into_pyarray(py)
+    let array = PyArray2::<f32>::zeros(py, [positions.len(), 3], false);
+    copy_positions_to(&array, positions);
+    array
+}
+
+/// Copies `positions` into `array`, a C-contiguous float32 `(N, 3)` array
+/// this module made or [`out_arg`] checked.
+pub fn copy_positions_to(array: &Bound<'_, PyArray2<f32>>, positions: &[Vec3]) {
+    let mut writable = array.readwrite();
+    let flat = writable.as_slice_mut().expect("C-contiguous, checked by the caller");
+    flat.copy_from_slice(bytemuck::cast_slice(positions));
 }
 
 /// `(N, K)` int32 array from fixed-size rows.

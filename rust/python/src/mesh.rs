@@ -4,7 +4,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use tegument_core::mesh::{MeshInput, Topology};
 
-use crate::convert::{indices_to_py, int_array_arg, matrix_arg, points_arg, positions_arg, property_array, rows_to_py, run_detached, TegumentError};
+use crate::convert::{indices_to_py, int_array_arg, matrix_arg, out_arg, points_arg, positions_arg, property_array, rows_to_py, run_detached, TegumentError};
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
 
 /// The topology of a polygon mesh given in Blender's layout.
@@ -110,7 +110,8 @@ impl Mesh {
 }
 
 /// Applies an object matrix to points: float32 ``(N, 3)`` in, a new float32
-/// ``(N, 3)`` array out, ``matrix @ (x, y, z, 1)`` for every point.
+/// ``(N, 3)`` array out (or ``out``, as in :meth:`PyramidDeformer.solve`),
+/// ``matrix @ (x, y, z, 1)`` for every point.
 ///
 /// ``matrix`` is float64 ``(4, 4)`` in row-major order, as
 /// ``numpy.array(obj.matrix_world)`` gives it; its affine part (the first
@@ -119,13 +120,22 @@ impl Mesh {
 /// without the GIL; several times faster than ``points @ matrix[:3, :3].T``
 /// in numpy for a 100k-vertex mesh.
 #[pyfunction]
-fn transform_points<'py>(py: Python<'py>, points: &Bound<'py, PyAny>, matrix: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+#[pyo3(signature = (points, matrix, *, out = None))]
+fn transform_points<'py>(
+    py: Python<'py>,
+    points: &Bound<'py, PyAny>,
+    matrix: &Bound<'py, PyAny>,
+    out: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, PyArray2<f32>>> {
     let points = points_arg("points", points, None)?;
     let matrix = matrix_arg("matrix", matrix)?;
-    let output = PyArray2::<f32>::zeros(py, [points.len(), 3], false);
+    let output = match out {
+        Some(out) => out_arg(out, points.len())?,
+        None => PyArray2::<f32>::zeros(py, [points.len(), 3], false),
+    };
     {
         let mut writable = output.readwrite();
-        let out: &mut [glam::Vec3] = bytemuck::cast_slice_mut(writable.as_slice_mut().expect("a new C-contiguous array"));
+        let out: &mut [glam::Vec3] = bytemuck::cast_slice_mut(writable.as_slice_mut().expect("C-contiguous: made here or checked"));
         run_detached(py, move || {
             tegument_core::mesh::transform_points(&matrix, &points, out);
             Ok(())

@@ -17,7 +17,11 @@ use tegument_core::strain::MaxStretch;
 
 use crate::collide::collider_refs;
 
-use crate::convert::{float_array_arg, indices_to_py, int_array_arg, positions_arg, positions_to_py, run_detached, TegumentError};
+use crate::convert::{
+    copy_positions_to, float_array_arg, indices_to_py, int_array_arg, out_arg, points_into, positions_arg, positions_to_py,
+    py_result, run_detached, TegumentError,
+};
+use tegument_core::mesh::validate_positions;
 
 /// Pyramid-coordinate deformer: keeps the local shape of the rest mesh on top
 /// of whatever deformation the input positions carry (armature, shape keys).
@@ -38,11 +42,14 @@ pub struct PyramidDeformer {
     inner: Mutex<Core>,
     vertex_count: usize,
     last_step: Mutex<Option<StepReport>>,
+    /// The last frame's input, kept for its allocation: see [`points_into`].
+    input: Mutex<Vec<glam::Vec3>>,
 }
 
 impl PyramidDeformer {
-    /// The arguments every frame takes: the input positions, the iteration
-    /// count and the closeness, checked against this deformer.
+    /// The arguments every frame takes: the input positions (read into the
+    /// buffer the last frame used; give it back with [`Self::keep_input`]), the
+    /// iteration count and the closeness, checked against this deformer.
     fn frame_args(
         &self,
         positions: &Bound<'_, PyAny>,
@@ -50,11 +57,25 @@ impl PyramidDeformer {
         closeness: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<(Vec<glam::Vec3>, usize, Weights)> {
         let n = self.vertex_count;
-        let input = positions_arg("positions", positions, Some(n))?;
+        let mut input = std::mem::take(&mut *self.input.lock().unwrap_or_else(|e| e.into_inner()));
+        points_into("positions", positions, Some(n), &mut input)?;
+        py_result(validate_positions("positions", &input))?;
         if iterations < 0 {
             return Err(TegumentError::new_err(format!("iterations is {iterations}; it must be 0 or more")));
         }
         Ok((input, iterations as usize, closeness_arg(closeness, n)?))
+    }
+
+    fn keep_input(&self, input: Vec<glam::Vec3>) {
+        *self.input.lock().unwrap_or_else(|e| e.into_inner()) = input;
+    }
+
+    /// `out` checked, or a new array.
+    fn output_array<'py>(&self, py: Python<'py>, out: Option<&Bound<'py, PyAny>>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        match out {
+            Some(out) => out_arg(out, self.vertex_count),
+            None => Ok(PyArray2::<f32>::zeros(py, [self.vertex_count, 3], false)),
+        }
     }
 
     fn with<T: Send>(&self, py: Python<'_>, work: impl FnOnce(&mut Core) -> tegument_core::Result<T> + Send) -> PyResult<T> {
@@ -88,7 +109,12 @@ impl PyramidDeformer {
                 DeformerOptions { scale_safe, ..DeformerOptions::default() },
             )
         })?;
-        Ok(PyramidDeformer { vertex_count: core.vertex_count(), inner: Mutex::new(core), last_step: Mutex::new(None) })
+        Ok(PyramidDeformer {
+            vertex_count: core.vertex_count(),
+            inner: Mutex::new(core),
+            last_step: Mutex::new(None),
+            input: Mutex::new(Vec::new()),
+        })
     }
 
     /// Number of vertices of the bound mesh.
@@ -137,7 +163,9 @@ impl PyramidDeformer {
         Ok(dict)
     }
 
-    /// Solves one frame and returns float32 ``(N, 3)`` positions.
+    /// Solves one frame and returns float32 ``(N, 3)`` positions: ``out`` if
+    /// given (a float32 ``(N, 3)`` C-contiguous array, reused frame after
+    /// frame to spare a large allocation), else a new array.
     ///
     /// ``positions`` is the deformed input, float32 ``(N, 3)``. ``closeness``
     /// pulls each vertex towards its input: ``None`` (the default weight,
@@ -145,25 +173,28 @@ impl PyramidDeformer {
     /// ``[0, 1]``, or a float32 ``(N,)`` array of per-vertex
     /// weights in ``[0, 1]`` (1 = follow the input exactly, 0 = keep only the
     /// local shape). Deterministic whatever the thread count.
-    #[pyo3(signature = (positions, iterations = StepOptions::default().iterations as i64, closeness = None))]
+    #[pyo3(signature = (positions, iterations = StepOptions::default().iterations as i64, closeness = None, *, out = None))]
     fn solve<'py>(
         &self,
         py: Python<'py>,
         positions: &Bound<'py, PyAny>,
         iterations: i64,
         closeness: Option<&Bound<'py, PyAny>>,
+        out: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let (input, iterations, weights) = self.frame_args(positions, iterations, closeness)?;
+        let output = self.output_array(py, out)?;
         // The solve starts from the input and runs in the returned array itself:
         // no result vector to copy out at 100k+ vertices per frame.
-        let output = PyArray2::<f32>::zeros(py, [input.len(), 3], false);
         {
             let mut writable = output.readwrite();
-            let flat = writable.as_slice_mut().expect("a new C-contiguous array");
+            let flat = writable.as_slice_mut().expect("C-contiguous: made here or checked by out_arg");
             let out: &mut [glam::Vec3] = bytemuck::cast_slice_mut(flat);
             out.copy_from_slice(&input);
-            self.with(py, move |core| core.solve_into(&input, out, iterations, weights.as_closeness(), None))?;
+            let input = &input;
+            self.with(py, move |core| core.solve_into(input, out, iterations, weights.as_closeness(), None))?;
         }
+        self.keep_input(input);
         Ok(output)
     }
 
@@ -193,7 +224,8 @@ impl PyramidDeformer {
     /// after the collision passes; can leave penetrations). Colliders with
     /// compliance (:meth:`Collider.set_compliance`) are solved too: their
     /// :attr:`Collider.positions` become where they receded.
-    #[pyo3(signature = (positions, colliders = None, iterations = StepOptions::default().iterations as i64, closeness = None, substeps = StepOptions::default().substeps as i64, dynamics = None, max_stretch = None, strain_mode = StrainMode::default().name()))]
+    /// ``out`` as in :meth:`solve`.
+    #[pyo3(signature = (positions, colliders = None, iterations = StepOptions::default().iterations as i64, closeness = None, substeps = StepOptions::default().substeps as i64, dynamics = None, max_stretch = None, strain_mode = StrainMode::default().name(), *, out = None))]
     #[allow(clippy::too_many_arguments)]
     fn step<'py>(
         &self,
@@ -206,8 +238,10 @@ impl PyramidDeformer {
         dynamics: Option<PyRef<'py, Dynamics>>,
         max_stretch: Option<&Bound<'py, PyAny>>,
         strain_mode: &str,
+        out: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let (input, iterations, weights) = self.frame_args(positions, iterations, closeness)?;
+        let output = self.output_array(py, out)?;
         if substeps < 1 {
             return Err(TegumentError::new_err(format!("substeps is {substeps}; it must be between 1 and {}", tegument_core::sequence::MAX_SUBSTEPS)));
         }
@@ -229,7 +263,8 @@ impl PyramidDeformer {
                 return Err(TegumentError::new_err(format!("colliders: item {i} is the same Collider as an earlier one; pass each collider once")));
             }
         }
-        let (output, report) = self.with(py, move |core| {
+        let input_ref = &input;
+        let (solved, report) = self.with(py, move |core| {
             // Write locks: compliant colliders are solved by the step.
             let mut guards: Vec<_> = holders.iter().map(|c| c.write()).collect();
             let mut cols: Vec<&mut CoreCollider> = guards.iter_mut().map(|g| &mut **g).collect();
@@ -239,10 +274,12 @@ impl PyramidDeformer {
                 strain: stretch.as_ref().map(|s| StrainOptions { max_stretch: s.as_max_stretch(), mode }),
                 ..StepOptions::new(iterations, weights.as_closeness())
             };
-            core.step(&input, &mut cols, &options)
+            core.step(input_ref, &mut cols, &options)
         })?;
+        self.keep_input(input);
         *self.last_step.lock().unwrap_or_else(|e| e.into_inner()) = Some(report);
-        Ok(positions_to_py(py, &output))
+        copy_positions_to(&output, &solved);
+        Ok(output)
     }
 
     /// Velocities at the end of the last dynamic :meth:`step`, float32

@@ -107,3 +107,65 @@ def test_float64_overflow_to_float32_is_reported_as_not_finite():
     far[2, 0] = 1e300
     with pytest.raises(tegument.TegumentError, match="finite"):
         tegument.Mesh(far, corners, sizes)
+
+
+# `out=`: a bake hands the same arrays back every frame instead of getting new ones.
+
+def _bent_grid():
+    positions, corners, sizes = grid_arrays(6, 6)
+    bent = positions.copy()
+    bent[:, 2] = 0.2 * bent[:, 0] ** 2
+    return tegument.PyramidDeformer(positions, corners, sizes), bent
+
+
+def test_solve_and_step_write_into_out_and_return_it():
+    deformer, bent = _bent_grid()
+    expected = deformer.solve(bent, iterations=3)
+    out = np.full_like(bent, np.nan)
+    returned = deformer.solve(bent, iterations=3, out=out)
+    assert returned is out
+    np.testing.assert_array_equal(out, expected)
+    # The input array itself as out: read first, then overwritten with the result.
+    same = bent.copy()
+    assert deformer.solve(same, iterations=3, out=same) is same
+    np.testing.assert_array_equal(same, expected)
+    # Frame after frame into one array, each frame's own result (nothing kept from the last).
+    for scale in (1.0, 0.5, 0.0):
+        frame = bent.copy()
+        frame[:, 2] *= scale
+        np.testing.assert_array_equal(deformer.solve(frame, iterations=3, out=out), deformer.solve(frame, iterations=3))
+    stepped = deformer.step(bent, iterations=3)
+    deformer.reset()
+    out = np.zeros_like(bent)
+    assert deformer.step(bent, iterations=3, out=out) is out
+    np.testing.assert_array_equal(out, stepped)
+
+
+def test_transform_points_writes_into_out():
+    points = np.arange(12, dtype=np.float32).reshape(4, 3)
+    matrix = np.diag([2.0, 2.0, 2.0, 1.0])
+    out = np.empty_like(points)
+    assert tegument.transform_points(points, matrix, out=out) is out
+    np.testing.assert_array_equal(out, 2 * points)
+
+
+@pytest.mark.parametrize("bad, what", [
+    (np.zeros((49, 3), np.float64), "float64 (49, 3)"),
+    (np.zeros((48, 3), np.float32), "float32 (48, 3)"),
+    (np.zeros((3, 49), np.float32).T, "not C-contiguous"),
+    ([[0.0, 0.0, 0.0]] * 49, "a list"),
+])
+def test_a_wrong_out_is_refused_naming_what_it_is(bad, what):
+    deformer, bent = _bent_grid()
+    with pytest.raises(tegument.TegumentError, match=r"out: expected a writable C-contiguous float32 array of shape \(49, 3\); got .*") as caught:
+        deformer.solve(bent, iterations=1, out=bad)
+    assert what in str(caught.value)
+
+
+def test_a_read_only_out_is_refused_and_left_alone():
+    deformer, bent = _bent_grid()
+    out = np.zeros_like(bent)
+    out.flags.writeable = False
+    with pytest.raises(tegument.TegumentError, match="out: expected a writable"):
+        deformer.solve(bent, iterations=1, out=out)
+    assert not out.any()

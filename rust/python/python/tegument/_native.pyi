@@ -224,8 +224,10 @@ class PyramidDeformer:
         distance of each encoded vertex from where its one-ring puts it,
         relative to the mean rest edge length. 0 at rest and under rigid motion.
         """
-    def solve(self, positions: Floats, iterations: int = ..., closeness: float | Floats | None = None) -> Float32:
-        """Solves one frame and returns float32 ``(N, 3)`` positions.
+    def solve(self, positions: Floats, iterations: int = ..., closeness: float | Floats | None = None, *, out: Float32 | None = None) -> Float32:
+        """Solves one frame and returns float32 ``(N, 3)`` positions: ``out`` if
+        given (a float32 ``(N, 3)`` C-contiguous array, reused frame after
+        frame to spare a large allocation), else a new array.
 
         ``positions`` is the deformed input, float32 ``(N, 3)``. ``closeness``
         pulls each vertex towards its input: ``None`` (the default weight,
@@ -234,7 +236,7 @@ class PyramidDeformer:
         weights in ``[0, 1]`` (1 = follow the input exactly, 0 = keep only the
         local shape). Deterministic whatever the thread count.
         """
-    def step(self, positions: Floats, colliders: Sequence[Collider] | None = None, iterations: int = ..., closeness: float | Floats | None = None, substeps: int = ..., dynamics: Dynamics | None = None, max_stretch: float | Floats | None = None, strain_mode: Literal["unified", "post"] = ...) -> Float32:
+    def step(self, positions: Floats, colliders: Sequence[Collider] | None = None, iterations: int = ..., closeness: float | Floats | None = None, substeps: int = ..., dynamics: Dynamics | None = None, max_stretch: float | Floats | None = None, strain_mode: Literal["unified", "post"] = ..., *, out: Float32 | None = None) -> Float32:
         """Solves the next frame of an animation against ``colliders`` and
         returns float32 ``(N, 3)`` positions.
 
@@ -261,6 +263,7 @@ class PyramidDeformer:
         after the collision passes; can leave penetrations). Colliders with
         compliance (:meth:`Collider.set_compliance`) are solved too: their
         :attr:`Collider.positions` become where they receded.
+        ``out`` as in :meth:`solve`.
         """
     @property
     def velocity(self) -> Float32 | None:
@@ -412,9 +415,10 @@ def stretch_map(rest_positions: Floats, deformed_positions: Floats, corner_verts
     (:meth:`UvWarp.displacement`) and sets the grid size. Releases the GIL.
     """
 
-def transform_points(points: Floats, matrix: Floats) -> Float32:
+def transform_points(points: Floats, matrix: Floats, *, out: Float32 | None = None) -> Float32:
     """Applies an object matrix to points: float32 ``(N, 3)`` in, a new float32
-    ``(N, 3)`` array out, ``matrix @ (x, y, z, 1)`` for every point.
+    ``(N, 3)`` array out (or ``out``, as in :meth:`PyramidDeformer.solve`),
+    ``matrix @ (x, y, z, 1)`` for every point.
 
     ``matrix`` is float64 ``(4, 4)`` in row-major order, as
     ``numpy.array(obj.matrix_world)`` gives it; its affine part (the first
