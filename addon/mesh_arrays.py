@@ -11,9 +11,12 @@ import numpy as np
 # `vertices.foreach_get("co")` goes element by element (0.2 ms against 27 ms
 # for 100k vertices in Blender 5.0), which matters once per frame.
 
-def positions(mesh: bpy.types.Mesh) -> np.ndarray:
-    """Vertex positions, float32 ``(N, 3)``, in object space."""
-    out = np.empty((len(mesh.vertices), 3), dtype=np.float32)
+def positions(mesh: bpy.types.Mesh, out: np.ndarray | None = None) -> np.ndarray:
+    """Vertex positions, float32 ``(N, 3)``, in object space; into ``out`` when
+    it has the mesh's size (a bake reuses one array: see ``FrameBuffers``)."""
+    count = len(mesh.vertices)
+    if out is None or out.shape != (count, 3):
+        out = np.empty((count, 3), dtype=np.float32)
     attribute = mesh.attributes.get("position")
     if attribute is not None and attribute.data_type == "FLOAT_VECTOR":
         attribute.data.foreach_get("vector", out.ravel())

@@ -79,6 +79,7 @@ class BakeJob:
             raise DeformError(f"{obj.name} is already being baked: wait for that bake to finish, or cancel it (Esc)")
         self.deformer, self.rest, self.corners, self.sizes = build_deformer(obj)
         self.closeness = evaluate.closeness_weights(obj)
+        self.buffers = evaluate.FrameBuffers(len(self.rest))
         self.path = evaluate.cache_file(obj)
         self.start_frame = self.settings.frame_start
         self.frame_before = self.scene.frame_current
@@ -192,7 +193,7 @@ class BakeJob:
         frame = self.frames[self.done]
         clock = PhaseClock()
         solved, self._world = solve_frame(self.scene, self.obj, frame, self.deformer, self.closeness, self.rig, self.options,
-                                          clock=clock)
+                                          clock=clock, buffers=self.buffers)
         self.writer.append(solved)
         for k, writer in self.collider_writers.items():
             writer.append(self.rig.solved_local(k))
@@ -330,13 +331,14 @@ class PhaseClock:
         return self._last - self._started
 
 
-def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=None, clock: PhaseClock | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
+def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=None, clock: PhaseClock | None = None,
+                buffers: evaluate.FrameBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(object space, world space)`` result of one frame; the caller hides Tegument's modifier.
 
     With colliders (``rig``), dynamics, substeps or strain limits (``options``,
     from :func:`evaluate.step_options`) the frame is a history-based step from
-    the deformer's last output; otherwise a plain solve from the input.
+    the deformer's last output; otherwise a plain solve from the input. With
+    ``buffers`` the arrays are the job's own, valid until its next frame.
     """
     options = options or {}
     history = bool(rig) or bool(options)
@@ -346,32 +348,35 @@ def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=N
     scene.frame_set(frame)
     depsgraph = bpy.context.evaluated_depsgraph_get()
     clock.mark("evaluate")
-    local, world = evaluate.evaluated_positions(obj, depsgraph)
+    local, world = evaluate.evaluated_positions(obj, depsgraph, buffers)
     if len(local) != deformer.vertex_count:
         raise DeformError(
             f"{obj.name}: at frame {frame} the modifier stack above Tegument gives {len(local)} vertices, "
             f"but the bind has {deformer.vertex_count}: the topology above Tegument changed since the bind "
             "(rebind, or move the modifier that changes it below Tegument)"
         )
-    vertex = mesh_arrays.first_non_finite(world)
-    if vertex is not None:
-        raise DeformError(f"{obj.name}: at frame {frame} the input position of vertex {vertex} is not finite")
     matrix = obj.evaluated_get(depsgraph).matrix_world
     iterations = obj.tegument.iterations
     if rig:
         rig.update(depsgraph, frame)
         clock.mark("colliders")
     clock.mark("read")
+    count = deformer.vertex_count
+    out = buffers.get("solved", count) if buffers else None
     try:
         if history:
             colliders_now = rig.colliders if rig else None
-            solved = deformer.step(world, colliders_now, iterations=iterations, closeness=closeness, **options)
+            solved = deformer.step(world, colliders_now, iterations=iterations, closeness=closeness, out=out, **options)
         else:
-            solved = deformer.solve(world, iterations=iterations, closeness=closeness)
+            solved = deformer.solve(world, iterations=iterations, closeness=closeness, out=out)
     except tegument.TegumentError as error:
+        # The wheel refuses non-finite input too; the search for the culprit costs a pass, so only here.
+        vertex = mesh_arrays.first_non_finite(world)
+        if vertex is not None:
+            raise DeformError(f"{obj.name}: at frame {frame} the input position of vertex {vertex} is not finite") from None
         raise DeformError(f"{obj.name}, frame {frame}: {error}") from None
     clock.mark("solve")
-    return evaluate.to_local(solved, matrix), solved
+    return evaluate.to_local(solved, matrix, buffers.get("solved_local", count) if buffers else None), solved
 
 
 def bake_blocking(context, obj, frames: range, *, report=print, keep_existing: bool = False) -> tuple[int, bool]:
