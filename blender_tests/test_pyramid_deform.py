@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import errno
 import math
+import os
 import pathlib
 import signal
 
@@ -301,6 +303,53 @@ def test_cache_writer_refuses_nan_and_leaves_nothing_behind(tmp_path):
     target.write_bytes(before[:-5])
     with pytest.raises(pc2.CacheError, match="truncated"):
         pc2.read(target)
+
+
+def test_cache_writer_writes_each_frame_as_appended_while_the_caller_reuses_its_array(tmp_path, monkeypatch):
+    """Frames are written in the background: the caller's array is free again as soon as
+    append returns, and a write that fails is raised by the next call, the old cache kept."""
+    from bl_ext.user_default.tegument import pc2
+
+    target = tmp_path / "cache.pc2"
+    buffer = np.empty((1000, 3), np.float32)
+    writer = pc2.Writer(target, 1000, start=1, expected_frames=5)
+    for k in range(5):
+        buffer[:] = k  # the bake's reused output array, overwritten frame after frame
+        writer.append(buffer)
+        buffer[:] = -1
+    writer.commit()
+    frames, _, _ = pc2.read(target)
+    assert [float(f.min()) for f in frames] == [0, 1, 2, 3, 4] and [float(f.max()) for f in frames] == [0, 1, 2, 3, 4]
+    before = target.read_bytes()
+
+    real_fdopen = pc2.os.fdopen
+
+    class DiskFullAfterTheHeader:
+        def __init__(self, handle, mode):
+            self.file, self.written = real_fdopen(handle, mode), 0
+
+        def write(self, data):
+            self.written += 1
+            if self.written > 1:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            return self.file.write(data)
+
+        def __getattr__(self, name):
+            return getattr(self.file, name)
+
+    monkeypatch.setattr(pc2.os, "fdopen", DiskFullAfterTheHeader)
+    writer = pc2.Writer(target, 1000, start=1)
+    writer.append(buffer)  # the write fails in the background...
+    with pytest.raises(pc2.CacheError, match="cannot write the cache .*No space left on device"):
+        writer.append(buffer)  # ...and the next call says so
+    assert target.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["cache.pc2"]
+    writer = pc2.Writer(target, 1000, start=1)
+    writer.append(buffer)
+    with pytest.raises(pc2.CacheError, match="No space left on device"):
+        writer.commit()
+    assert target.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["cache.pc2"]
 
 
 def test_unwritable_cache_path_is_a_clear_error(limb, tmp_path):
