@@ -203,3 +203,32 @@ def test_an_open_collider_collides_and_is_reported_as_open(tmp_path):
     # The board carried the skin up with it instead of passing through.
     middle = cache[1][np.argmin(np.linalg.norm(cache[1][:, :2], axis=1))]
     assert middle[2] > 0.3
+
+
+@pytest.mark.parametrize("friction", [0.0, 0.3, 1.0])
+def test_a_collider_that_jumps_inside_a_closed_skin_and_rests_keeps_its_pocket(tmp_path, friction):
+    """Issue 29, "pinched means pinched": a sphere jumps within one frame from outside a closed
+    skin to inside it and rests there for 20 frames. The skin wraps a pocket around it in the
+    frame of the jump and keeps it: a contact that held keeps holding while nothing moves it
+    (before, the skin slipped through the resting sphere four frames later, with 5 vertices
+    reported pinched though nothing pinched them)."""
+    outside, inside = (1.8, 0.0, 0.0), (0.45, 0.0, 0.0)
+    centres = [outside] * 2 + [inside] * 21
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=5, radius=1.0)
+    skin = bpy.context.object
+    skin.name = "Closed"
+    assert len(skin.data.vertices) == 2562
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = 1, len(centres)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "pocket.blend"))
+    sphere = add_sphere("Resting", centres, radius=0.35, thickness=0.005, friction=friction)
+    cache = bake(skin, len(centres), closeness=0.05)
+    assert_clean(skin, cache, [sphere], [(centres, 0.35)])
+    # The pocket itself: the sphere's centre lies inside the skin's rest shape, so while the
+    # skin wraps it, it is outside the skin's volume (winding number 0); a skin that slipped
+    # through the sphere, even within one frame, would hold it inside (1).
+    corners, sizes = skin_topology(skin)
+    triangles = penetration.fan_triangles(corners, sizes)
+    winding = [penetration.winding_numbers(np.array([inside]), frame.astype(np.float64), triangles)[0] for frame in cache]
+    assert np.allclose(winding[:2], 1.0, atol=1e-6), f"before the jump the skin is at rest and encloses it: {winding[:2]}"
+    assert np.allclose(winding[2:], 0.0, atol=1e-6), f"winding number of the resting sphere's centre by frame: {winding}"

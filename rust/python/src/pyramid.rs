@@ -317,7 +317,9 @@ impl PyramidDeformer {
     /// ``compliant_contacts`` (contacts that stopped compliant collider
     /// vertices), ``compliant_skin_vertices`` (skin vertices giving way to
     /// compliant colliders) and ``max_recession`` (largest distance of a
-    /// compliant collider vertex from its animated position).
+    /// compliant collider vertex from its animated position) and ``held``
+    /// (times a pass put a vertex it could not clear of colliders standing
+    /// still back where the pass started: a contact that holds, not a pinch).
     #[getter]
     fn last_step<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
         let guard = self.last_step.lock().unwrap_or_else(|e| e.into_inner());
@@ -334,6 +336,7 @@ impl PyramidDeformer {
         dict.set_item("compliant_contacts", report.compliant_contacts)?;
         dict.set_item("compliant_skin_vertices", report.compliant_skin_vertices)?;
         dict.set_item("max_recession", report.max_recession)?;
+        dict.set_item("held", report.held)?;
         Ok(Some(crate::convert::report(py, "StepReport", &dict)?))
     }
 

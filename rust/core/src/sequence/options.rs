@@ -84,6 +84,10 @@ pub struct StepReport {
     /// Largest distance of a compliant collider vertex from its animated
     /// position at the end of the step: how far the colliders receded.
     pub max_recession: f32,
+    /// Times a pass put a vertex it could not clear of colliders standing
+    /// still back where the pass started (over all passes and iterations):
+    /// contacts that held instead of pinching.
+    pub held: usize,
 }
 
 /// Adds a substep's first-pass figures to the frame's.
@@ -100,4 +104,7 @@ pub(super) fn accumulate(total: &mut ContactStats, part: &ContactStats) {
     total.pinched.extend_from_slice(&part.pinched);
     total.pinched.sort_unstable();
     total.pinched.dedup();
+    total.held.extend_from_slice(&part.held);
+    total.held.sort_unstable();
+    total.held.dedup();
 }

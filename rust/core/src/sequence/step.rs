@@ -199,6 +199,7 @@ impl Sequence {
             let carried = self.carried_planes.take().filter(|k| k.fits(colliders)).map(|k| k.planes);
             let first = ColliderSet::new(refs).resolve_path_carrying(x_n, &mut x, &self.skin, &ResolveParams::first_pass(), carried.as_ref())?;
             accumulate(&mut report.first_pass, &first);
+            report.held += first.held.len();
             suspects.extend_from_slice(&first.pinched);
             for &c in &compliant {
                 colliders[c].hold()?;
@@ -233,6 +234,7 @@ impl Sequence {
                 let stats = ColliderSet::new(refs).resolve_path_with(before, after, skin, &ResolveParams::in_loop(), clearance.as_ref())?;
                 report.in_loop_contacts += stats.vertex_contacts + stats.edge_contacts + stats.collider_vertex_contacts;
                 report.max_in_loop_correction = report.max_in_loop_correction.max(stats.max_correction);
+                report.held += stats.held.len();
                 suspects.extend_from_slice(&stats.pinched);
                 last_pinched = stats.pinched;
             }

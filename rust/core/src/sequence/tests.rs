@@ -355,3 +355,36 @@ mod carried_planes {
         assert!(!carried.fits(&[&mut half]), "other triangles at the same positions");
     }
 }
+
+/// Issue 29, "pinched means pinched": a ball that jumps into a closed skin
+/// within one frame and rests there. The skin wraps a pocket around it and
+/// keeps it: where the in-loop rounds cannot clear a vertex of the resting
+/// ball, it goes back to where the pass started (clear of it) instead of
+/// being left pinched, soft, to slip through.
+mod resting_pocket {
+    use super::*;
+
+    #[test]
+    fn a_ball_resting_inside_a_closed_skin_keeps_its_pocket_and_pinches_nothing() {
+        let skin = quad_sphere(24, 1.0);
+        let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let (ball, tris) = sphere(0.35);
+        let at = |x: f32| moved(&ball.positions, Vec3::new(x, 0.0, 0.0));
+        let mut collider = Collider::new(&at(1.8), &tris, ColliderSettings::new(0.005, 0.3)).unwrap();
+        let options = StepOptions::new(10, Closeness::Uniform(0.05));
+        let mut held = 0;
+        for frame in 0..24 {
+            collider.update(&at(if frame < 2 { 1.8 } else { 0.45 })).unwrap();
+            let (x, report) = deformer.step(&skin.positions, &mut [&mut collider], &options).unwrap();
+            assert_eq!(report.pinched, Vec::<u32>::new(), "frame {frame}: nothing pinches the skin");
+            assert_eq!(penetrations(&skin, &x, &[&collider]), (0, 0, 0), "frame {frame}");
+            if frame >= 2 {
+                // The ball's centre is inside the rest sphere: the skin keeps it out of its volume.
+                let nearest = x.iter().map(|p| p.length()).fold(f32::MAX, f32::min);
+                assert!(nearest < 0.45, "frame {frame}: no pocket (nearest vertex {nearest} from the centre)");
+            }
+            held += report.held;
+        }
+        assert!(held > 0, "the scene must exercise holding back (else it tests nothing new)");
+    }
+}

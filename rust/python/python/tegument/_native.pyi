@@ -194,7 +194,9 @@ class PyramidDeformer:
         ``compliant_contacts`` (contacts that stopped compliant collider
         vertices), ``compliant_skin_vertices`` (skin vertices giving way to
         compliant colliders) and ``max_recession`` (largest distance of a
-        compliant collider vertex from its animated position).
+        compliant collider vertex from its animated position) and ``held``
+        (times a pass put a vertex it could not clear of colliders standing
+        still back where the pass started: a contact that holds, not a pinch).
         """
     @property
     def pinned_reasons(self) -> dict[str, Int32]:

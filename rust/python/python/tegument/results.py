@@ -115,6 +115,9 @@ class StepReport(_Report):
     """Skin vertices giving way to compliant colliders."""
     max_recession: float
     """Largest distance of a compliant collider vertex from its animated position."""
+    held: int
+    """Times a pass put a vertex it could not clear of colliders standing still back where the
+    pass started (a contact that holds rather than a pinch), over all passes."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False, repr=False)

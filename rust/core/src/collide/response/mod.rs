@@ -135,6 +135,9 @@ pub struct ContactStats {
     pub moved: Vec<u32>,
     /// Vertices still in violation after the last round, ascending.
     pub pinched: Vec<u32>,
+    /// Vertices the rounds could not clear of colliders standing still, put
+    /// back at their (clear) start positions instead, ascending.
+    pub held: Vec<u32>,
     /// Detection rounds run.
     pub rounds: usize,
     /// Largest displacement applied to one vertex.

@@ -83,6 +83,69 @@ impl<'a> ColliderSet<'a> {
         (from_edges.len(), from_faces.len(), changes)
     }
 
+    /// True when no collider moves during a pass of `motion`: still in-loop
+    /// passes, and sweeps of colliders that stayed where they were.
+    fn stand_still(&self, motion: ColliderMotion) -> bool {
+        (0..self.colliders.len()).all(|c| match self.motion(c, motion) {
+            ColliderMotion::AtCurrent => true,
+            ColliderMotion::Swept => {
+                let col = self.colliders[c];
+                bytemuck::cast_slice::<Vec3, u32>(col.previous()) == bytemuck::cast_slice::<Vec3, u32>(col.current())
+            }
+        })
+    }
+
+    /// Puts `first` back at their start positions, then every vertex whose
+    /// step the reverted ones make collide again, until none does: the start
+    /// is clear of still colliders, so this ends with every vertex either on
+    /// a checked path or back where it started. Returns the vertices held.
+    #[allow(clippy::too_many_arguments)]
+    fn hold_back(
+        &self,
+        start: &[Vec3],
+        end: &mut [Vec3],
+        skin: &Skin,
+        params: &ResolveParams,
+        first: Vec<u32>,
+        active: &[u32],
+        planes: Option<(&LocalPlanes, &[Vec3])>,
+        lift: impl Fn(usize) -> Lift + Sync,
+    ) -> Vec<u32> {
+        let mut held = vec![false; start.len()];
+        let mut newly = first;
+        let mut all = Vec::new();
+        while !newly.is_empty() {
+            for &v in &newly {
+                held[v as usize] = true;
+                end[v as usize] = start[v as usize];
+            }
+            all.extend_from_slice(&newly);
+            // The elements around the vertices just held move differently now;
+            // the last round's vertices had their corrections applied unverified.
+            let (edges, triangles) = skin.touching(&newly, (&[], &[]));
+            let mut again: Vec<u32> = active
+                .par_iter()
+                .copied()
+                .filter(|&i| !held[i as usize])
+                .filter(|&i| {
+                    let (s, e) = (start[i as usize], end[i as usize]);
+                    match planes.map_or(VertexStep::Unknown, |(p, from)| p.vertex_step(i, from[i as usize], e, &lift)) {
+                        VertexStep::Clear => false,
+                        VertexStep::Lifted(_) => true,
+                        VertexStep::Unknown => self.vertex_correction(s, e, params).is_some(),
+                    }
+                })
+                .collect();
+            let (_, _, shared) = self.shared_corrections(start, end, skin, &edges, &triangles, params, planes);
+            again.extend(shared.iter().map(|(v, _)| *v).filter(|&v| !held[v as usize]));
+            again.sort_unstable();
+            again.dedup();
+            newly = again;
+        }
+        all.sort_unstable();
+        all
+    }
+
     pub(super) fn resolve(
         &self,
         start: &[Vec3],
@@ -258,6 +321,15 @@ impl<'a> ColliderSet<'a> {
             pinched.extend(shared.iter().map(|(v, _)| *v));
             pinched.sort_unstable();
             pinched.dedup();
+            if self.stand_still(params.motion) {
+                // Against colliders that stand still, the pass's start was clear of
+                // them (the step keeps it so): what the rounds cannot clear goes back
+                // there, so a contact that held keeps holding while nothing moves the
+                // colliders, and nothing is pinched that has room (issue 29).
+                let held = self.hold_back(start, end, skin, params, pinched, &active, planes, lift);
+                stats.held = held;
+                pinched = Vec::new();
+            }
             // Bound the displacement of pinched vertices: no farther from the
             // requested end than the step length plus twice the largest thickness.
             let max_thickness =
