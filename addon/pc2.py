@@ -21,6 +21,12 @@ import numpy as np
 HEADER = struct.Struct("<12siiffi")
 MAGIC = b"POINTCACHE2\0"
 
+# Frames from this size on (1.4M vertices) are written by a thread of their own. Below it the
+# write is a fraction of a millisecond, less than what handing it over costs: the thread needs
+# Python's lock back when the write returns, and the bake's thread can wait for it for
+# milliseconds (a 100k-vertex bake frame took 2.4 ms longer with every frame handed over).
+BACKGROUND_BYTES = 16 * 2**20
+
 
 class CacheError(ValueError):
     """A cache that cannot be read or written; the message names the file."""
@@ -64,12 +70,13 @@ class Writer:
     Until ``commit``, the existing cache is untouched; :meth:`abort` (or an
     exception inside a ``with`` block) removes the temporary file.
 
-    Each frame is written by a thread of its own while the caller goes on
-    to the next one: a frame of millions of vertices is tens of megabytes,
-    and once the kernel's dirty pages fill up, writing it waits on the disk
-    (125 ms per 5M-vertex frame on the benchmark host) where it could overlap
-    the next frame's solve. One write is in flight at a time; an error it
-    meets is raised by the next :meth:`append` or by :meth:`commit`.
+    A frame of millions of vertices (``BACKGROUND_BYTES`` and more) is
+    written by a thread of its own while the caller goes on to the next one:
+    it is tens of megabytes, and once the kernel's dirty pages fill up,
+    writing it waits on the disk (125 ms per 5M-vertex frame on the
+    benchmark host) where it could overlap the next frame's solve. One write
+    is in flight at a time; an error it meets is raised by the next
+    :meth:`append` or by :meth:`commit`.
     """
 
     def __init__(
@@ -144,6 +151,10 @@ class Writer:
             self.abort()
             raise CacheError(f"refusing to write {self.path}: vertex {bad[0][0]} of cache frame {self.frames} is not finite")
         self._wait_for_write()
+        if positions.nbytes < BACKGROUND_BYTES:
+            self._guard(self.file.write, memoryview(positions).cast("B"))  # no copy of the frame
+            self.frames += 1
+            return
         if self._staging is None:
             self._staging = np.empty_like(positions)
         np.copyto(self._staging, positions)

@@ -305,10 +305,14 @@ def test_cache_writer_refuses_nan_and_leaves_nothing_behind(tmp_path):
         pc2.read(target)
 
 
-def test_cache_writer_writes_each_frame_as_appended_while_the_caller_reuses_its_array(tmp_path, monkeypatch):
-    """Frames are written in the background: the caller's array is free again as soon as
+@pytest.mark.parametrize("background", [True, False], ids=["written by a thread", "written in place"])
+def test_cache_writer_writes_each_frame_as_appended_while_the_caller_reuses_its_array(tmp_path, monkeypatch, background):
+    """Large frames are written in the background: the caller's array is free again as soon as
     append returns, and a write that fails is raised by the next call, the old cache kept."""
     from bl_ext.user_default.tegument import pc2
+
+    # These frames are small: the threshold decides which path they take.
+    monkeypatch.setattr(pc2, "BACKGROUND_BYTES", 0 if background else 2**62)
 
     target = tmp_path / "cache.pc2"
     buffer = np.empty((1000, 3), np.float32)
@@ -339,14 +343,14 @@ def test_cache_writer_writes_each_frame_as_appended_while_the_caller_reuses_its_
 
     monkeypatch.setattr(pc2.os, "fdopen", DiskFullAfterTheHeader)
     writer = pc2.Writer(target, 1000, start=1)
-    writer.append(buffer)  # the write fails in the background...
     with pytest.raises(pc2.CacheError, match="cannot write the cache .*No space left on device"):
+        writer.append(buffer)  # in the background, the write fails after append returns...
         writer.append(buffer)  # ...and the next call says so
     assert target.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["cache.pc2"]
     writer = pc2.Writer(target, 1000, start=1)
-    writer.append(buffer)
     with pytest.raises(pc2.CacheError, match="No space left on device"):
+        writer.append(buffer)
         writer.commit()
     assert target.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["cache.pc2"]
