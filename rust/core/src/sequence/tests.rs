@@ -274,7 +274,7 @@ mod strain {
         last
     }
 
-    fn polygon_edges(skin: &PolyMesh) -> Vec<[u32; 2]> {
+    pub(super) fn polygon_edges(skin: &PolyMesh) -> Vec<[u32; 2]> {
         let offsets: Vec<u32> = (0..=skin.polygon_sizes.len() as u32).map(|k| 4 * k).collect();
         crate::mesh::polygon_edges(&skin.corner_verts, &offsets)
     }
@@ -304,6 +304,44 @@ mod strain {
         assert!(stretch <= (1.0 + EPS) * 1.01, "edge stretched to {stretch}");
         assert!(audit.0 + audit.1 + audit.2 > 0, "post-collision limiting left no penetration: {audit:?}");
     }
+}
+
+/// Issue 29: a strain-limited skin under a rough collider must slide
+/// rather than stretch. A 61 × 61 sheet held at its border (closeness 1), a
+/// friction-1 sphere pressed 0.15 into it and dragged 0.6 sideways, edges
+/// limited to 1.1 × their rest length (`UNIFIED`): every frame within
+/// `(1 + ε)·1.01` and without penetration.
+///
+/// Not met yet: the worst edge reaches 1.25 (0 penetrations). Static
+/// friction holds the skin under the sphere while the strain projection
+/// and the contact passes alternate; friction is not yet capped by what
+/// the limits allow (seed 002's constitutive strain limiting with contacts).
+#[test]
+#[ignore = "fails today: issue 29's strain limits under friction (see the doc comment)"]
+fn a_held_sheet_dragged_by_a_rough_sphere_slides_within_its_strain_limit() {
+    let skin = grid(60, 60, 2.0);
+    let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
+    let border: Vec<f32> = skin.positions.iter().map(|p| if p.x.abs() > 0.999 || p.y.abs() > 0.999 { 1.0 } else { 0.05 }).collect();
+    let (ball, tris) = sphere(0.3);
+    let path: Vec<Vec3> = (0..6)
+        .map(|k| Vec3::new(-0.3, 0.0, 0.5 - 0.07 * k as f32))
+        .chain((1..=12).map(|k| Vec3::new(-0.3 + 0.05 * k as f32, 0.0, 0.15)))
+        .collect();
+    let mut collider = Collider::new(&moved(&ball.positions, path[0]), &tris, ColliderSettings::new(0.01, 1.0)).unwrap();
+    const EPS: f32 = 0.1;
+    let options = StepOptions {
+        strain: Some(StrainOptions { max_stretch: MaxStretch::Uniform(EPS), mode: StrainMode::Unified }),
+        ..StepOptions::new(10, Closeness::PerVertex(&border))
+    };
+    let limits = crate::strain::EdgeLimits::new(&strain::polygon_edges(&skin), &skin.positions, MaxStretch::Uniform(0.0)).unwrap();
+    let mut worst = Vec::new();
+    for at in &path {
+        collider.update(&moved(&ball.positions, *at)).unwrap();
+        let (x, _) = deformer.step(&skin.positions, &mut [&mut collider], &options).unwrap();
+        assert_eq!(penetrations(&skin, &x, &[&collider]), (0, 0, 0));
+        worst.push(limits.worst_stretch(&x));
+    }
+    assert!(worst.iter().all(|&w| w <= (1.0 + EPS) * 1.01), "worst stretch per frame: {worst:?}");
 }
 
 mod carried_planes {
