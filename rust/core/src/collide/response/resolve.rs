@@ -95,6 +95,25 @@ impl<'a> ColliderSet<'a> {
         })
     }
 
+    /// Whether vertex `i`'s step from `start` to `end` still meets a collider:
+    /// the supporting planes decide where they can, the lookup otherwise.
+    fn step_collides(
+        &self,
+        i: u32,
+        start: &[Vec3],
+        end: &[Vec3],
+        params: &ResolveParams,
+        planes: Option<(&LocalPlanes, &[Vec3])>,
+        lift: impl Fn(usize) -> Lift,
+    ) -> bool {
+        let (s, e) = (start[i as usize], end[i as usize]);
+        match planes.map_or(VertexStep::Unknown, |(p, from)| p.vertex_step(i, from[i as usize], e, lift)) {
+            VertexStep::Clear => false,
+            VertexStep::Lifted(_) => true,
+            VertexStep::Unknown => self.vertex_correction(s, e, params).is_some(),
+        }
+    }
+
     /// Puts `first` back at their start positions, then every vertex whose
     /// step the reverted ones make collide again, until none does: the start
     /// is clear of still colliders, so this ends with every vertex either on
@@ -126,15 +145,7 @@ impl<'a> ColliderSet<'a> {
             let mut again: Vec<u32> = active
                 .par_iter()
                 .copied()
-                .filter(|&i| !held[i as usize])
-                .filter(|&i| {
-                    let (s, e) = (start[i as usize], end[i as usize]);
-                    match planes.map_or(VertexStep::Unknown, |(p, from)| p.vertex_step(i, from[i as usize], e, &lift)) {
-                        VertexStep::Clear => false,
-                        VertexStep::Lifted(_) => true,
-                        VertexStep::Unknown => self.vertex_correction(s, e, params).is_some(),
-                    }
-                })
+                .filter(|&i| !held[i as usize] && self.step_collides(i, start, end, params, planes, &lift))
                 .collect();
             let (_, _, shared) = self.shared_corrections(start, end, skin, &edges, &triangles, params, planes);
             again.extend(shared.iter().map(|(v, _)| *v).filter(|&v| !held[v as usize]));
@@ -308,14 +319,7 @@ impl<'a> ColliderSet<'a> {
             let mut pinched: Vec<u32> = active
                 .par_iter()
                 .copied()
-                .filter(|&i| {
-                    let (s, e) = (start[i as usize], end[i as usize]);
-                    match planes.map_or(VertexStep::Unknown, |(p, from)| p.vertex_step(i, from[i as usize], e, lift)) {
-                        VertexStep::Clear => false,
-                        VertexStep::Lifted(_) => true,
-                        VertexStep::Unknown => self.vertex_correction(s, e, params).is_some(),
-                    }
-                })
+                .filter(|&i| self.step_collides(i, start, end, params, planes, lift))
                 .collect();
             let (_, _, shared) = self.shared_corrections(start, end, skin, &active_edges, &active_triangles, params, planes);
             pinched.extend(shared.iter().map(|(v, _)| *v));
