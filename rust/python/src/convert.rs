@@ -287,6 +287,14 @@ pub fn out_arg<'py>(out: &Bound<'py, PyAny>, count: usize) -> PyResult<Bound<'py
     Ok(array.clone())
 }
 
+/// `out` checked by [`out_arg`], or a new float32 `(count, 3)` array.
+pub fn out_or_new<'py>(py: Python<'py>, out: Option<&Bound<'py, PyAny>>, count: usize) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    match out {
+        Some(out) => out_arg(out, count),
+        None => Ok(PyArray2::<f32>::zeros(py, [count, 3], false)),
+    }
+}
+
 /// A `(4, 4)` matrix in row-major order (what `numpy.array` makes of a
 /// Blender `Matrix`; float64, other floats converted), checked finite;
 /// returned as glam's column-major matrix.

@@ -4,7 +4,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use tegument_core::mesh::{MeshInput, Topology};
 
-use crate::convert::{indices_to_py, int_array_arg, matrix_arg, out_arg, points_arg, positions_arg, property_array, rows_to_py, run_detached, TegumentError};
+use crate::convert::{indices_to_py, int_array_arg, matrix_arg, out_or_new, points_arg, positions_arg, property_array, rows_to_py, run_detached, TegumentError};
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
 
 /// The topology of a polygon mesh given in Blender's layout.
@@ -129,10 +129,7 @@ fn transform_points<'py>(
 ) -> PyResult<Bound<'py, PyArray2<f32>>> {
     let points = points_arg("points", points, None)?;
     let matrix = matrix_arg("matrix", matrix)?;
-    let output = match out {
-        Some(out) => out_arg(out, points.len())?,
-        None => PyArray2::<f32>::zeros(py, [points.len(), 3], false),
-    };
+    let output = out_or_new(py, out, points.len())?;
     {
         let mut writable = output.readwrite();
         let out: &mut [glam::Vec3] = bytemuck::cast_slice_mut(writable.as_slice_mut().expect("C-contiguous: made here or checked"));

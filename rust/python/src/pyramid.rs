@@ -18,7 +18,7 @@ use tegument_core::strain::MaxStretch;
 use crate::collide::collider_refs;
 
 use crate::convert::{
-    copy_positions_to, float_array_arg, indices_to_py, int_array_arg, out_arg, points_into, positions_arg, positions_to_py,
+    copy_positions_to, float_array_arg, indices_to_py, int_array_arg, out_or_new, points_into, positions_arg, positions_to_py,
     py_result, run_detached, TegumentError,
 };
 use tegument_core::mesh::validate_positions;
@@ -70,13 +70,6 @@ impl PyramidDeformer {
         *self.input.lock().unwrap_or_else(|e| e.into_inner()) = input;
     }
 
-    /// `out` checked, or a new array.
-    fn output_array<'py>(&self, py: Python<'py>, out: Option<&Bound<'py, PyAny>>) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        match out {
-            Some(out) => out_arg(out, self.vertex_count),
-            None => Ok(PyArray2::<f32>::zeros(py, [self.vertex_count, 3], false)),
-        }
-    }
 
     fn with<T: Send>(&self, py: Python<'_>, work: impl FnOnce(&mut Core) -> tegument_core::Result<T> + Send) -> PyResult<T> {
         run_detached(py, || {
@@ -183,7 +176,7 @@ impl PyramidDeformer {
         out: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let (input, iterations, weights) = self.frame_args(positions, iterations, closeness)?;
-        let output = self.output_array(py, out)?;
+        let output = out_or_new(py, out, self.vertex_count)?;
         // The solve starts from the input and runs in the returned array itself:
         // no result vector to copy out at 100k+ vertices per frame.
         {
@@ -241,7 +234,7 @@ impl PyramidDeformer {
         out: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let (input, iterations, weights) = self.frame_args(positions, iterations, closeness)?;
-        let output = self.output_array(py, out)?;
+        let output = out_or_new(py, out, self.vertex_count)?;
         if substeps < 1 {
             return Err(TegumentError::new_err(format!("substeps is {substeps}; it must be between 1 and {}", tegument_core::sequence::MAX_SUBSTEPS)));
         }
