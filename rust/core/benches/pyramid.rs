@@ -1,6 +1,7 @@
 //! Pyramid solver benchmark (issue 3): quad spheres of about 10k, 100k and 1M
 //! vertices deformed by a linear-blend-skinned twist and bend, 10 iterations,
-//! both formulations, 1 and 2 threads; ms per solve and per iteration, the
+//! both formulations, 1 and 2 threads; ms per solve and per iteration, one
+//! sweep of the targets kernel at each lane width the CPU has, the
 //! memory-bandwidth reference measured in the same run, residual against wall
 //! time for the comparison plot.
 //!
@@ -20,6 +21,7 @@ use common::{bandwidth_reference_ms, machine, median_ms, with_threads, Report};
 use glam::{Mat3, Vec3};
 use tegument_core::mesh::shapes::quad_sphere;
 use tegument_core::mesh::Topology;
+use tegument_core::pyramid::kernel::{Packed, Width};
 use tegument_core::pyramid::{encode, mean_residual, Closeness, Encoding, Formulation, PyramidDeformer};
 
 const ITERATIONS: usize = 10;
@@ -64,6 +66,14 @@ fn main() {
         let encoding = Arc::new(encode(&topology, &mesh.positions, true).expect("encode"));
         report.add(&case, "bind (topology + encoding)", start.elapsed().as_secs_f64() * 1e3, "ms", rayon::current_num_threads(), "");
         report.add(&case, "residual of the LBS input", mean_residual(&encoding, &input).unwrap() as f64, "edge", 0, "");
+        // The kernel alone, one sweep of every target, at each lane width this CPU has.
+        let runs = if vertices > 500_000 { 5 } else { 21 };
+        let mut targets = vec![Vec3::ZERO; encoding.len()];
+        for width in Width::available() {
+            let packed = Packed::with_width(&encoding, width);
+            let ms = with_threads(1, || median_ms(runs, || packed.targets(&input, 0..encoding.len(), &mut targets)));
+            report.add(&case, &format!("targets kernel: one sweep, {} lanes", width.lanes()), ms, "ms", 1, "");
+        }
 
         for formulation in [Formulation::VertexTargets, Formulation::Laplacian] {
             let tag = formulation.name();

@@ -14,7 +14,7 @@ use std::sync::Arc;
 use glam::Vec3;
 
 use super::encoding::Encoding;
-use super::kernel::Packed;
+use super::kernel::{Packed, Width};
 use super::project::frame;
 use crate::solve::{Constraint, Context, DiagonalChunk, Rows};
 
@@ -22,7 +22,7 @@ use crate::solve::{Constraint, Context, DiagonalChunk, Rows};
 pub struct PyramidTargets {
     encoding: Arc<Encoding>,
     rows: Rows,
-    /// The encoding laid out for the four-lane kernel (`project_rows`).
+    /// The encoding laid out for the kernel (`project_rows`, `solve_chunk`).
     packed: Packed,
     /// Row `e`: the ring's mean-value weights, how the target's ring mean
     /// moves with the neighbours (see [`Constraint::coupling`]).
@@ -31,8 +31,13 @@ pub struct PyramidTargets {
 
 impl PyramidTargets {
     pub fn new(encoding: Arc<Encoding>) -> Self {
+        PyramidTargets::with_width(encoding, Width::best())
+    }
+
+    /// With the kernel's lanes chosen (tests compare the widths this CPU has).
+    pub(crate) fn with_width(encoding: Arc<Encoding>, width: Width) -> Self {
         let rows = Rows::identity(encoding.vertices());
-        let packed = Packed::new(&encoding);
+        let packed = Packed::with_width(&encoding, width);
         let mut coupling = Rows::new();
         for e in 0..encoding.len() {
             coupling.push(encoding.ring(e).iter().copied().zip(encoding.weights(e).iter().copied()));

@@ -31,6 +31,7 @@ pub mod deformer;
 pub mod encode;
 pub mod encoding;
 pub mod kernel;
+mod lanes;
 pub mod project;
 pub mod ring_fit;
 

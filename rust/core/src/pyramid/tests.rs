@@ -623,17 +623,19 @@ fn four_lane_kernel_gives_the_scalar_targets() {
         let huge: Vec<Vec3> = bent.iter().map(|p| *p * 1e9).collect();
         for scale_safe in [false, true] {
             let encoding = encode(&topology, &mesh.positions, scale_safe).unwrap();
-            let packed = kernel::Packed::new(&encoding);
-            for x in [&mesh.positions, &bent, &collapsed, &tiny, &huge] {
-                let scalar: Vec<Vec3> = (0..encoding.len())
-                    .map(|e| project::target(&encoding, e, x).unwrap_or(x[encoding.vertices()[e] as usize]))
-                    .collect();
-                // Whole range, and ranges that start and end inside blocks.
-                for rows in [0..encoding.len(), 1..encoding.len() - 2, 5..6, 3..3] {
-                    let mut out = vec![Vec3::NAN; rows.len()];
-                    packed.targets(x, rows.clone(), &mut out);
-                    // `==`: equal up to the sign of an exact zero.
-                    assert!(out == scalar[rows.clone()], "{name}, scale_safe={scale_safe}, rows {rows:?}");
+            for width in kernel::Width::available() {
+                let packed = kernel::Packed::with_width(&encoding, width);
+                for x in [&mesh.positions, &bent, &collapsed, &tiny, &huge] {
+                    let scalar: Vec<Vec3> = (0..encoding.len())
+                        .map(|e| project::target(&encoding, e, x).unwrap_or(x[encoding.vertices()[e] as usize]))
+                        .collect();
+                    // Whole range, and ranges that start and end inside blocks.
+                    for rows in [0..encoding.len(), 1..encoding.len() - 2, 5..6, 3..3, 6..15] {
+                        let mut out = vec![Vec3::NAN; rows.len()];
+                        packed.targets(x, rows.clone(), &mut out);
+                        // `==`: equal up to the sign of an exact zero.
+                        assert!(out == scalar[rows.clone()], "{name}, scale_safe={scale_safe}, {width:?}, rows {rows:?}");
+                    }
                 }
             }
         }
@@ -687,7 +689,8 @@ impl crate::solve::Constraint for Unfused {
 fn fused_step_equals_the_general_step_to_the_bit() {
     use crate::solve::{Closeness as CloseRows, Constraint, Solver};
     // More vertices than one chunk of the fused step, and a pinned border, so
-    // chunks start inside four-row blocks and skip vertices without rows.
+    // chunks start inside blocks of rows and skip vertices without rows; for
+    // every kernel width this CPU has.
     for mesh in [grid(80, 60, 2.0), quad_sphere(30, 1.0)] {
         let topology = Topology::build(mesh.input()).unwrap();
         let encoding = Arc::new(encode(&topology, &mesh.positions, true).unwrap());
@@ -705,11 +708,13 @@ fn fused_step_equals_the_general_step_to_the_bit() {
             solver.solve(&input, &mut x, 5, None).unwrap();
             x
         };
-        let fused = run(Box::new(PyramidTargets::new(encoding.clone())));
-        let general = run(Box::new(Unfused(PyramidTargets::new(encoding.clone()))));
         assert!(!pinned.is_empty() || n > 5000);
         let bits = |x: &[Vec3]| x.iter().flat_map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>();
-        assert!(bits(&fused) == bits(&general), "{n} vertices: the fused step differs from the general one");
+        for width in kernel::Width::available() {
+            let fused = run(Box::new(PyramidTargets::with_width(encoding.clone(), width)));
+            let general = run(Box::new(Unfused(PyramidTargets::with_width(encoding.clone(), width))));
+            assert!(bits(&fused) == bits(&general), "{n} vertices, {width:?}: the fused step differs from the general one");
+        }
     }
 }
 
