@@ -5,7 +5,11 @@
 //! `Sequence::step` (pyramid solve, both collision passes, and the
 //! feature under test), 10 iterations, 2 threads.
 //!
-//! `cargo bench -p tegument-core --bench flesh`
+//! `cargo bench -p tegument-core --bench flesh`; to measure some
+//! configurations only, `TEGUMENT_BENCH_FLESH=compliant,unified` (words of
+//! their names; collisions only, the baseline, always runs) with
+//! `TEGUMENT_BENCH_DIR=/tmp/somewhere` so the partial run does not replace
+//! `bench/results/flesh.json`.
 
 mod common;
 
@@ -69,8 +73,11 @@ fn main() {
             compliant: true,
         },
     ];
+    let selected = |name: &str| {
+        std::env::var("TEGUMENT_BENCH_FLESH").map_or(true, |list| list.split(',').any(|word| name.contains(word.trim())))
+    };
     let mut baseline = None;
-    for config in &configs {
+    for config in configs.iter().filter(|c| c.name == "collisions only" || selected(c.name)) {
         let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
         let at = |k: usize| sphere.positions.iter().map(|&p| p + centre(k)).collect::<Vec<_>>();
         let mut collider = Collider::new(&at(0), &tris, settings).unwrap();

@@ -333,6 +333,55 @@ impl BoxTree {
         best
     }
 
+    /// The primitive nearest `p` by an exact distance: `distance(i)` is
+    /// primitive `i`'s distance from `p`, at least that of its box (a box
+    /// bounds its primitive). Best-first over the tree, so only primitives
+    /// whose boxes come nearer than the best found so far are measured: a
+    /// handful near the surface and deep inside a closed collider alike.
+    /// Returns the primitive and its distance, or None for an empty tree or
+    /// when nothing is nearer than `limit`.
+    pub fn nearest(&self, p: Vec3, limit: f64, mut distance: impl FnMut(usize) -> f64) -> Option<(usize, f64)> {
+        let bvh = self.bvh.as_ref()?;
+        let p64 = p.as_dvec3();
+        let box_distance = |b: &Bounds| (b.min.as_dvec3() - p64).max(p64 - b.max.as_dvec3()).max(DVec3::ZERO).length();
+        let node_distance = |i: u32| box_distance(&Bounds::from_aabb(bvh.nodes[i as usize].aabb()));
+        let mut best: Option<(usize, f64)> = None;
+        let mut bound = limit;
+        let mut stack: Vec<(u32, f64)> = Vec::with_capacity(64);
+        stack.push((0, node_distance(0)));
+        while let Some((i, d)) = stack.pop() {
+            if d >= bound {
+                continue;
+            }
+            let node = &bvh.nodes[i as usize];
+            if node.is_leaf() {
+                for k in node.first_index..node.first_index + node.prim_count {
+                    let primitive = bvh.primitive_indices[k as usize] as usize;
+                    if box_distance(&self.boxes[primitive]) >= bound {
+                        continue;
+                    }
+                    let exact = distance(primitive);
+                    if exact < bound {
+                        bound = exact;
+                        best = Some((primitive, exact));
+                    }
+                }
+                continue;
+            }
+            let (left, right) = (node.first_index, node.first_index + 1);
+            let (dl, dr) = (node_distance(left), node_distance(right));
+            // The nearer child is popped first.
+            if dl <= dr {
+                stack.push((right, dr));
+                stack.push((left, dl));
+            } else {
+                stack.push((left, dl));
+                stack.push((right, dr));
+            }
+        }
+        best
+    }
+
     /// The box of primitive `i` as last given.
     pub fn primitive_bounds(&self, i: usize) -> Bounds {
         self.boxes[i]

@@ -529,32 +529,21 @@ impl Collider {
         if self.triangles.is_empty() {
             return None;
         }
-        let top = self.tree.bounds();
-        // Grow a box around `p` until the closest triangle found in it is
-        // nearer than the box's half-width: nothing outside can be closer.
-        let outside = (top.min - p).max(p - top.max).max(Vec3::ZERO).length();
-        let mut radius = outside + (top.max - top.min).length() / 64.0 + 1e-6;
         let pd = p.as_dvec3();
-        loop {
-            let mut best: Option<(f64, SurfacePoint)> = None;
-            let query = Bounds { min: p, max: p }.inflated(radius);
-            self.tree.query(&query, |t| {
-                let [a, b, c] = self.triangles[t].map(|v| self.current[v as usize].as_dvec3());
-                let (v, w) = closest_on_triangle(pd, a, b, c);
-                let q = a + v * (b - a) + w * (c - a);
-                let d2 = (pd - q).length_squared();
-                if best.as_ref().is_none_or(|(d, _)| d2 < *d) {
-                    let barycentric = Vec3::new((1.0 - v - w) as f32, v as f32, w as f32);
-                    best = Some((d2, SurfacePoint { point: q.as_vec3(), triangle: t as u32, barycentric }));
-                }
-                true
-            });
-            match best {
-                Some((d2, found)) if d2.sqrt() <= radius as f64 => return Some(found),
-                _ if radius > 4.0 * (outside + (top.max - top.min).length()) => return best.map(|(_, f)| f),
-                _ => radius *= 2.0,
+        // The search measures each candidate once; its surface point is kept here.
+        let mut found = None;
+        self.tree.nearest(p, f64::INFINITY, |t| {
+            let [a, b, c] = self.triangles[t].map(|v| self.current[v as usize].as_dvec3());
+            let (v, w) = closest_on_triangle(pd, a, b, c);
+            let q = a + v * (b - a) + w * (c - a);
+            let d = (pd - q).length();
+            if found.as_ref().is_none_or(|(best, _)| d < *best) {
+                let barycentric = Vec3::new((1.0 - v - w) as f32, v as f32, w as f32);
+                found = Some((d, SurfacePoint { point: q.as_vec3(), triangle: t as u32, barycentric }));
             }
-        }
+            d
+        })?;
+        found.map(|(_, point)| point)
     }
 
     /// Whether any triangle (at the current positions) is within `distance` of `p`.

@@ -30,3 +30,26 @@ fn closest_point_hit_and_proximity_on_a_plane() {
     assert!(c.is_within(Vec3::new(0.5, 0.5, 0.009), 0.01));
     assert!(!c.is_within(Vec3::new(0.5, 0.5, 0.011), 0.01));
 }
+
+#[test]
+fn closest_point_is_the_nearest_triangle_inside_and_outside_a_closed_collider() {
+    // Points deep inside a sphere, near its surface and far outside, against
+    // every triangle measured (the best-first search measures a handful).
+    let (positions, tris) = crate::mesh::shapes::uv_sphere_triangles(24, 12, 0.5);
+    let c = Collider::new(&positions, &tris, ColliderSettings::new(0.01, 0.0)).unwrap();
+    let distance = |p: Vec3, t: &[u32; 3]| {
+        let [a, b, d] = t.map(|v| positions[v as usize].as_dvec3());
+        let (v, w) = crate::collide::geometry::closest_on_triangle(p.as_dvec3(), a, b, d);
+        (p.as_dvec3() - (a + v * (b - a) + w * (d - a))).length()
+    };
+    for k in 0..200 {
+        let f = k as f32;
+        let direction = Vec3::new((f * 0.37).sin(), (f * 0.71).cos(), (f * 0.13).sin() * 0.9).normalize();
+        let p = direction * (0.05 + 0.006 * f) + Vec3::new(0.01, -0.02, 0.03);
+        let brute = tris.iter().map(|t| distance(p, t)).fold(f64::INFINITY, f64::min);
+        let near = c.closest_point(p).unwrap();
+        let found = distance(p, &tris[near.triangle as usize]);
+        assert!((found - brute).abs() < 1e-9, "{p}: triangle {} at {found}, nearest at {brute}", near.triangle);
+        assert!(((near.point - p).length() as f64 - brute).abs() < 1e-5);
+    }
+}
