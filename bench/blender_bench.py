@@ -1,5 +1,9 @@
 """Benchmarks that need real Blender: Tegument against Blender's own tools, same mesh, same run.
 
+Collisions against Cloth and Shrinkwrap + Corrective Smooth, and the MakeHuman character against
+skinning and Corrective Smooth. (Pyramid Deform against Corrective Smooth on armature-bent tubes
+from 100k to 5M vertices is ``bench/bake_scaling.py``.)
+
 Writes ``<out>/blender.json`` with rows in the format of the Rust benchmarks
 (``rust/core/benches/common``); ``bench/collect.py`` merges them all.
 """
@@ -65,7 +69,6 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--out", type=pathlib.Path, default=ROOT / "bench" / "results")
     parser.add_argument("--zip", type=pathlib.Path, default=os.environ.get("TEGUMENT_EXTENSION_ZIP"))
-    parser.add_argument("--frames", type=int, default=12)
     parser.add_argument("--collide-grid", type=int, default=316, help="skin grid subdivisions of the collision case (316: ~100k vertices)")
     parser.add_argument("--collide-frames", type=int, default=8)
     args = parser.parse_args()
@@ -76,71 +79,15 @@ def main() -> int:
 
     sys.path.insert(0, str(ROOT / "demo"))
     import extension
-    import scene as demo_scene
 
     addon = extension.install(args.zip, user)  # Blender runs the wheel the extension bundles
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.preferences.addon_enable(module=addon)
-    from bl_ext.user_default.tegument.deform import bake
 
     rows = Rows()
     threads = os.cpu_count() or 1
     workdir = pathlib.Path(tempfile.mkdtemp(prefix="tegument-bench-"))
     bpy.ops.wm.save_as_mainfile(filepath=str(workdir / "bench.blend"))
-
-    limb, rig = demo_scene.build_limb(segments=256, rings=390, radius=0.25, length=2.0)
-    demo_scene.animate_bend(rig, 1, 48, angle_deg=100)
-    scene = bpy.context.scene
-    vertices = len(limb.data.vertices)
-    case = f"armature-bent tube, {vertices // 1000}k vertices"
-    frames = [2 + (i * 7) % 46 for i in range(args.frames)]
-
-    def evaluate(frame):
-        scene.frame_set(frame)
-        evaluated = limb.evaluated_get(bpy.context.evaluated_depsgraph_get())
-        positions = np.empty(len(evaluated.data.vertices) * 3, dtype=np.float32)
-        evaluated.data.attributes["position"].data.foreach_get("vector", positions)
-
-    armature_only = time_frames(scene, frames, evaluate)
-    rows.add(case, "armature only: frame", armature_only, "ms", threads, "frame_set + depsgraph + read positions")
-
-    smooth = limb.modifiers.new("CorrectiveSmooth", "CORRECTIVE_SMOOTH")
-    smooth.iterations = 10
-    smooth.rest_source = "ORCO"
-    corrective = time_frames(scene, frames, evaluate)
-    rows.add(case, "Corrective Smooth (10 it.): frame", corrective, "ms", threads, "armature + Corrective Smooth, whole frame")
-    rows.add(case, "Corrective Smooth (10 it.): own cost", corrective - armature_only, "ms", threads, "minus the armature-only frame")
-    limb.modifiers.remove(smooth)
-
-    bpy.context.view_layer.objects.active = limb
-    assert bpy.ops.tegument.deform_add() == {"FINISHED"}
-    limb.tegument.iterations = 10
-    job = bake.BakeJob(bpy.context, limb, range(1, 49))
-    times = []
-    solve_times = []
-    deformer = job.deformer
-    while not job.finished:
-        started = time.perf_counter()
-        job.step()
-        times.append(1000 * (time.perf_counter() - started))
-    job.commit()
-    # Solve alone, on the last frame's input, for the split.
-    import tegument  # noqa: F401  (the wheel the extension bundles)
-    from bl_ext.user_default.tegument.deform import evaluate as deform_evaluate
-
-    with deform_evaluate.upstream_only(limb):
-        scene.frame_set(40)
-        _, world = deform_evaluate.evaluated_positions(limb, bpy.context.evaluated_depsgraph_get())
-    for _ in range(5):
-        started = time.perf_counter()
-        deformer.solve(world, iterations=10, closeness=limb.tegument.closeness)
-        solve_times.append(1000 * (time.perf_counter() - started))
-    tegument_frame = sorted(times[1:])[len(times[1:]) // 2]
-    solve = sorted(solve_times)[len(solve_times) // 2]
-    rows.add(case, "Tegument (10 it.): frame", tegument_frame, "ms", threads, "input evaluation + solve + cache write")
-    rows.add(case, "Tegument (10 it.): own cost", tegument_frame - armature_only, "ms", threads, "minus the armature-only frame")
-    rows.add(case, "Tegument (10 it.): solve only", solve, "ms", threads, "PyramidDeformer.solve")
-    rows.add(case, "Tegument frame / Corrective Smooth frame", tegument_frame / corrective, "x", threads, "target ≤ 0.5")
 
     collisions(bpy, np, rows, threads, workdir, args.collide_grid, args.collide_frames)
     character(bpy, np, rows, threads, workdir)

@@ -2,8 +2,9 @@
 
 Steps, in order, each as a child process: build the Rust benchmarks; the pyramid solver, collision,
 flesh (dynamics, strain limits, compliant colliders), UV warp and UV warp convergence benchmarks (``rust/core/benches``, rows in ``bench/results/<name>.json``); the Blender
-benchmark (``bench/blender_bench.py``: Pyramid Deform against Corrective Smooth, collisions against
-Cloth and Shrinkwrap + Corrective Smooth, in real Blender with the built extension). Then
+benchmark (``bench/blender_bench.py``: collisions against Cloth and Shrinkwrap + Corrective Smooth,
+the MakeHuman character, in real Blender with the built extension); the bake loop at scale
+(``bench/bake_scaling.py``: Pyramid Deform against Corrective Smooth from 100k to 5M vertices). Then
 ``bench/collect.py`` merges the rows into ``bench/results.json`` and ``docs/performance-table.md``
 and ``bench/plot_bench.py`` draws ``docs/images/benchmark.png``, ``bench/plot_warp_convergence.py``
 ``docs/images/uv-warp-convergence.png``.
