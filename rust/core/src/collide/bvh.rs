@@ -382,6 +382,77 @@ impl BoxTree {
         best
     }
 
+    /// The first primitive along the segment `p → q`: `hit(i)` is where the
+    /// segment meets primitive `i`, as a fraction of the way from `p` (None
+    /// if it misses). Only nodes the segment passes through are opened,
+    /// nearest first, and none that start beyond the first hit found: a long
+    /// segment across a large mesh meets a few boxes, where the box around
+    /// it would hold much of the mesh.
+    pub fn first_along(&self, p: Vec3, q: Vec3, mut hit: impl FnMut(usize) -> Option<f64>) -> Option<(usize, f64)> {
+        let bvh = self.bvh.as_ref()?;
+        let (p64, d) = (p.as_dvec3(), q.as_dvec3() - p.as_dvec3());
+        // Where the segment enters a box, as a fraction of it; None if it
+        // misses. The box is grown by a relative 1e-6 so that rounding can
+        // only let more boxes through.
+        let entry = |b: &Bounds| -> Option<f64> {
+            let (min, max) = (b.min.as_dvec3(), b.max.as_dvec3());
+            let grow = 1e-6 * (1.0 + min.abs().max(max.abs()).max_element());
+            let (min, max) = (min - DVec3::splat(grow), max + DVec3::splat(grow));
+            let (mut t0, mut t1) = (0.0f64, 1.0f64);
+            for axis in 0..3 {
+                if d[axis] == 0.0 {
+                    if p64[axis] < min[axis] || p64[axis] > max[axis] {
+                        return None;
+                    }
+                    continue;
+                }
+                let (a, b) = ((min[axis] - p64[axis]) / d[axis], (max[axis] - p64[axis]) / d[axis]);
+                t0 = t0.max(a.min(b));
+                t1 = t1.min(a.max(b));
+                if t0 > t1 {
+                    return None;
+                }
+            }
+            Some(t0)
+        };
+        let node_entry = |i: u32| entry(&Bounds::from_aabb(bvh.nodes[i as usize].aabb()));
+        let mut best: Option<(usize, f64)> = None;
+        let mut stack: Vec<(u32, f64)> = Vec::with_capacity(64);
+        if let Some(t) = node_entry(0) {
+            stack.push((0, t));
+        }
+        while let Some((i, t)) = stack.pop() {
+            if best.is_some_and(|(_, b)| t > b) {
+                continue;
+            }
+            let node = &bvh.nodes[i as usize];
+            if node.is_leaf() {
+                for k in node.first_index..node.first_index + node.prim_count {
+                    let primitive = bvh.primitive_indices[k as usize] as usize;
+                    if entry(&self.boxes[primitive]).is_none() {
+                        continue;
+                    }
+                    if let Some(along) = hit(primitive) {
+                        if best.is_none_or(|(_, b)| along < b) {
+                            best = Some((primitive, along));
+                        }
+                    }
+                }
+                continue;
+            }
+            let (left, right) = (node.first_index, node.first_index + 1);
+            match (node_entry(left), node_entry(right)) {
+                // The nearer child is popped first.
+                (Some(l), Some(r)) if l <= r => stack.extend([(right, r), (left, l)]),
+                (Some(l), Some(r)) => stack.extend([(left, l), (right, r)]),
+                (Some(l), None) => stack.push((left, l)),
+                (None, Some(r)) => stack.push((right, r)),
+                (None, None) => {}
+            }
+        }
+        best
+    }
+
     /// The box of primitive `i` as last given.
     pub fn primitive_bounds(&self, i: usize) -> Bounds {
         self.boxes[i]

@@ -565,27 +565,23 @@ impl Collider {
     pub fn first_hit(&self, p: Vec3, q: Vec3) -> Option<(f32, u32)> {
         let (pd, qd) = (p.as_dvec3(), q.as_dvec3());
         let dir = qd - pd;
-        let mut best: Option<(f64, u32)> = None;
-        self.tree.query(&Bounds::of_points(&[p, q]), |t| {
+        let (t, along) = self.tree.first_along(p, q, |t| {
             let [a, b, c] = self.triangles[t].map(|v| self.current[v as usize].as_dvec3());
             // Möller–Trumbore, in f64.
             let (e1, e2) = (b - a, c - a);
             let h = dir.cross(e2);
             let det = e1.dot(h);
             if det.abs() < 1e-300 {
-                return true;
+                return None;
             }
             let s = pd - a;
             let u = s.dot(h) / det;
             let qv = s.cross(e1);
             let v = dir.dot(qv) / det;
             let along = e2.dot(qv) / det;
-            if (0.0..=1.0).contains(&u) && v >= 0.0 && u + v <= 1.0 && (0.0..=1.0).contains(&along) && best.is_none_or(|(b, _)| along < b) {
-                best = Some((along, t as u32));
-            }
-            true
-        });
-        best.map(|(t, tri)| (t as f32, tri))
+            ((0.0..=1.0).contains(&u) && v >= 0.0 && u + v <= 1.0 && (0.0..=1.0).contains(&along)).then_some(along)
+        })?;
+        Some((along as f32, t as u32))
     }
 
     /// What the last update of the BVH did.

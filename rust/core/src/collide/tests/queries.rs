@@ -53,3 +53,41 @@ fn closest_point_is_the_nearest_triangle_inside_and_outside_a_closed_collider() 
         assert!(((near.point - p).length() as f64 - brute).abs() < 1e-5);
     }
 }
+
+#[test]
+fn first_hit_is_the_nearest_crossing_of_every_triangle() {
+    // Segments of every length and direction through a closed sphere, some
+    // along an axis (zero components of the direction), some missing it,
+    // against every triangle tested.
+    let (positions, tris) = crate::mesh::shapes::uv_sphere_triangles(24, 12, 0.5);
+    let c = Collider::new(&positions, &tris, ColliderSettings::new(0.01, 0.0)).unwrap();
+    let crossing = |p: Vec3, q: Vec3, t: &[u32; 3]| -> Option<f64> {
+        let [a, b, d] = t.map(|v| positions[v as usize].as_dvec3());
+        let (o, dir) = (p.as_dvec3(), q.as_dvec3() - p.as_dvec3());
+        let (e1, e2) = (b - a, d - a);
+        let h = dir.cross(e2);
+        let det = e1.dot(h);
+        if det.abs() < 1e-300 {
+            return None;
+        }
+        let s = o - a;
+        let (u, qv) = (s.dot(h) / det, s.cross(e1));
+        let (v, along) = (dir.dot(qv) / det, e2.dot(qv) / det);
+        ((0.0..=1.0).contains(&u) && v >= 0.0 && u + v <= 1.0 && (0.0..=1.0).contains(&along)).then_some(along)
+    };
+    let mut hits = 0;
+    for k in 0..300 {
+        let f = k as f32;
+        let p = Vec3::new((f * 0.31).sin(), (f * 0.57).cos(), (f * 0.11).sin()) * (0.2 + 0.004 * f);
+        let direction = match k % 3 {
+            0 => Vec3::new(0.0, 0.0, 1.0),
+            _ => Vec3::new((f * 0.73).cos(), (f * 0.29).sin(), (f * 0.91).cos()),
+        };
+        let q = p + direction * (0.05 + 0.01 * f);
+        let brute = tris.iter().enumerate().filter_map(|(t, tri)| crossing(p, q, tri).map(|a| (t, a))).min_by(|a, b| a.1.total_cmp(&b.1));
+        let found = c.first_hit(p, q);
+        assert_eq!(found.map(|(t, _)| t as f64), brute.map(|(_, a)| a as f32 as f64), "{p} → {q}: {found:?} against {brute:?}");
+        hits += found.is_some() as usize;
+    }
+    assert!(hits > 50, "only {hits} segments hit: the test says little");
+}
