@@ -9,9 +9,10 @@
 //! latencies (the gathers, a square root per neighbour, then a division), and
 //! an eight-lane block waits on the same chain for twice the vertices. One
 //! sweep of the 100k-vertex benchmark sphere, one thread: 1.16 ms with four
-//! lanes, 0.84 ms with eight; 1.66 and 1.10 ms with its quads split into
-//! triangles (rings of 4 to 8), where eight-row blocks pad more
-//! (`cargo bench -p tegument-core --bench pyramid`).
+//! lanes, 0.84 ms with eight (`cargo bench -p tegument-core --bench
+//! pyramid`). Blocks of eight rows pad more on irregular rings (each block
+//! runs to its longest ring); with the sphere's quads split into triangles
+//! at random (rings of 4 to 8), eight lanes still took 1.10 ms against 1.66.
 
 use std::ops::{Add, BitAnd, Div, Mul, Sub};
 
