@@ -54,14 +54,19 @@ class Rows:
         self.rows.append(dict(benchmark="blender", case=case, metric=metric, value=value, unit=unit, threads=threads, note=note))
 
 
-def time_frames(scene, frames, work) -> float:
-    """Median milliseconds of `work(frame)` over the frames (alternating so each one re-evaluates)."""
+def frame_times(scene, frames, work) -> list[float]:
+    """Milliseconds of `work(frame)` for each of the frames (alternating so each one re-evaluates)."""
     times = []
     for frame in frames:
         started = time.perf_counter()
         work(frame)
         times.append(1000 * (time.perf_counter() - started))
-    times.sort()
+    return times
+
+
+def time_frames(scene, frames, work) -> float:
+    """Median milliseconds of `work(frame)` over the frames."""
+    times = sorted(frame_times(scene, frames, work))
     return times[len(times) // 2]
 
 
@@ -278,20 +283,32 @@ def character(bpy, np, rows, threads, workdir) -> None:
         armature_only = time_frames(scene, frames, evaluate)
         rows.add(case, "armature only: frame", armature_only, "ms", threads, "frame_set + depsgraph + read positions")
         skinning = evaluate(last)
-        # Bound at the rest frame rather than ORCO: ORCO is the mesh's own 13k vertices, which a
-        # Subdivision Surface above Corrective Smooth no longer has.
-        scene.frame_set(character_demo.POSE_FRAMES[0])
-        smooth = obj.modifiers.new("CorrectiveSmooth", "CORRECTIVE_SMOOTH")
-        smooth.iterations = 10
-        smooth.rest_source = "BIND"
-        bpy.context.view_layer.objects.active = obj
-        with bpy.context.temp_override(object=obj, active_object=obj):
-            assert bpy.ops.object.correctivesmooth_bind(modifier=smooth.name) == {"FINISHED"}
-        corrective = time_frames(scene, frames, evaluate)
-        rows.add(case, "Corrective Smooth (10 it.): frame", corrective, "ms", threads, "armature + Corrective Smooth, whole frame")
-        smoothed = evaluate(last)
-        obj.modifiers.remove(smooth)
 
+        def corrective_smooth():
+            """Corrective Smooth's frames and its shape at the pose's last frame, with any
+            Tegument modifier left out of the stack."""
+            # Bound at the rest frame rather than ORCO: ORCO is the mesh's own 13k vertices, which a
+            # Subdivision Surface above Corrective Smooth no longer has.
+            tegument_modifier = bake.evaluate.tegument_modifier(obj)
+            if tegument_modifier is not None:
+                tegument_modifier.show_viewport = False
+            scene.frame_set(character_demo.POSE_FRAMES[0])
+            smooth = obj.modifiers.new("CorrectiveSmooth", "CORRECTIVE_SMOOTH")
+            smooth.iterations = 10
+            smooth.rest_source = "BIND"
+            bpy.context.view_layer.objects.active = obj
+            with bpy.context.temp_override(object=obj, active_object=obj):
+                assert bpy.ops.object.correctivesmooth_bind(modifier=smooth.name) == {"FINISHED"}
+            times = frame_times(scene, frames, evaluate)
+            shape = evaluate(last)
+            obj.modifiers.remove(smooth)
+            if tegument_modifier is not None:
+                tegument_modifier.show_viewport = True
+            return times, shape
+
+        # Corrective Smooth before and after Tegument's bake, so that both are measured over the
+        # same minutes (this host's second core comes and goes).
+        corrective_times, smoothed = corrective_smooth()
         bpy.context.view_layer.objects.active = obj
         assert bpy.ops.tegument.deform_add() == {"FINISHED"}
         pinned = character_demo.pinned_count(obj)  # the bind's warning (obj.tegument.bind_warnings)
@@ -302,6 +319,10 @@ def character(bpy, np, rows, threads, workdir) -> None:
         job.commit()
         times = sorted(1000 * t for t in job.times[1:])
         tegument_frame = times[len(times) // 2]
+        corrective_times += corrective_smooth()[0]
+        corrective = sorted(corrective_times)[len(corrective_times) // 2]
+        rows.add(case, "Corrective Smooth (10 it.): frame", corrective, "ms", threads,
+                 "armature + Corrective Smooth, whole frame, before and after Tegument's bake")
         rows.add(case, f"Tegument ({obj.tegument.iterations} it.): frame", tegument_frame, "ms", threads, "input evaluation + solve + cache write")
         rows.add(case, "Tegument frame / Corrective Smooth frame", tegument_frame / corrective, "x", threads)
         rows.add(case, "pinned by bind", pinned, "", threads, "vertices that follow the input")
