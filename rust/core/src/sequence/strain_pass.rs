@@ -47,6 +47,12 @@ pub(super) const POST_STRAIN_SWEEPS: usize = STRAIN_SWEEPS * STRAIN_ROUNDS;
 /// resolution that follows has (nearly) nothing left to undo. Without the
 /// planes the two projections undo each other on skin wrapped around a
 /// collider and the rounds end before the limits hold.
+///
+/// Measured on issue 29's dragged sheet (friction-1 sphere, ε = 0.1; the
+/// worst edge over the drag, and how far the skin the sphere pressed goes
+/// with it against the sphere's 0.6): both, 1.1007 and 0.009 at the end;
+/// planes with friction kept here, 1.1010 and 0.022; no planes, 1.1148;
+/// neither (only the 64 sweeps), 1.1214; before all this (8 sweeps), 1.25.
 pub(super) fn limit_strain_with_contacts(
     limits: &EdgeLimits,
     colliders: &[&mut Collider],
