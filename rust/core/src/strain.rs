@@ -240,6 +240,26 @@ mod tests {
     }
 
     #[test]
+    fn a_vertex_on_its_plane_slides_along_it_instead_of_crossing_it() {
+        // A fixed vertex below a plane z ≥ 0 and a free one resting on it,
+        // stretched sideways: shortening the edge straight would pull the
+        // free one under the plane; it slides along it instead.
+        let rest = [Vec3::new(0.0, 0.0, -1.0), Vec3::ZERO];
+        let limits = EdgeLimits::new(&[[0, 1]], &rest, MaxStretch::Uniform(0.1)).unwrap();
+        let mut x = vec![rest[0], Vec3::new(2.0, 0.0, 0.0)];
+        let above = [(Vec3::ZERO, 0.0), (Vec3::Z, 0.0)];
+        let sweeps = limits.project_above(&mut x, &[0.0, 1.0], &above, 1000, 1e-4);
+        assert!(sweeps < 1000, "did not converge");
+        assert!(limits.worst_ratio(&x) <= 1.0 + 1e-4, "ratio {}", limits.worst_ratio(&x));
+        assert!(x[1].z >= -1e-6, "crossed its plane: {:?}", x[1]);
+        assert!(x[1].x > 0.0 && x[1].x < 0.46, "slid to {:?}", x[1]);
+        // Without the plane the same projection pulls it under.
+        let mut free = vec![rest[0], Vec3::new(2.0, 0.0, 0.0)];
+        limits.project(&mut free, &[0.0, 1.0], 1000, 1e-4);
+        assert!(free[1].z < -0.1, "{:?}", free[1]);
+    }
+
+    #[test]
     fn edges_within_the_limit_are_untouched() {
         let (rest, edges) = chain(5);
         let limits = EdgeLimits::new(&edges, &rest, MaxStretch::Uniform(0.1)).unwrap();
