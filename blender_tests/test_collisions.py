@@ -232,3 +232,54 @@ def test_a_collider_that_jumps_inside_a_closed_skin_and_rests_keeps_its_pocket(t
     winding = [penetration.winding_numbers(np.array([inside]), frame.astype(np.float64), triangles)[0] for frame in cache]
     assert np.allclose(winding[:2], 1.0, atol=1e-6), f"before the jump the skin is at rest and encloses it: {winding[:2]}"
     assert np.allclose(winding[2:], 0.0, atol=1e-6), f"winding number of the resting sphere's centre by frame: {winding}"
+
+
+def test_a_held_sheet_dragged_by_a_rough_sphere_slides_within_its_strain_limit(tmp_path):
+    """Issue 29: strain limits cap what friction holds. A 61 × 61 sheet held at its border
+    (closeness 1 there, 0.05 inside), a friction-1 sphere pressed 0.15 into it and dragged 0.6
+    sideways, edges limited to 1.1 × their rest length (``UNIFIED``): in every frame the worst edge
+    stays within (1 + ε)·1.01 and nothing penetrates (both measured here from the cache, not by the
+    add-on), and the skin the sphere pressed when the drag began stays behind: the sphere slides
+    over it instead of dragging it until the edges tear past their limit."""
+    eps = 0.1
+    pressed = 5  # the index of the last pressing frame
+    centres = [(-0.3, 0.0, 0.5 - 0.07 * k) for k in range(pressed + 1)]
+    centres += [(-0.3 + 0.05 * k, 0.0, 0.15) for k in range(1, 13)]
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=60, y_subdivisions=60, size=2.0)
+    skin = bpy.context.object
+    skin.name = "Sheet"
+    assert len(skin.data.vertices) == 61 * 61
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = 1, len(centres)
+    rest = np.array([v.co[:] for v in skin.data.vertices], dtype=np.float32)
+    held = skin.vertex_groups.new(name="Held")
+    border = np.flatnonzero(np.abs(rest[:, :2]).max(axis=1) > 0.999)
+    held.add(border.tolist(), 1.0, "REPLACE")
+    held.add(np.setdiff1d(np.arange(len(rest)), border).tolist(), 0.05, "REPLACE")
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "sheet.blend"))
+    sphere = add_sphere("Rough", centres, friction=1.0)
+    bpy.context.view_layer.objects.active = skin
+    assert bpy.ops.tegument.deform_add() == {"FINISHED"}
+    settings = skin.tegument
+    settings.collider_collection = bpy.data.collections["Colliders"]
+    settings.closeness, settings.closeness_group, settings.iterations = 1.0, "Held", 10
+    settings.limit_stretch, settings.max_stretch, settings.strain_mode = True, eps, "UNIFIED"
+    settings.frame_start, settings.frame_end = 1, len(centres)
+    assert bpy.ops.tegument.bake() == {"FINISHED"}
+    cache, _ = read_pc2(bpy.path.abspath(settings.cache_path))
+    assert cache.shape == (len(centres), len(rest), 3) and np.isfinite(cache).all()
+
+    assert_clean(skin, cache, [sphere], [(centres, 0.3)])
+    edges = np.array([e.vertices[:] for e in skin.data.edges])
+    length = lambda x: np.linalg.norm(x[edges[:, 0]] - x[edges[:, 1]], axis=1)  # noqa: E731
+    worst = [float((length(frame) / length(rest)).max()) for frame in cache]
+    assert max(worst) <= (1.0 + eps) * 1.01, f"worst stretch per frame: {worst}"
+
+    # The sheet is at the origin, unrotated: the cache's object space is world space.
+    at_press = cache[pressed]
+    touching = np.linalg.norm(at_press - np.array(centres[pressed]), axis=1) < 0.3 + 0.03
+    assert touching.sum() > 20, f"the sphere touched only {touching.sum()} vertices"
+    drift = [(float((cache[k][touching, 0] - at_press[touching, 0]).mean()), centres[k][0] - centres[pressed][0])
+             for k in range(pressed + 1, len(centres))]
+    assert all(abs(skin_dx) < 0.5 * sphere_dx for skin_dx, sphere_dx in drift), f"(skin, sphere) drift per frame: {drift}"
+    assert abs(drift[-1][0]) < 0.05 * drift[-1][1], f"the pressed skin went {drift[-1][0]} of the sphere's {drift[-1][1]}"

@@ -32,6 +32,9 @@ pub struct EdgeLimits {
     rest: Vec<f32>,
     /// `(1 + ε_e)·rest_e`, infinite where unlimited.
     limit: Vec<f32>,
+    /// CSR of the edges at each vertex: `edges_at[at[v]..at[v + 1]]`.
+    at: Vec<u32>,
+    edges_at: Vec<u32>,
 }
 
 /// Checks ε: 0 or more (infinite for no limit), one per vertex when per vertex.
@@ -83,7 +86,23 @@ impl EdgeLimits {
                 if l0 > 0.0 { (1.0 + eps) * l0 } else { f32::INFINITY }
             })
             .collect();
-        Ok(EdgeLimits { edges: edges.to_vec(), rest, limit })
+        let mut at = vec![0u32; n + 1];
+        for &[a, b] in edges {
+            at[a as usize + 1] += 1;
+            at[b as usize + 1] += 1;
+        }
+        for v in 0..n {
+            at[v + 1] += at[v];
+        }
+        let mut fill = at.clone();
+        let mut edges_at = vec![0u32; at[n] as usize];
+        for (e, &[a, b]) in edges.iter().enumerate() {
+            for v in [a as usize, b as usize] {
+                edges_at[fill[v] as usize] = e as u32;
+                fill[v] += 1;
+            }
+        }
+        Ok(EdgeLimits { edges: edges.to_vec(), rest, limit, at, edges_at })
     }
 
     pub fn edges(&self) -> &[[u32; 2]] {
@@ -120,9 +139,38 @@ impl EdgeLimits {
     /// Stops early once no edge exceeds its limit by more than `tolerance`
     /// (relative). Returns the number of sweeps run.
     pub fn project(&self, x: &mut [Vec3], inverse_mass: &[f32], sweeps: usize, tolerance: f32) -> usize {
+        self.project_above(x, inverse_mass, &[], sweeps, tolerance)
+    }
+
+    /// [`Self::project`], keeping every vertex `v` that has a plane
+    /// (`above[v] = (n, level)` with a unit `n`; a zero `n` is none) in its
+    /// half-space `n·x ≥ level`: an end an edge correction pushes below its
+    /// plane is projected back onto it, so that it moves only along the
+    /// plane or away from it (a contact slides along the collider, never
+    /// into it). An edge limit and a half-space are both convex, so the
+    /// sweeps head for a point of all of them where there is one. `above`
+    /// is empty or has one entry per vertex.
+    ///
+    /// The first sweep visits every edge; later ones only the edges at the
+    /// vertices the sweep before moved (the others were within their limit
+    /// when last visited and their ends have not moved since), in edge
+    /// order, so the work follows the stretched region, not the mesh.
+    pub fn project_above(&self, x: &mut [Vec3], inverse_mass: &[f32], above: &[(Vec3, f32)], sweeps: usize, tolerance: f32) -> usize {
+        let keep = |p: &mut Vec3, v: usize| {
+            if let Some(&(n, level)) = above.get(v) {
+                let h = n.dot(*p);
+                if h < level {
+                    *p += n * (level - h);
+                }
+            }
+        };
+        let mut active: Vec<u32> = Vec::new();
+        let mut moved: Vec<u32> = Vec::new();
         for sweep in 0..sweeps {
             let mut worst = 0.0f32;
-            for (&[a, b], &limit) in self.edges.iter().zip(&self.limit) {
+            let visit: &mut dyn Iterator<Item = usize> = if sweep == 0 { &mut (0..self.edges.len()) } else { &mut active.iter().map(|&e| e as usize) };
+            for e in visit {
+                let ([a, b], limit) = (self.edges[e], self.limit[e]);
                 let (a, b) = (a as usize, b as usize);
                 let delta = x[a] - x[b];
                 let length = delta.length();
@@ -137,12 +185,30 @@ impl EdgeLimits {
                     continue;
                 }
                 let correction = delta * ((length - limit) / (length * w));
-                x[a] -= correction * wa;
-                x[b] += correction * wb;
+                if wa > 0.0 {
+                    x[a] -= correction * wa;
+                    keep(&mut x[a], a);
+                    moved.push(a as u32);
+                }
+                if wb > 0.0 {
+                    x[b] += correction * wb;
+                    keep(&mut x[b], b);
+                    moved.push(b as u32);
+                }
             }
-            if worst <= tolerance {
+            if worst <= tolerance || moved.is_empty() {
                 return sweep + 1;
             }
+            moved.sort_unstable();
+            moved.dedup();
+            active.clear();
+            for &v in &moved {
+                let v = v as usize;
+                active.extend_from_slice(&self.edges_at[self.at[v] as usize..self.at[v + 1] as usize]);
+            }
+            active.sort_unstable();
+            active.dedup();
+            moved.clear();
         }
         sweeps
     }
@@ -171,6 +237,26 @@ mod tests {
         assert!(limits.worst_ratio(&x) <= 1.0 + 1e-3, "ratio {}", limits.worst_ratio(&x));
         assert!(limits.worst_stretch(&x) <= 1.1 * (1.0 + 1e-3));
         assert_eq!(x[0], Vec3::ZERO, "a vertex of inverse mass 0 moved");
+    }
+
+    #[test]
+    fn a_vertex_on_its_plane_slides_along_it_instead_of_crossing_it() {
+        // A fixed vertex below a plane z ≥ 0 and a free one resting on it,
+        // stretched sideways: shortening the edge straight would pull the
+        // free one under the plane; it slides along it instead.
+        let rest = [Vec3::new(0.0, 0.0, -1.0), Vec3::ZERO];
+        let limits = EdgeLimits::new(&[[0, 1]], &rest, MaxStretch::Uniform(0.1)).unwrap();
+        let mut x = vec![rest[0], Vec3::new(2.0, 0.0, 0.0)];
+        let above = [(Vec3::ZERO, 0.0), (Vec3::Z, 0.0)];
+        let sweeps = limits.project_above(&mut x, &[0.0, 1.0], &above, 1000, 1e-4);
+        assert!(sweeps < 1000, "did not converge");
+        assert!(limits.worst_ratio(&x) <= 1.0 + 1e-4, "ratio {}", limits.worst_ratio(&x));
+        assert!(x[1].z >= -1e-6, "crossed its plane: {:?}", x[1]);
+        assert!(x[1].x > 0.0 && x[1].x < 0.46, "slid to {:?}", x[1]);
+        // Without the plane the same projection pulls it under.
+        let mut free = vec![rest[0], Vec3::new(2.0, 0.0, 0.0)];
+        limits.project(&mut free, &[0.0, 1.0], 1000, 1e-4);
+        assert!(free[1].z < -0.1, "{:?}", free[1]);
     }
 
     #[test]

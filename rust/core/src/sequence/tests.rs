@@ -310,20 +310,23 @@ mod strain {
 /// rather than stretch. A 61 × 61 sheet held at its border (closeness 1), a
 /// friction-1 sphere pressed 0.15 into it and dragged 0.6 sideways, edges
 /// limited to 1.1 × their rest length (`UNIFIED`): every frame within
-/// `(1 + ε)·1.01` and without penetration.
+/// `(1 + ε)·1.01` and without penetration, and the skin that touched the
+/// sphere when the drag began stays behind it: the sphere slides over it.
 ///
-/// Not met yet: the worst edge reaches 1.25 (0 penetrations). Static
-/// friction holds the skin under the sphere while the strain projection
-/// and the contact passes alternate; friction is not yet capped by what
-/// the limits allow (seed 002's constitutive strain limiting with contacts).
+/// Measured (release build): the worst edge is 1.1003–1.1007 × its rest
+/// length in every frame of the drag (it was 1.25 before the strain rounds
+/// resolved their moves without friction and against contact planes), with
+/// no penetration; the skin under the sphere at the start of the drag moves
+/// at most 0.03 along the drag (mean; 0.009 at the end) while the sphere
+/// moves 0.6.
 #[test]
-#[ignore = "fails today: issue 29's strain limits under friction (see the doc comment)"]
 fn a_held_sheet_dragged_by_a_rough_sphere_slides_within_its_strain_limit() {
     let skin = grid(60, 60, 2.0);
     let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
     let border: Vec<f32> = skin.positions.iter().map(|p| if p.x.abs() > 0.999 || p.y.abs() > 0.999 { 1.0 } else { 0.05 }).collect();
     let (ball, tris) = sphere(0.3);
-    let path: Vec<Vec3> = (0..6)
+    let pressed = 5;
+    let path: Vec<Vec3> = (0..=pressed)
         .map(|k| Vec3::new(-0.3, 0.0, 0.5 - 0.07 * k as f32))
         .chain((1..=12).map(|k| Vec3::new(-0.3 + 0.05 * k as f32, 0.0, 0.15)))
         .collect();
@@ -335,13 +338,31 @@ fn a_held_sheet_dragged_by_a_rough_sphere_slides_within_its_strain_limit() {
     };
     let limits = crate::strain::EdgeLimits::new(&strain::polygon_edges(&skin), &skin.positions, MaxStretch::Uniform(0.0)).unwrap();
     let mut worst = Vec::new();
-    for at in &path {
+    // The skin touching the sphere when the drag begins, and where it was.
+    let mut touching: Vec<(usize, Vec3)> = Vec::new();
+    let mut drift = Vec::new();
+    for (frame, at) in path.iter().enumerate() {
         collider.update(&moved(&ball.positions, *at)).unwrap();
         let (x, _) = deformer.step(&skin.positions, &mut [&mut collider], &options).unwrap();
-        assert_eq!(penetrations(&skin, &x, &[&collider]), (0, 0, 0));
+        assert_eq!(penetrations(&skin, &x, &[&collider]), (0, 0, 0), "frame {frame}");
         worst.push(limits.worst_stretch(&x));
+        if frame == pressed {
+            touching = (0..x.len()).filter(|&i| (x[i] - *at).length() < 0.3 + 0.03).map(|i| (i, x[i])).collect();
+        } else if frame > pressed {
+            let mean = touching.iter().map(|&(i, p)| x[i].x - p.x).sum::<f32>() / touching.len() as f32;
+            drift.push((mean, at.x - path[pressed].x));
+        }
     }
     assert!(worst.iter().all(|&w| w <= (1.0 + EPS) * 1.01), "worst stretch per frame: {worst:?}");
+    assert!(touching.len() > 20, "the sphere touched only {} vertices", touching.len());
+    // The skin it pressed lags behind the sphere in every frame, and at the
+    // end has gone a small fraction of the way.
+    assert!(
+        drift.iter().all(|&(skin, sphere)| skin.abs() < 0.5 * sphere),
+        "mean drift of the pressed skin against the sphere's, per frame of the drag: {drift:?}"
+    );
+    let (last, sphere) = *drift.last().unwrap();
+    assert!(last.abs() < 0.05 * sphere, "the pressed skin went {last} of the sphere's {sphere}");
 }
 
 mod carried_planes {
