@@ -164,11 +164,24 @@ impl EdgeLimits {
                 }
             }
         };
+        // The edges of the next sweep: all of them (`full`), or those at the
+        // vertices this sweep moved, each vertex listed once (`mark` holds the
+        // sweep that last listed it). Where most of the mesh moves, listing
+        // and sorting cost more than visiting every edge, so the next sweep
+        // is full again.
+        let mut full = true;
         let mut active: Vec<u32> = Vec::new();
         let mut moved: Vec<u32> = Vec::new();
+        let mut mark: Vec<usize> = vec![usize::MAX; x.len()];
         for sweep in 0..sweeps {
             let mut worst = 0.0f32;
-            let visit: &mut dyn Iterator<Item = usize> = if sweep == 0 { &mut (0..self.edges.len()) } else { &mut active.iter().map(|&e| e as usize) };
+            let visit: &mut dyn Iterator<Item = usize> = if full { &mut (0..self.edges.len()) } else { &mut active.iter().map(|&e| e as usize) };
+            let mut moves = |v: usize, moved: &mut Vec<u32>| {
+                if mark[v] != sweep {
+                    mark[v] = sweep;
+                    moved.push(v as u32);
+                }
+            };
             for e in visit {
                 let ([a, b], limit) = (self.edges[e], self.limit[e]);
                 let (a, b) = (a as usize, b as usize);
@@ -188,26 +201,27 @@ impl EdgeLimits {
                 if wa > 0.0 {
                     x[a] -= correction * wa;
                     keep(&mut x[a], a);
-                    moved.push(a as u32);
+                    moves(a, &mut moved);
                 }
                 if wb > 0.0 {
                     x[b] += correction * wb;
                     keep(&mut x[b], b);
-                    moved.push(b as u32);
+                    moves(b, &mut moved);
                 }
             }
             if worst <= tolerance || moved.is_empty() {
                 return sweep + 1;
             }
-            moved.sort_unstable();
-            moved.dedup();
-            active.clear();
-            for &v in &moved {
-                let v = v as usize;
-                active.extend_from_slice(&self.edges_at[self.at[v] as usize..self.at[v + 1] as usize]);
+            full = moved.len() > x.len() / 8;
+            if !full {
+                active.clear();
+                for &v in &moved {
+                    let v = v as usize;
+                    active.extend_from_slice(&self.edges_at[self.at[v] as usize..self.at[v + 1] as usize]);
+                }
+                active.sort_unstable();
+                active.dedup();
             }
-            active.sort_unstable();
-            active.dedup();
             moved.clear();
         }
         sweeps
