@@ -298,39 +298,9 @@ impl BoxTree {
     /// beside a dense patch of boxes (a fan of triangles at a pole) does not
     /// measure every box of the patch.
     pub fn nearest_distance(&self, p: Vec3, limit: f64) -> f64 {
-        let Some(bvh) = &self.bvh else { return limit };
         let p64 = p.as_dvec3();
-        let distance = |b: &Bounds| (b.min.as_dvec3() - p64).max(p64 - b.max.as_dvec3()).max(DVec3::ZERO).length();
-        let node_distance = |i: u32| distance(&Bounds::from_aabb(bvh.nodes[i as usize].aabb()));
-        let mut best = limit;
-        let mut stack: Vec<(u32, f64)> = Vec::with_capacity(64);
-        stack.push((0, node_distance(0)));
-        while let Some((i, d)) = stack.pop() {
-            if d >= best {
-                continue;
-            }
-            let node = &bvh.nodes[i as usize];
-            if node.is_leaf() {
-                for k in node.first_index..node.first_index + node.prim_count {
-                    best = best.min(distance(&self.boxes[bvh.primitive_indices[k as usize] as usize]));
-                }
-                if best <= 0.0 {
-                    return 0.0;
-                }
-                continue;
-            }
-            let (left, right) = (node.first_index, node.first_index + 1);
-            let (dl, dr) = (node_distance(left), node_distance(right));
-            // The nearer child is popped first.
-            if dl <= dr {
-                stack.push((right, dr));
-                stack.push((left, dl));
-            } else {
-                stack.push((left, dl));
-                stack.push((right, dr));
-            }
-        }
-        best
+        let box_distance = |b: &Bounds| (b.min.as_dvec3() - p64).max(p64 - b.max.as_dvec3()).max(DVec3::ZERO).length();
+        self.nearest(p, limit, |i| box_distance(&self.boxes[i])).map_or(limit, |(_, d)| d)
     }
 
     /// The primitive nearest `p` by an exact distance: `distance(i)` is
