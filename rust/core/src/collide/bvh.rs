@@ -30,6 +30,28 @@ pub struct Bounds {
 }
 
 impl Bounds {
+    /// When the path `s → e` (parameter 0..1) first enters the box grown by
+    /// `grow`, or `None` if it misses it.
+    pub fn entry_time(&self, s: DVec3, e: DVec3, grow: f64) -> Option<f64> {
+        let (lo, hi) = (self.min.as_dvec3() - DVec3::splat(grow), self.max.as_dvec3() + DVec3::splat(grow));
+        let direction = e - s;
+        let (mut enter, mut leave) = (0.0f64, 1.0f64);
+        for k in 0..3 {
+            if direction[k] == 0.0 {
+                if s[k] < lo[k] || s[k] > hi[k] {
+                    return None;
+                }
+                continue;
+            }
+            let (a, b) = ((lo[k] - s[k]) / direction[k], (hi[k] - s[k]) / direction[k]);
+            enter = enter.max(a.min(b));
+            leave = leave.min(a.max(b));
+        }
+        // Rounding of the divisions: a path grazing a face may come out just
+        // outside; the growth is far larger than that, so the order still holds.
+        (enter <= leave).then_some(enter)
+    }
+
     /// The box that contains nothing (union identity).
     pub const EMPTY: Bounds = Bounds { min: Vec3::splat(f32::INFINITY), max: Vec3::splat(f32::NEG_INFINITY) };
 
@@ -360,30 +382,13 @@ impl BoxTree {
     /// it would hold much of the mesh.
     pub fn first_along(&self, p: Vec3, q: Vec3, mut hit: impl FnMut(usize) -> Option<f64>) -> Option<(usize, f64)> {
         let bvh = self.bvh.as_ref()?;
-        let (p64, d) = (p.as_dvec3(), q.as_dvec3() - p.as_dvec3());
+        let (p64, q64) = (p.as_dvec3(), q.as_dvec3());
         // Where the segment enters a box, as a fraction of it; None if it
         // misses. The box is grown by a relative 1e-6 so that rounding can
         // only let more boxes through.
         let entry = |b: &Bounds| -> Option<f64> {
-            let (min, max) = (b.min.as_dvec3(), b.max.as_dvec3());
-            let grow = 1e-6 * (1.0 + min.abs().max(max.abs()).max_element());
-            let (min, max) = (min - DVec3::splat(grow), max + DVec3::splat(grow));
-            let (mut t0, mut t1) = (0.0f64, 1.0f64);
-            for axis in 0..3 {
-                if d[axis] == 0.0 {
-                    if p64[axis] < min[axis] || p64[axis] > max[axis] {
-                        return None;
-                    }
-                    continue;
-                }
-                let (a, b) = ((min[axis] - p64[axis]) / d[axis], (max[axis] - p64[axis]) / d[axis]);
-                t0 = t0.max(a.min(b));
-                t1 = t1.min(a.max(b));
-                if t0 > t1 {
-                    return None;
-                }
-            }
-            Some(t0)
+            let grow = 1e-6 * (1.0 + b.min.abs().max(b.max.abs()).max_element() as f64);
+            b.entry_time(p64, q64, grow)
         };
         let node_entry = |i: u32| entry(&Bounds::from_aabb(bvh.nodes[i as usize].aabb()));
         let mut best: Option<(usize, f64)> = None;

@@ -3,30 +3,7 @@
 
 use glam::DVec3;
 
-use crate::collide::bvh::Bounds;
 use crate::collide::geometry::unit;
-
-/// When the path `s → e` (parameter 0..1) first enters `bounds` grown by
-/// `grow`, or `None` if it misses it.
-pub(super) fn entry_time(s: DVec3, e: DVec3, bounds: &Bounds, grow: f64) -> Option<f64> {
-    let (lo, hi) = (bounds.min.as_dvec3() - DVec3::splat(grow), bounds.max.as_dvec3() + DVec3::splat(grow));
-    let direction = e - s;
-    let (mut enter, mut leave) = (0.0f64, 1.0f64);
-    for k in 0..3 {
-        if direction[k] == 0.0 {
-            if s[k] < lo[k] || s[k] > hi[k] {
-                return None;
-            }
-            continue;
-        }
-        let (a, b) = ((lo[k] - s[k]) / direction[k], (hi[k] - s[k]) / direction[k]);
-        enter = enter.max(a.min(b));
-        leave = leave.min(a.max(b));
-    }
-    // Rounding of the divisions: a path grazing a face may come out just
-    // outside; the growth is far larger than that, so the order still holds.
-    (enter <= leave).then_some(enter)
-}
 
 /// Side (+1/−1 along the triangle normal) an open collider's contact is
 /// resolved to: where the vertex was just before contact, else at the start,
@@ -98,6 +75,7 @@ mod tests {
     use glam::Vec3;
 
     use super::*;
+    use crate::collide::bvh::Bounds;
     use proptest::prelude::*;
 
     fn point() -> impl Strategy<Value = DVec3> {
@@ -114,7 +92,7 @@ mod tests {
             let grow = 0.01;
             let (lo, hi) = (bounds.min.as_dvec3() - grow, bounds.max.as_dvec3() + grow);
             let inside = |p: DVec3| p.cmpge(lo).all() && p.cmple(hi).all();
-            let entry = entry_time(s, e, &bounds, grow);
+            let entry = bounds.entry_time(s, e, grow);
             for k in 0..=400 {
                 let t = k as f64 / 400.0;
                 if inside(s.lerp(e, t)) {
@@ -127,7 +105,7 @@ mod tests {
     #[test]
     fn entry_times_of_simple_paths() {
         let unit = Bounds { min: Vec3::ZERO, max: Vec3::ONE };
-        let at = |s: [f64; 3], e: [f64; 3]| entry_time(DVec3::from(s), DVec3::from(e), &unit, 0.0);
+        let at = |s: [f64; 3], e: [f64; 3]| unit.entry_time(DVec3::from(s), DVec3::from(e), 0.0);
         assert_eq!(at([-1.0, 0.5, 0.5], [3.0, 0.5, 0.5]), Some(0.25));
         assert_eq!(at([0.5, 0.5, 0.5], [3.0, 0.5, 0.5]), Some(0.0), "starting inside");
         assert_eq!(at([-1.0, 2.0, 0.5], [3.0, 2.0, 0.5]), None, "passing beside");

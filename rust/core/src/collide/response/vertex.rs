@@ -4,7 +4,7 @@
 use glam::{DVec3, Vec3};
 
 use super::scratch::{Scratch, CANDIDATES};
-use super::contact::{entry_time, open_side};
+use super::contact::open_side;
 use super::{d, ColliderMotion, ColliderSet, ResolveParams, VertexHit};
 use crate::collide::bvh::Bounds;
 use crate::collide::ccd;
@@ -42,7 +42,7 @@ impl<'a> ColliderSet<'a> {
             let (ps, pe) = self.tree_path(c, motion, s64, e64);
             let tree = self.triangle_tree(c, motion);
             for &t in candidates.iter() {
-                if let Some(entry) = entry_time(ps, pe, &tree.primitive_bounds(t as usize), grow) {
+                if let Some(entry) = tree.primitive_bounds(t as usize).entry_time(ps, pe, grow) {
                     order.push((entry, c as u32, t));
                 }
             }
