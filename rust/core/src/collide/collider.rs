@@ -526,13 +526,22 @@ impl Collider {
     /// The point of the surface (at the current positions) closest to `p`,
     /// or `None` for a collider without triangles.
     pub fn closest_point(&self, p: Vec3) -> Option<SurfacePoint> {
+        self.closest_point_within(p, f64::INFINITY)
+    }
+
+    /// [`Self::closest_point`] when it is nearer than `limit`, else `None`.
+    /// A caller that knows a point of the surface within `limit` gets the
+    /// same answer sooner: the search skips every subtree farther than that
+    /// from the start, where the unbounded one descends to the nearest leaf
+    /// first and prunes only from there.
+    pub fn closest_point_within(&self, p: Vec3, limit: f64) -> Option<SurfacePoint> {
         if self.triangles.is_empty() {
             return None;
         }
         let pd = p.as_dvec3();
         // The search measures each candidate once; its surface point is kept here.
         let mut found = None;
-        self.tree.nearest(p, f64::INFINITY, |t| {
+        self.tree.nearest(p, limit, |t| {
             let [a, b, c] = self.triangles[t].map(|v| self.current[v as usize].as_dvec3());
             let (v, w) = closest_on_triangle(pd, a, b, c);
             let q = a + v * (b - a) + w * (c - a);

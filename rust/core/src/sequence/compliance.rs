@@ -146,10 +146,19 @@ pub(super) fn recede_from(
             }
             // A goal clear of the skin and reachable in a straight line needs no
             // search for the skin's closest point (which is slow far from it).
-            if obstacle.first_hit(start[v], g).is_none() && !obstacle.is_within(g, clearance) {
+            let hit = obstacle.first_hit(start[v], g);
+            if hit.is_none() && !obstacle.is_within(g, clearance) {
                 return g;
             }
-            let Some(near) = obstacle.closest_point(g) else { return g };
+            // The skin is no farther from the goal than where the straight
+            // line met it, or than the clearance it is within: the search
+            // for the closest point need not look farther (slightly
+            // more, for the rounding of the fraction).
+            let within = match hit {
+                Some((t, _)) => (1.0 - t) * (g - start[v]).length(),
+                None => clearance,
+            };
+            let Some(near) = obstacle.closest_point_within(g, within as f64 * (1.0 + 1e-4) + 1e-6) else { return g };
             let face_normal = |t: u32| {
                 let [a, b, c] = obstacle.triangles()[t as usize].map(|k| x[k as usize]);
                 (b - a).cross(c - a).normalize_or_zero()

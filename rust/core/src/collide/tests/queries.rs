@@ -51,6 +51,10 @@ fn closest_point_is_the_nearest_triangle_inside_and_outside_a_closed_collider() 
         let found = distance(p, &tris[near.triangle as usize]);
         assert!((found - brute).abs() < 1e-9, "{p}: triangle {} at {found}, nearest at {brute}", near.triangle);
         assert!(((near.point - p).length() as f64 - brute).abs() < 1e-5);
+        // Bounded by anything beyond the nearest distance, the same point
+        // and triangle; bounded short of it, none.
+        assert_eq!(c.closest_point_within(p, brute * 1.001 + 1e-9), Some(near), "{p}");
+        assert_eq!(c.closest_point_within(p, brute * 0.999), None, "{p}");
     }
 }
 
