@@ -59,7 +59,11 @@ pub(super) fn contact_targets(
     for (collider, goal) in colliders.iter().zip(goals) {
         let (Some(goal), Some(compliance)) = (goal, collider.compliance()) else { continue };
         if collider.is_closed() {
-            shapes.push((Collider::new(goal, collider.triangles(), collider.settings())?, &compliance.stiffness));
+            // The collider's own trees refitted to the goals: building new
+            // ones (and the edge lists) cost more than the rows themselves.
+            let mut shape = (**collider).clone();
+            shape.set_positions(goal, goal)?;
+            shapes.push((shape, &compliance.stiffness));
         }
     }
     if shapes.is_empty() {
