@@ -116,6 +116,20 @@ impl Bounds {
     }
 }
 
+/// How much of box `b` is the `margin` its primitive's box was grown by (0
+/// for a margin of 0). A query that measures from a box only to bound its
+/// primitive learns more from the box less that: around a skin whose
+/// triangles are smaller than twice the thickness, the grown boxes of a whole
+/// patch come nearer a point than its nearest triangle, and each is then
+/// measured. A relative 1e-6 of the margin is kept, for the f32 rounding of
+/// the growth, so that the box less it still holds its primitive.
+fn grown_by(b: &Bounds, margin: f64) -> f64 {
+    if margin <= 0.0 {
+        return 0.0;
+    }
+    (margin - 1e-6 * (1.0 + b.min.abs().max(b.max.abs()).max_element() as f64)).max(0.0)
+}
+
 /// Largest f32 not above `x`.
 pub fn round_down(x: f64) -> f32 {
     let f = x as f32;
@@ -322,7 +336,7 @@ impl BoxTree {
     pub fn nearest_distance(&self, p: Vec3, limit: f64) -> f64 {
         let p64 = p.as_dvec3();
         let box_distance = |b: &Bounds| (b.min.as_dvec3() - p64).max(p64 - b.max.as_dvec3()).max(DVec3::ZERO).length();
-        self.nearest(p, limit, |i| box_distance(&self.boxes[i])).map_or(limit, |(_, d)| d)
+        self.nearest(p, limit, 0.0, |i| box_distance(&self.boxes[i])).map_or(limit, |(_, d)| d)
     }
 
     /// The primitive nearest `p` by an exact distance: `distance(i)` is
@@ -332,10 +346,18 @@ impl BoxTree {
     /// handful near the surface and deep inside a closed collider alike.
     /// Returns the primitive and its distance, or None for an empty tree or
     /// when nothing is nearer than `limit`.
-    pub fn nearest(&self, p: Vec3, limit: f64, mut distance: impl FnMut(usize) -> f64) -> Option<(usize, f64)> {
+    ///
+    /// `margin` is what the boxes were grown by around their primitives (a
+    /// collider's thickness; see [`grown_by`]): the boxes' distances are
+    /// measured without it, so that they bound the primitives' as tightly
+    /// as they can.
+    pub fn nearest(&self, p: Vec3, limit: f64, margin: f64, mut distance: impl FnMut(usize) -> f64) -> Option<(usize, f64)> {
         let bvh = self.bvh.as_ref()?;
         let p64 = p.as_dvec3();
-        let box_distance = |b: &Bounds| (b.min.as_dvec3() - p64).max(p64 - b.max.as_dvec3()).max(DVec3::ZERO).length();
+        let box_distance = |b: &Bounds| {
+            let less = DVec3::splat(grown_by(b, margin));
+            (b.min.as_dvec3() + less - p64).max(p64 - b.max.as_dvec3() + less).max(DVec3::ZERO).length()
+        };
         let node_distance = |i: u32| box_distance(&Bounds::from_aabb(bvh.nodes[i as usize].aabb()));
         let mut best: Option<(usize, f64)> = None;
         let mut bound = limit;
@@ -379,16 +401,17 @@ impl BoxTree {
     /// if it misses). Only nodes the segment passes through are opened,
     /// nearest first, and none that start beyond the first hit found: a long
     /// segment across a large mesh meets a few boxes, where the box around
-    /// it would hold much of the mesh.
-    pub fn first_along(&self, p: Vec3, q: Vec3, mut hit: impl FnMut(usize) -> Option<f64>) -> Option<(usize, f64)> {
+    /// it would hold much of the mesh. `margin` is what the boxes were grown
+    /// by around their primitives, as for [`Self::nearest`].
+    pub fn first_along(&self, p: Vec3, q: Vec3, margin: f64, mut hit: impl FnMut(usize) -> Option<f64>) -> Option<(usize, f64)> {
         let bvh = self.bvh.as_ref()?;
         let (p64, q64) = (p.as_dvec3(), q.as_dvec3());
         // Where the segment enters a box, as a fraction of it; None if it
-        // misses. The box is grown by a relative 1e-6 so that rounding can
-        // only let more boxes through.
+        // misses. The box, less the margin, is grown by a relative 1e-6 so
+        // that rounding can only let more boxes through.
         let entry = |b: &Bounds| -> Option<f64> {
             let grow = 1e-6 * (1.0 + b.min.abs().max(b.max.abs()).max_element() as f64);
-            b.entry_time(p64, q64, grow)
+            b.entry_time(p64, q64, grow - grown_by(b, margin))
         };
         let node_entry = |i: u32| entry(&Bounds::from_aabb(bvh.nodes[i as usize].aabb()));
         let mut best: Option<(usize, f64)> = None;

@@ -541,7 +541,7 @@ impl Collider {
         let pd = p.as_dvec3();
         // The search measures each candidate once; its surface point is kept here.
         let mut found = None;
-        self.tree.nearest(p, limit, |t| {
+        self.tree.nearest(p, limit, self.settings.thickness as f64, |t| {
             let [a, b, c] = self.triangles[t].map(|v| self.current[v as usize].as_dvec3());
             let (v, w) = closest_on_triangle(pd, a, b, c);
             let q = a + v * (b - a) + w * (c - a);
@@ -574,7 +574,7 @@ impl Collider {
     pub fn first_hit(&self, p: Vec3, q: Vec3) -> Option<(f32, u32)> {
         let (pd, qd) = (p.as_dvec3(), q.as_dvec3());
         let dir = qd - pd;
-        let (t, along) = self.tree.first_along(p, q, |t| {
+        let (t, along) = self.tree.first_along(p, q, self.settings.thickness as f64, |t| {
             let [a, b, c] = self.triangles[t].map(|v| self.current[v as usize].as_dvec3());
             // Möller–Trumbore, in f64.
             let (e1, e2) = (b - a, c - a);
