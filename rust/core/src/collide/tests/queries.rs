@@ -95,3 +95,30 @@ fn first_hit_is_the_nearest_crossing_of_every_triangle() {
     }
     assert!(hits > 50, "only {hits} segments hit: the test says little");
 }
+
+#[test]
+fn queries_of_a_collider_thicker_than_its_triangles_do_not_depend_on_the_thickness() {
+    // The searches measure from the boxes less the thickness (a skin standing
+    // in as a collider has triangles smaller than it): the same answers as
+    // without one, on a bent sheet where a thick box reaches far past its
+    // triangle's neighbours. (Where the closest point or the crossing is on
+    // an edge, either triangle of the edge may be named.)
+    let mesh = grid(12, 12, 2.0);
+    let positions: Vec<Vec3> = mesh.positions.iter().map(|p| Vec3::new(p.x, p.y, 0.3 * (2.0 * p.x).sin() * p.y.cos())).collect();
+    let offsets: Vec<u32> = (0..=mesh.polygon_sizes.len() as u32).map(|k| 4 * k).collect();
+    let tris = crate::mesh::fan_triangles(&mesh.corner_verts, &offsets);
+    let thin = Collider::new(&positions, &tris, ColliderSettings::new(0.0, 0.0)).unwrap();
+    let thick = Collider::new(&positions, &tris, ColliderSettings::new(0.6, 0.0)).unwrap();
+    let mut hits = 0;
+    for k in 0..300 {
+        let f = k as f32;
+        let p = Vec3::new((f * 0.37).sin(), (f * 0.71).cos(), 0.8 * (f * 0.13).sin());
+        let (a, b) = (thick.closest_point(p).unwrap(), thin.closest_point(p).unwrap());
+        assert!((a.point - b.point).length() < 1e-6, "{p}: {a:?} against {b:?}");
+        let q = p + Vec3::new((f * 0.29).cos(), (f * 0.53).sin(), -(f * 0.17).cos()) * (0.3 + 0.005 * f);
+        let along = |c: &Collider| c.first_hit(p, q).map(|(t, _)| t);
+        assert_eq!(along(&thick), along(&thin), "{p} → {q}");
+        hits += thin.first_hit(p, q).is_some() as usize;
+    }
+    assert!(hits > 50, "only {hits} segments hit: the test says little");
+}
