@@ -60,6 +60,7 @@ use crate::collide::{Collider, Skin};
 use crate::mesh::{polygon_edges, MeshInput, Weld, SLIVER_RATIO, WELD_TOLERANCE};
 use crate::pyramid::{DeformerOptions, PyramidDeformer};
 use crate::solve::ConstraintId;
+use crate::strain::Hierarchy;
 use crate::Result;
 
 pub use dynamics::{Dynamics, MAX_SUBSTEPS, STIFFNESS_DENSITY};
@@ -104,6 +105,9 @@ pub struct Sequence {
     skin_collider: Option<Collider>,
     /// The last substep's in-loop supporting planes, for the next first pass.
     carried_planes: Option<CarriedPlanes>,
+    /// The multilevel blocks of the unified strain pass, built on the first
+    /// step that needs them and kept while the limits stay the same.
+    strain_levels: Option<Hierarchy>,
 }
 
 impl Sequence {
@@ -152,6 +156,7 @@ impl Sequence {
             contact_targets: None,
             skin_collider: None,
             carried_planes: None,
+            strain_levels: None,
         }
     }
 

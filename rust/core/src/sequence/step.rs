@@ -15,7 +15,7 @@ use crate::mesh::validate_positions;
 use crate::pyramid::MAX_ITERATIONS;
 use crate::pyramid::PyramidDeformer;
 use crate::solve::{ConstraintId, IterationHook, Targets};
-use crate::strain::EdgeLimits;
+use crate::strain::{EdgeLimits, Hierarchy};
 use crate::{Error, Result};
 
 impl Sequence {
@@ -216,6 +216,12 @@ impl Sequence {
         let skin = &self.skin;
         let skin_collider = &mut self.skin_collider;
         let unified = limits.filter(|(_, mode)| *mode == StrainMode::Unified).map(|(l, _)| l);
+        if let Some(limits) = unified {
+            if !self.strain_levels.as_ref().is_some_and(|levels| levels.fits(limits)) {
+                self.strain_levels = Some(Hierarchy::new(limits, &self.rest));
+            }
+        }
+        let levels = self.strain_levels.as_ref().filter(|_| unified.is_some());
         let any_colliders = !colliders.is_empty();
         let last_iteration = options.iterations.saturating_sub(1);
         // Where the skin is, at the start of the in-loop passes, relative to
@@ -239,8 +245,10 @@ impl Sequence {
                 last_pinched = stats.pinched;
             }
             if let Some(limits) = unified {
-                let rounds = if iteration >= last_iteration { STRAIN_ROUNDS } else { STRAIN_ROUNDS_EARLY };
-                let pinched = limit_strain_with_contacts(limits, colliders, after, skin, &inverse_mass, rounds, clearance.as_ref())?;
+                // The multilevel projection only where the rounds have room to
+                // settle its large moves against the contacts: the last iteration.
+                let (rounds, levels) = if iteration >= last_iteration { (STRAIN_ROUNDS, levels) } else { (STRAIN_ROUNDS_EARLY, None) };
+                let pinched = limit_strain_with_contacts(limits, levels, colliders, after, skin, &inverse_mass, rounds, clearance.as_ref())?;
                 suspects.extend_from_slice(&pinched);
                 last_pinched.extend(pinched);
             }

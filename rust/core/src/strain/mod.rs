@@ -9,8 +9,14 @@
 //! The sweep is Gauss–Seidel in edge order: sequential, hence deterministic,
 //! and it converges much faster than a Jacobi average on the long chains of
 //! stretched edges a dragging collider makes. Only over-long edges do work.
+//! Where the material an over-stretched region needs lies many edges away,
+//! the sweeps still carry it one edge each: [`Hierarchy`] (`multilevel`)
+//! moves whole blocks of vertices first.
 
 use glam::Vec3;
+
+mod multilevel;
+pub use multilevel::Hierarchy;
 
 use crate::mesh::validate_positions;
 use crate::{Error, Result};

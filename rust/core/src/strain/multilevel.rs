@@ -1,0 +1,296 @@
+//! Multilevel strain projection: Gauss–Seidel sweeps over blocks of vertices
+//! that move together, from large blocks to single vertices.
+//!
+//! A sweep over single vertices carries a correction about one edge further,
+//! so a stretch that has to be drawn from a region `k` edges across needs on
+//! the order of `k²` sweeps. Here the vertices are grouped into aggregates
+//! (a vertex and its free neighbours), the aggregates into aggregates of
+//! aggregates, and so on. At each level, from the coarsest, a sweep visits
+//! pairs of neighbouring blocks and, where their centroids are farther apart
+//! than `(1 + ε)` times at rest, translates the two blocks rigidly towards
+//! each other with the blocks' inverse masses. A block `s` edges across
+//! carries a correction `s` edges in one visit; the finer levels then share
+//! it out inside the blocks.
+
+use glam::Vec3;
+
+use super::EdgeLimits;
+
+/// Levels stop once a level has fewer blocks than this.
+const COARSEST: usize = 16;
+
+#[derive(Debug, Clone, Default)]
+struct Level {
+    /// The block of each vertex.
+    block_of: Vec<u32>,
+    /// Number of blocks.
+    count: usize,
+    /// Neighbouring blocks, and the largest distance allowed between their centroids.
+    pairs: Vec<[u32; 2]>,
+    limit: Vec<f32>,
+}
+
+/// The block hierarchy of a mesh's edge graph.
+#[derive(Debug, Clone, Default)]
+pub struct Hierarchy {
+    levels: Vec<Level>,
+    /// The edge limits the pairs' limits were derived from.
+    built_for: Vec<f32>,
+}
+
+impl Hierarchy {
+    /// Aggregates the edge graph of `limits` over the rest positions `rest`.
+    pub fn new(limits: &EdgeLimits, rest: &[Vec3]) -> Hierarchy {
+        let vertex_count = rest.len();
+        let mut hierarchy = Hierarchy { built_for: limits.limit.clone(), ..Hierarchy::default() };
+        let mut node_of: Vec<u32> = (0..vertex_count as u32).collect();
+        let mut nodes = vertex_count;
+        let mut node_edges: Vec<[u32; 2]> = limits.edges.clone();
+        while nodes > COARSEST {
+            let aggregate = aggregate(nodes, &node_edges);
+            let count = aggregate.iter().map(|&a| a as usize + 1).max().unwrap_or(0);
+            if count == nodes {
+                break;
+            }
+            node_of.iter_mut().for_each(|n| *n = aggregate[*n as usize]);
+            // Rest centroids, and per pair the loosest stretch of the edges between them.
+            let mut sum = vec![Vec3::ZERO; count];
+            let mut members = vec![0u32; count];
+            for (p, &b) in rest.iter().zip(&node_of) {
+                sum[b as usize] += *p;
+                members[b as usize] += 1;
+            }
+            let centroid: Vec<Vec3> = sum.iter().zip(&members).map(|(s, &m)| *s / m.max(1) as f32).collect();
+            let mut pairs: Vec<([u32; 2], f32)> = limits
+                .edges
+                .iter()
+                .zip(limits.rest.iter().zip(&limits.limit))
+                .filter_map(|(&[a, b], (&rest, &limit))| {
+                    let (a, b) = (node_of[a as usize], node_of[b as usize]);
+                    (a != b).then(|| ([a.min(b), a.max(b)], if rest > 0.0 { limit / rest } else { f32::INFINITY }))
+                })
+                .collect();
+            pairs.sort_unstable_by_key(|pair| pair.0);
+            let mut level = Level { block_of: node_of.clone(), count, ..Level::default() };
+            for group in pairs.chunk_by(|x, y| x.0 == y.0) {
+                let [a, b] = group[0].0;
+                let stretch = group.iter().map(|g| g.1).fold(0.0f32, f32::max);
+                let distance = (centroid[a as usize] - centroid[b as usize]).length();
+                if stretch.is_finite() && distance > 0.0 {
+                    level.pairs.push([a, b]);
+                    level.limit.push(stretch * distance);
+                }
+            }
+            let mut next: Vec<[u32; 2]> = node_edges
+                .iter()
+                .map(|&[a, b]| {
+                    let (a, b) = (aggregate[a as usize], aggregate[b as usize]);
+                    [a.min(b), a.max(b)]
+                })
+                .filter(|[a, b]| a != b)
+                .collect();
+            next.sort_unstable();
+            next.dedup();
+            hierarchy.levels.push(level);
+            node_edges = next;
+            nodes = count;
+        }
+        hierarchy
+    }
+
+    /// Levels of blocks (the finest aggregates first).
+    pub fn levels(&self) -> usize {
+        self.levels.len()
+    }
+
+    /// Whether this hierarchy was built for these limits (same edges, same
+    /// limits): a sequence keeps it from frame to frame.
+    pub fn fits(&self, limits: &EdgeLimits) -> bool {
+        self.built_for == limits.limit
+    }
+
+    /// Up to `sweeps` Gauss–Seidel sweeps at every level, coarsest first. A
+    /// block holding a vertex of inverse mass 0 does not move. A block with
+    /// vertices on contact planes (`above`, as in
+    /// [`EdgeLimits::project_above`]) moves only along or away from their
+    /// mean plane; its vertices may still end a little below their own
+    /// planes, which the fine sweeps that follow take care of.
+    pub fn project(&self, x: &mut [Vec3], inverse_mass: &[f32], above: &[(Vec3, f32)], sweeps: usize) {
+        for level in self.levels.iter().rev() {
+            let mut mass = vec![0.0f32; level.count];
+            let mut sum = vec![Vec3::ZERO; level.count];
+            // For blocks with a fixed vertex (infinite mass): the plain centroid.
+            let mut plain = vec![(Vec3::ZERO, 0.0f32); level.count];
+            let mut normal = vec![Vec3::ZERO; level.count];
+            for (v, &b) in level.block_of.iter().enumerate() {
+                let w = inverse_mass[v];
+                let m = if w > 0.0 { 1.0 / w } else { f32::INFINITY };
+                mass[b as usize] += m;
+                if m.is_finite() {
+                    sum[b as usize] += x[v] * m;
+                }
+                plain[b as usize].0 += x[v];
+                plain[b as usize].1 += 1.0;
+                if let Some(&(n, _)) = above.get(v) {
+                    normal[b as usize] += n;
+                }
+            }
+            // A block resting on contact planes slides along them: its moves
+            // lose their part into the mean plane.
+            let normal: Vec<Vec3> = normal.iter().map(|n| n.normalize_or_zero()).collect();
+            let slide = |t: Vec3, n: Vec3| {
+                let into = n.dot(t);
+                if into < 0.0 { t - n * into } else { t }
+            };
+            let centroid: Vec<Vec3> = (0..level.count)
+                .map(|b| if mass[b].is_finite() && mass[b] > 0.0 { sum[b] / mass[b] } else { plain[b].0 / plain[b].1.max(1.0) })
+                .collect();
+            let weight: Vec<f32> = mass.iter().map(|&m| if m.is_finite() && m > 0.0 { 1.0 / m } else { 0.0 }).collect();
+            let mut offset = vec![Vec3::ZERO; level.count];
+            for _ in 0..sweeps {
+                let mut moved = false;
+                for (&[a, b], &limit) in level.pairs.iter().zip(&level.limit) {
+                    let (a, b) = (a as usize, b as usize);
+                    let delta = (centroid[a] + offset[a]) - (centroid[b] + offset[b]);
+                    let length = delta.length();
+                    #[allow(clippy::neg_cmp_op_on_partial_ord)] // a NaN length must not count as within
+                    if !(length > limit) {
+                        continue;
+                    }
+                    let (wa, wb) = (weight[a], weight[b]);
+                    let w = wa + wb;
+                    if w <= 0.0 {
+                        continue;
+                    }
+                    let correction = delta * ((length - limit) / (length * w));
+                    offset[a] += slide(-correction * wa, normal[a]);
+                    offset[b] += slide(correction * wb, normal[b]);
+                    moved = true;
+                }
+                if !moved {
+                    break;
+                }
+            }
+            for (p, &b) in x.iter_mut().zip(&level.block_of) {
+                *p += offset[b as usize];
+            }
+        }
+    }
+}
+
+/// Greedy aggregation: in order, a node not yet taken starts an aggregate
+/// with its neighbours not yet taken; a node left without one joins a
+/// neighbour's. Returns the aggregate of each node.
+fn aggregate(nodes: usize, edges: &[[u32; 2]]) -> Vec<u32> {
+    let mut at = vec![0u32; nodes + 1];
+    for &[a, b] in edges {
+        at[a as usize + 1] += 1;
+        at[b as usize + 1] += 1;
+    }
+    for k in 0..nodes {
+        at[k + 1] += at[k];
+    }
+    let mut fill = at.clone();
+    let mut neighbours = vec![0u32; at[nodes] as usize];
+    for &[a, b] in edges {
+        neighbours[fill[a as usize] as usize] = b;
+        fill[a as usize] += 1;
+        neighbours[fill[b as usize] as usize] = a;
+        fill[b as usize] += 1;
+    }
+    let around = |v: usize| &neighbours[at[v] as usize..at[v + 1] as usize];
+    let mut of = vec![u32::MAX; nodes];
+    let mut count = 0u32;
+    for v in 0..nodes {
+        if of[v] != u32::MAX || around(v).iter().any(|&w| of[w as usize] != u32::MAX) {
+            continue;
+        }
+        of[v] = count;
+        for &w in around(v) {
+            of[w as usize] = count;
+        }
+        count += 1;
+    }
+    for v in 0..nodes {
+        if of[v] == u32::MAX {
+            of[v] = around(v).iter().map(|&w| of[w as usize]).find(|&a| a != u32::MAX).unwrap_or_else(|| {
+                count += 1;
+                count - 1
+            });
+        }
+    }
+    of
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::polygon_edges;
+    use crate::mesh::shapes::{grid, PolyMesh};
+    use crate::strain::MaxStretch;
+
+    fn sheet() -> (PolyMesh, EdgeLimits) {
+        let sheet = grid(60, 60, 2.0);
+        let edges = polygon_edges(&sheet.corner_verts, &sheet.input().validate().unwrap());
+        let limits = EdgeLimits::new(&edges, &sheet.positions, MaxStretch::Uniform(0.1)).unwrap();
+        (sheet, limits)
+    }
+
+    /// The middle of the sheet blown up 1.6× in the plane, the rest at rest:
+    /// the material the middle needs comes from a wide ring around it.
+    fn blown_up(rest: &[Vec3]) -> Vec<Vec3> {
+        rest.iter()
+            .map(|p| {
+                let r = p.truncate().length();
+                let scale = 1.0 + 0.6 * (1.0 - (r / 0.5).min(1.0));
+                Vec3::new(p.x * scale, p.y * scale, p.z)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_levels_draw_material_from_far_in_few_sweeps() {
+        let (sheet, limits) = sheet();
+        let levels = Hierarchy::new(&limits, &sheet.positions);
+        assert!(levels.levels() >= 3, "{} levels", levels.levels());
+        assert!(levels.fits(&limits));
+        let w = vec![1.0; sheet.positions.len()];
+        let start = blown_up(&sheet.positions);
+        assert!(limits.worst_ratio(&start) > 1.3);
+        let mut plain = start.clone();
+        limits.project(&mut plain, &w, 16, 1e-3);
+        let mut multilevel = start;
+        levels.project(&mut multilevel, &w, &[], 4);
+        limits.project(&mut multilevel, &w, 16, 1e-3);
+        let (plain, multilevel) = (limits.worst_ratio(&plain), limits.worst_ratio(&multilevel));
+        assert!(multilevel < 1.0 + 0.5 * (plain - 1.0), "16 sweeps: {plain}; levels and 16 sweeps: {multilevel}");
+    }
+
+    #[test]
+    fn fixed_vertices_stay_and_planes_are_slid_along() {
+        let (sheet, limits) = sheet();
+        let levels = Hierarchy::new(&limits, &sheet.positions);
+        let start = blown_up(&sheet.positions);
+        // The first row fixed; every vertex on the plane z ≥ 0.
+        let mut w = vec![1.0; start.len()];
+        w[..61].iter_mut().for_each(|w| *w = 0.0);
+        let above = vec![(Vec3::Z, 0.0); start.len()];
+        let mut plain = start.clone();
+        limits.project_above(&mut plain, &w, &above, 16, 1e-3);
+        let mut x = start.clone();
+        levels.project(&mut x, &w, &above, 4);
+        assert_eq!(x[..61], start[..61], "a fixed vertex moved");
+        assert!(x.iter().all(|p| p.z >= -1e-6 && p.is_finite()), "a vertex crossed its plane");
+        limits.project_above(&mut x, &w, &above, 16, 1e-3);
+        let (plain, multilevel) = (limits.worst_ratio(&plain), limits.worst_ratio(&x));
+        assert!(multilevel < 1.0 + 0.5 * (plain - 1.0), "16 sweeps: {plain}; levels and 16 sweeps: {multilevel}");
+    }
+
+    #[test]
+    fn other_limits_need_another_hierarchy() {
+        let (sheet, limits) = sheet();
+        let levels = Hierarchy::new(&limits, &sheet.positions);
+        let looser = EdgeLimits::new(limits.edges(), &sheet.positions, MaxStretch::Uniform(0.2)).unwrap();
+        assert!(!levels.fits(&looser));
+    }
+}
