@@ -7,6 +7,7 @@
 //! orientation, boundaries, and everything that is not a clean 2-manifold;
 //! [`Weld`] joins the vertices an importer split at seams.
 
+mod aggregate;
 mod elements;
 pub mod shapes;
 mod topology;
@@ -14,6 +15,7 @@ mod transform;
 mod validate;
 mod weld;
 
+pub use aggregate::{aggregate_edges, aggregate_once};
 pub use elements::{fan_triangles, polygon_edges, triangle_edges, vertex_incidence};
 pub use topology::{Topology, TopologyReport};
 pub use transform::transform_points;

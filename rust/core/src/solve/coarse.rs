@@ -42,6 +42,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::system::{factorize_lower, RowBlock};
+use crate::mesh::{aggregate_edges, aggregate_once};
 use crate::Result;
 
 /// Most coarse unknowns: rounds of one-ring aggregation (each divides the
@@ -202,52 +203,20 @@ impl Coarse {
 fn aggregates(n: usize, m: &[(u32, u32, f32)]) -> Vec<u32> {
     // Symmetric adjacency of the vertices.
     let mut edges: Vec<(u32, u32)> = m.iter().flat_map(|&(i, j, _)| [(i, j), (j, i)]).collect();
+    edges.par_sort_unstable();
+    edges.dedup();
     let mut map: Vec<u32> = (0..n as u32).collect();
     let mut nodes = n;
     for _ in 0..MAX_ROUNDS {
         if nodes <= MAX_AGGREGATES && nodes < n {
             break;
         }
-        edges.par_sort_unstable();
-        edges.dedup();
-        let mut offsets = vec![0usize; nodes + 1];
-        for &(a, _) in &edges {
-            offsets[a as usize + 1] += 1;
-        }
-        for a in 0..nodes {
-            offsets[a + 1] += offsets[a];
-        }
-        let neighbours = |a: usize| edges[offsets[a]..offsets[a + 1]].iter().map(|e| e.1 as usize);
-        let mut of = vec![u32::MAX; nodes];
-        let mut next = 0u32;
-        // Roots: a node none of whose neighbours is taken takes them all.
-        for a in 0..nodes {
-            if of[a] == u32::MAX && neighbours(a).all(|b| of[b] == u32::MAX) {
-                of[a] = next;
-                for b in neighbours(a) {
-                    of[b] = next;
-                }
-                next += 1;
-            }
-        }
-        // The rest join a neighbouring aggregate (or stay alone).
-        for a in 0..nodes {
-            if of[a] == u32::MAX {
-                let joined = neighbours(a).map(|b| of[b]).find(|&o| o != u32::MAX);
-                of[a] = joined.unwrap_or_else(|| {
-                    next += 1;
-                    next - 1
-                });
-            }
-        }
+        let (of, count) = aggregate_once(nodes, &edges);
         for v in &mut map {
             *v = of[*v as usize];
         }
-        for e in &mut edges {
-            *e = (of[e.0 as usize], of[e.1 as usize]);
-        }
-        edges.retain(|e| e.0 != e.1);
-        nodes = next as usize;
+        edges = aggregate_edges(&edges, &of);
+        nodes = count;
     }
     map
 }

@@ -4,8 +4,8 @@
 //! A sweep over single vertices carries a correction about one edge further,
 //! so a stretch that has to be drawn from a region `k` edges across needs on
 //! the order of `k²` sweeps. Here the vertices are grouped into aggregates
-//! (a vertex and its free neighbours), the aggregates into aggregates of
-//! aggregates, and so on. At each level, from the coarsest, a sweep visits
+//! (a vertex and its free neighbours, [`aggregate_once`] as for the solver's
+//! coarse level), the aggregates into aggregates of aggregates, and so on. At each level, from the coarsest, a sweep visits
 //! pairs of neighbouring blocks and, where their centroids are farther apart
 //! than `(1 + ε)` times at rest, translates the two blocks rigidly towards
 //! each other with the blocks' inverse masses. A block `s` edges across
@@ -15,6 +15,7 @@
 use glam::Vec3;
 
 use super::EdgeLimits;
+use crate::mesh::{aggregate_edges, aggregate_once};
 
 /// Levels stop once a level has fewer blocks than this.
 const COARSEST: usize = 16;
@@ -45,10 +46,11 @@ impl Hierarchy {
         let mut hierarchy = Hierarchy { built_for: limits.limit.clone(), ..Hierarchy::default() };
         let mut node_of: Vec<u32> = (0..vertex_count as u32).collect();
         let mut nodes = vertex_count;
-        let mut node_edges: Vec<[u32; 2]> = limits.edges.clone();
+        let mut node_edges: Vec<(u32, u32)> = limits.edges.iter().flat_map(|&[a, b]| [(a, b), (b, a)]).collect();
+        node_edges.sort_unstable();
+        node_edges.dedup();
         while nodes > COARSEST {
-            let aggregate = aggregate(nodes, &node_edges);
-            let count = aggregate.iter().map(|&a| a as usize + 1).max().unwrap_or(0);
+            let (aggregate, count) = aggregate_once(nodes, &node_edges);
             if count == nodes {
                 break;
             }
@@ -81,16 +83,7 @@ impl Hierarchy {
                     level.limit.push(stretch * distance);
                 }
             }
-            let mut next: Vec<[u32; 2]> = node_edges
-                .iter()
-                .map(|&[a, b]| {
-                    let (a, b) = (aggregate[a as usize], aggregate[b as usize]);
-                    [a.min(b), a.max(b)]
-                })
-                .filter(|[a, b]| a != b)
-                .collect();
-            next.sort_unstable();
-            next.dedup();
+            let next = aggregate_edges(&node_edges, &aggregate);
             hierarchy.levels.push(level);
             node_edges = next;
             nodes = count;
@@ -176,50 +169,6 @@ impl Hierarchy {
             }
         }
     }
-}
-
-/// Greedy aggregation: in order, a node not yet taken starts an aggregate
-/// with its neighbours not yet taken; a node left without one joins a
-/// neighbour's. Returns the aggregate of each node.
-fn aggregate(nodes: usize, edges: &[[u32; 2]]) -> Vec<u32> {
-    let mut at = vec![0u32; nodes + 1];
-    for &[a, b] in edges {
-        at[a as usize + 1] += 1;
-        at[b as usize + 1] += 1;
-    }
-    for k in 0..nodes {
-        at[k + 1] += at[k];
-    }
-    let mut fill = at.clone();
-    let mut neighbours = vec![0u32; at[nodes] as usize];
-    for &[a, b] in edges {
-        neighbours[fill[a as usize] as usize] = b;
-        fill[a as usize] += 1;
-        neighbours[fill[b as usize] as usize] = a;
-        fill[b as usize] += 1;
-    }
-    let around = |v: usize| &neighbours[at[v] as usize..at[v + 1] as usize];
-    let mut of = vec![u32::MAX; nodes];
-    let mut count = 0u32;
-    for v in 0..nodes {
-        if of[v] != u32::MAX || around(v).iter().any(|&w| of[w as usize] != u32::MAX) {
-            continue;
-        }
-        of[v] = count;
-        for &w in around(v) {
-            of[w as usize] = count;
-        }
-        count += 1;
-    }
-    for v in 0..nodes {
-        if of[v] == u32::MAX {
-            of[v] = around(v).iter().map(|&w| of[w as usize]).find(|&a| a != u32::MAX).unwrap_or_else(|| {
-                count += 1;
-                count - 1
-            });
-        }
-    }
-    of
 }
 
 #[cfg(test)]
