@@ -30,10 +30,11 @@ pub(super) const STRAIN_ROUNDS_EARLY: usize = 2;
 /// the last iteration's rounds. Issue 29's 100k-vertex flesh benchmark (a
 /// sphere tenting a sheet at closeness 0.1: the cap on the sphere stretched
 /// 2.5× by the solve, the material it needs drawn from a ring some 20 edges
-/// wide) ends at 1.24× the rest length with it (limit 1.1; 1.35 without) for
-/// 19 % more time a frame; 16 sweeps, 1.23. Running it in every round of
-/// every iteration reached 1.12 but cost 2.6 times as much: the contact
-/// passes after its large moves find many more contacts to resolve.
+/// wide) ends at 1.24× the rest length with it (limit 1.1; 1.35 without),
+/// for 18–42 % more time a frame (647 → 765 ms alone, 640 → 906 ms in
+/// `make bench`); 16 sweeps, 1.23. Running it in every round of every
+/// iteration reached 1.12 but cost 2.6 times as much: the contact passes
+/// after its large moves find many more contacts to resolve.
 pub(super) const MULTILEVEL_SWEEPS: usize = 4;
 /// Relative excess over an edge's limit that counts as holding.
 pub(super) const STRAIN_TOLERANCE: f32 = 1e-3;
@@ -91,7 +92,7 @@ pub(super) fn limit_strain_with_contacts(
         }
         let mut shortened = x.to_vec();
         if let (Some(levels), 0) = (levels, round) {
-            levels.project(&mut shortened, inverse_mass, &above, MULTILEVEL_SWEEPS);
+            levels.project(&mut shortened, inverse_mass, MULTILEVEL_SWEEPS);
         }
         limits.project_above(&mut shortened, inverse_mass, &above, STRAIN_SWEEPS, STRAIN_TOLERANCE);
         if !set.colliders().is_empty() {

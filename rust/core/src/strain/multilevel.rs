@@ -5,8 +5,9 @@
 //! so a stretch that has to be drawn from a region `k` edges across needs on
 //! the order of `k²` sweeps. Here the vertices are grouped into aggregates
 //! (a vertex and its free neighbours, [`aggregate_once`] as for the solver's
-//! coarse level), the aggregates into aggregates of aggregates, and so on. At each level, from the coarsest, a sweep visits
-//! pairs of neighbouring blocks and, where their centroids are farther apart
+//! coarse level), the aggregates into aggregates of aggregates, and so on.
+//! At each level, from the coarsest, a sweep visits pairs of neighbouring
+//! blocks and, where their centroids are farther apart
 //! than `(1 + ε)` times at rest, translates the two blocks rigidly towards
 //! each other with the blocks' inverse masses. A block `s` edges across
 //! carries a correction `s` edges in one visit; the finer levels then share
@@ -96,25 +97,25 @@ impl Hierarchy {
         self.levels.len()
     }
 
-    /// Whether this hierarchy was built for these limits (same edges, same
-    /// limits): a sequence keeps it from frame to frame.
+    /// Whether this hierarchy was built for these limits (a sequence's edges
+    /// never change, so the same limits mean the same pairs): a sequence
+    /// keeps it from frame to frame.
     pub fn fits(&self, limits: &EdgeLimits) -> bool {
         self.built_for == limits.limit
     }
 
     /// Up to `sweeps` Gauss–Seidel sweeps at every level, coarsest first. A
-    /// block holding a vertex of inverse mass 0 does not move. A block with
-    /// vertices on contact planes (`above`, as in
-    /// [`EdgeLimits::project_above`]) moves only along or away from their
-    /// mean plane; its vertices may still end a little below their own
-    /// planes, which the fine sweeps that follow take care of.
-    pub fn project(&self, x: &mut [Vec3], inverse_mass: &[f32], above: &[(Vec3, f32)], sweeps: usize) {
+    /// block holding a vertex of inverse mass 0 does not move. Contacts are
+    /// not its business: the unified pass runs it where no contact plane is
+    /// known yet, and resolves its moves against the colliders after it
+    /// (sliding blocks along their vertices' planes in a later round was
+    /// measured and left the flesh benchmark at 2.17× instead of 1.24×).
+    pub fn project(&self, x: &mut [Vec3], inverse_mass: &[f32], sweeps: usize) {
         for level in self.levels.iter().rev() {
             let mut mass = vec![0.0f32; level.count];
             let mut sum = vec![Vec3::ZERO; level.count];
             // For blocks with a fixed vertex (infinite mass): the plain centroid.
             let mut plain = vec![(Vec3::ZERO, 0.0f32); level.count];
-            let mut normal = vec![Vec3::ZERO; level.count];
             for (v, &b) in level.block_of.iter().enumerate() {
                 let w = inverse_mass[v];
                 let m = if w > 0.0 { 1.0 / w } else { f32::INFINITY };
@@ -124,17 +125,7 @@ impl Hierarchy {
                 }
                 plain[b as usize].0 += x[v];
                 plain[b as usize].1 += 1.0;
-                if let Some(&(n, _)) = above.get(v) {
-                    normal[b as usize] += n;
-                }
             }
-            // A block resting on contact planes slides along them: its moves
-            // lose their part into the mean plane.
-            let normal: Vec<Vec3> = normal.iter().map(|n| n.normalize_or_zero()).collect();
-            let slide = |t: Vec3, n: Vec3| {
-                let into = n.dot(t);
-                if into < 0.0 { t - n * into } else { t }
-            };
             let centroid: Vec<Vec3> = (0..level.count)
                 .map(|b| if mass[b].is_finite() && mass[b] > 0.0 { sum[b] / mass[b] } else { plain[b].0 / plain[b].1.max(1.0) })
                 .collect();
@@ -156,8 +147,8 @@ impl Hierarchy {
                         continue;
                     }
                     let correction = delta * ((length - limit) / (length * w));
-                    offset[a] += slide(-correction * wa, normal[a]);
-                    offset[b] += slide(correction * wb, normal[b]);
+                    offset[a] -= correction * wa;
+                    offset[b] += correction * wb;
                     moved = true;
                 }
                 if !moved {
@@ -197,6 +188,17 @@ mod tests {
             .collect()
     }
 
+    /// The worst ratio after 16 sweeps, with the levels (4 sweeps each) first
+    /// or not, and the positions reached.
+    fn after_sweeps(limits: &EdgeLimits, levels: Option<&Hierarchy>, start: &[Vec3], w: &[f32]) -> (f32, Vec<Vec3>) {
+        let mut x = start.to_vec();
+        if let Some(levels) = levels {
+            levels.project(&mut x, w, 4);
+        }
+        limits.project(&mut x, w, 16, 1e-3);
+        (limits.worst_ratio(&x), x)
+    }
+
     #[test]
     fn the_levels_draw_material_from_far_in_few_sweeps() {
         let (sheet, limits) = sheet();
@@ -206,32 +208,23 @@ mod tests {
         let w = vec![1.0; sheet.positions.len()];
         let start = blown_up(&sheet.positions);
         assert!(limits.worst_ratio(&start) > 1.3);
-        let mut plain = start.clone();
-        limits.project(&mut plain, &w, 16, 1e-3);
-        let mut multilevel = start;
-        levels.project(&mut multilevel, &w, &[], 4);
-        limits.project(&mut multilevel, &w, 16, 1e-3);
-        let (plain, multilevel) = (limits.worst_ratio(&plain), limits.worst_ratio(&multilevel));
+        let (plain, _) = after_sweeps(&limits, None, &start, &w);
+        let (multilevel, x) = after_sweeps(&limits, Some(&levels), &start, &w);
         assert!(multilevel < 1.0 + 0.5 * (plain - 1.0), "16 sweeps: {plain}; levels and 16 sweeps: {multilevel}");
+        assert!(x.iter().all(|p| p.is_finite()));
     }
 
     #[test]
-    fn fixed_vertices_stay_and_planes_are_slid_along() {
+    fn blocks_with_a_fixed_vertex_stay() {
         let (sheet, limits) = sheet();
         let levels = Hierarchy::new(&limits, &sheet.positions);
         let start = blown_up(&sheet.positions);
-        // The first row fixed; every vertex on the plane z ≥ 0.
+        // The first row fixed, and the middle blown up.
         let mut w = vec![1.0; start.len()];
         w[..61].iter_mut().for_each(|w| *w = 0.0);
-        let above = vec![(Vec3::Z, 0.0); start.len()];
-        let mut plain = start.clone();
-        limits.project_above(&mut plain, &w, &above, 16, 1e-3);
-        let mut x = start.clone();
-        levels.project(&mut x, &w, &above, 4);
+        let (plain, _) = after_sweeps(&limits, None, &start, &w);
+        let (multilevel, x) = after_sweeps(&limits, Some(&levels), &start, &w);
         assert_eq!(x[..61], start[..61], "a fixed vertex moved");
-        assert!(x.iter().all(|p| p.z >= -1e-6 && p.is_finite()), "a vertex crossed its plane");
-        limits.project_above(&mut x, &w, &above, 16, 1e-3);
-        let (plain, multilevel) = (limits.worst_ratio(&plain), limits.worst_ratio(&x));
         assert!(multilevel < 1.0 + 0.5 * (plain - 1.0), "16 sweeps: {plain}; levels and 16 sweeps: {multilevel}");
     }
 
