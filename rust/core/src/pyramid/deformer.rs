@@ -44,11 +44,6 @@ pub const MIN_CLOSENESS: f32 = 1e-8;
 /// formulations (the diagonal formulation normalises it away).
 pub const PINNED_CLOSENESS: f32 = 1e4;
 
-/// Anderson window that goes with the coarse correction when a caller turns
-/// acceleration on ([`PyramidDeformer::set_accelerated`]). Off by default:
-/// see docs/pyramid-deform.md for what it buys and what it costs (issue 28).
-pub const ACCELERATED_ANDERSON_WINDOW: usize = 5;
-
 /// Most iterations one solve accepts; more is certainly a mistake.
 pub const MAX_ITERATIONS: usize = 100_000;
 
@@ -179,6 +174,9 @@ impl PyramidDeformer {
             }
         }
         let mut solver = Solver::new(n);
+        // The multilevel correction is what makes the default iteration
+        // count deliver the converged look (issue 28); see `solve::coarse`.
+        solver.set_coarse_correction(true);
         let pyramid_rows = encoding.len();
         let constraint: Box<dyn solve::Constraint> = match formulation {
             Formulation::VertexTargets => Box::new(PyramidTargets::new(encoding.clone())),
@@ -320,11 +318,11 @@ impl PyramidDeformer {
         self.solver.set_anderson_window(window);
     }
 
-    /// The accelerated solver (coarse correction + Anderson over
-    /// [`ACCELERATED_ANDERSON_WINDOW`] iterates) or the plain one.
+    /// The accelerated solver (the default: the multilevel correction of
+    /// `solve::coarse`) or plain local/global iterations (the solver before
+    /// issue 28, kept for comparisons).
     pub fn set_accelerated(&mut self, on: bool) {
         self.set_coarse_correction(on);
-        self.set_anderson_window(if on { ACCELERATED_ANDERSON_WINDOW } else { 0 });
     }
 
     /// Turns the solver's coarse-level correction on or off (see

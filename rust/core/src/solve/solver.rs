@@ -70,8 +70,10 @@ pub struct Solver {
     /// (rebuilt with the system).
     coarse_enabled: bool,
     coarse: Option<Coarse>,
-    /// An accelerated iteration's positions before the hook ran.
+    /// An accelerated iteration's positions before the hook ran, and which
+    /// vertices the hook then moved.
     before_hook: Vec<Vec3>,
+    hook_moved: Vec<bool>,
 }
 
 impl Solver {
@@ -90,6 +92,7 @@ impl Solver {
             coarse_enabled: false,
             coarse: None,
             before_hook: Vec::new(),
+            hook_moved: Vec::new(),
         }
     }
 
@@ -333,12 +336,12 @@ impl Solver {
             }
             // Acceleration extrapolates the map `G`; a hook that moved
             // positions changed the map (contacts hold vertices against
-            // it), and extrapolating across that would move the fixed
-            // point. Such iterations run plain and forget the history.
-            if !hook_moved {
-                if let Some(coarse) = self.coarse.as_mut() {
-                    coarse.correct(current, next);
-                }
+            // it). Anderson's extrapolation across that would move the fixed
+            // point: such iterations forget its history. The coarse
+            // correction leaves out the residual of the vertices the hook
+            // moved, so that it still vanishes where the hook holds them.
+            if let Some(coarse) = self.coarse.as_mut() {
+                coarse.correct(current, next, hook_moved.then_some(&self.hook_moved[..]));
             }
             if let Some(history) = anderson.as_deref_mut() {
                 if hook_moved {
@@ -354,7 +357,11 @@ impl Solver {
                 }
                 hook.after_iteration(iteration, current, next)?;
                 if accelerated {
-                    hook_moved = bytemuck::cast_slice::<Vec3, u32>(&self.before_hook) != bytemuck::cast_slice::<Vec3, u32>(next);
+                    self.hook_moved.clear();
+                    self.hook_moved.extend(self.before_hook.iter().zip(&*next).map(|(a, b)| {
+                        bytemuck::cast::<Vec3, [u32; 3]>(*a) != bytemuck::cast::<Vec3, [u32; 3]>(*b)
+                    }));
+                    hook_moved = self.hook_moved.iter().any(|&m| m);
                 }
             }
             in_work = !in_work;
