@@ -95,7 +95,7 @@ def test_round_trip_matches_the_wheel(limb, capfd):
     rest, corners, sizes = mesh_arrays(obj)
     deformer = tegument.PyramidDeformer(rest, corners, sizes, scale_safe=True)
     for frame in (1, 4, 6):
-        expected = deformer.solve(upstream(obj, frame), iterations=10, closeness=obj.tegument.closeness)
+        expected = deformer.solve(upstream(obj, frame), iterations=obj.tegument.iterations, closeness=obj.tegument.closeness)
         m_inv = np.linalg.inv(np.array(obj.matrix_world))
         expected_local = expected @ m_inv[:3, :3].T + m_inv[:3, 3]
         np.testing.assert_allclose(frames[frame - 1], expected_local, atol=1e-5)
@@ -124,7 +124,7 @@ def test_a_moved_turned_and_scaled_rig_bakes_in_world_space_and_caches_object_sp
     rest, corners, sizes = mesh_arrays(obj)
     deformer = tegument.PyramidDeformer(rest, corners, sizes, scale_safe=True)
     for frame in (1, 6):
-        expected = deformer.solve(upstream(obj, frame), iterations=10, closeness=obj.tegument.closeness)
+        expected = deformer.solve(upstream(obj, frame), iterations=obj.tegument.iterations, closeness=obj.tegument.closeness)
         m_inv = np.linalg.inv(np.array(obj.matrix_world))
         np.testing.assert_allclose(frames[frame - 1], expected @ m_inv[:3, :3].T + m_inv[:3, 3], atol=1e-5)
 

@@ -175,7 +175,11 @@ impl Sequence {
         let contacts = contact_targets(&target, self.deformer.closeness_weights(), colliders, goals)?;
         report.compliant_skin_vertices = report.compliant_skin_vertices.max(contacts.as_ref().map_or(0, |(_, w)| w.iter().filter(|&&w| w > 0.0).count()));
         self.set_contact_targets(contacts)?;
-        let mut x = target;
+        // A warm start only where nothing else depends on the path from the
+        // last output: with colliders the first pass's path from there to
+        // the input is where friction holds the skin, and with dynamics the
+        // target is already the inertial prediction.
+        let mut x = if colliders.is_empty() && options.dynamics.is_none() { self.warm_start(&target) } else { target };
         // A vertex one pass leaves pinched inside a collider starts the next
         // pass inside, where no contact is seen again: keep the suspects and
         // look at where they end.
@@ -279,6 +283,22 @@ impl Sequence {
         }
         debug_assert_eq!(x.len(), n);
         Ok(x)
+    }
+
+    /// Where a solve that follows the input starts, without colliders or
+    /// dynamics: the input plus the offset
+    /// from its input that the last frame's solve ended with, so that a bake
+    /// frame starts near its solution (a warm start, issue 28); the input
+    /// itself on a first frame. With substeps every substep carries the last
+    /// frame's offset. Only the start changes: the solve converges to the
+    /// same solution from either.
+    fn warm_start(&self, input: &[Vec3]) -> Vec<Vec3> {
+        match (&self.history, &self.last_input) {
+            (Some(solved), Some(last)) if solved.len() == input.len() && last.len() == input.len() => {
+                input.iter().zip(solved).zip(last).map(|((i, s), l)| *i + (*s - *l)).collect()
+            }
+            _ => input.to_vec(),
+        }
     }
 
     /// Inertial prediction `x_n + h·v_n + h²·g` (velocities zero when unknown).
@@ -508,13 +528,16 @@ mod tests {
     fn without_colliders_step_is_the_solve_and_reset_forgets() {
         let mut scene = scene();
         let input: Vec<Vec3> = scene.skin.positions.iter().map(|p| *p + Vec3::new(0.0, 0.0, p.x * p.x)).collect();
-        let solved = scene.deformer.solve(&input, 10, Closeness::Default).unwrap();
+        let solved = scene.deformer.solve(&input, StepOptions::default().iterations, Closeness::Default).unwrap();
         let (stepped, report) = scene.deformer.step(&input, &mut [], &StepOptions::default()).unwrap();
         assert_eq!(solved, stepped);
         assert_eq!(report, StepReport::default());
         assert_eq!(scene.deformer.history(), Some(stepped.clone()));
         scene.deformer.reset();
         assert!(scene.deformer.history().is_none());
+        // The first step after a reset starts cold again, like the first of all.
+        let (again, _) = scene.deformer.step(&input, &mut [], &StepOptions::default()).unwrap();
+        assert_eq!(again, solved);
         assert!(scene.deformer.step(&input[1..], &mut [], &StepOptions::default()).is_err());
     }
 }

@@ -447,3 +447,93 @@ mod resting_pocket {
         assert!(held > 0, "the scene must exercise holding back (else it tests nothing new)");
     }
 }
+
+/// Issue 28 through the stepper: a bake at default settings delivers the
+/// converged look from its first frame on, and more iterations change it by
+/// little.
+mod convergence {
+    use super::*;
+    use crate::mesh::shapes::cylinder;
+    use crate::pyramid::PyramidDeformer;
+
+    fn rms(a: &[Vec3], b: &[Vec3]) -> f64 {
+        (a.iter().zip(b).map(|(p, q)| (*p - *q).as_dvec3().length_squared()).sum::<f64>() / a.len() as f64).sqrt()
+    }
+
+    /// The upper half of a tube bent about x by `angle`, blended over its middle.
+    fn bent(mesh: &PolyMesh, angle: f32) -> Vec<Vec3> {
+        let turn = glam::Mat3::from_rotation_x(angle) * glam::Mat3::from_rotation_z(angle * 0.5);
+        let pivot = Vec3::new(0.0, 0.0, 2.0);
+        mesh.positions
+            .iter()
+            .map(|&p| {
+                let t = ((p.z - 1.6) / 0.8).clamp(0.0, 1.0);
+                let w = t * t * (3.0 - 2.0 * t);
+                p * (1.0 - w) + (turn * (p - pivot) + pivot) * w
+            })
+            .collect()
+    }
+
+    /// Frames of a bend growing to 100°, baked at `iterations`.
+    fn bake(mesh: &PolyMesh, frames: &[Vec<Vec3>], iterations: usize, closeness: f32) -> Vec<Vec<Vec3>> {
+        let mut sequence = Sequence::bind(mesh.input(), DeformerOptions::default()).unwrap();
+        let options = StepOptions::new(iterations, Closeness::Uniform(closeness));
+        frames.iter().map(|input| sequence.step(input, &mut [], &options).unwrap().0).collect()
+    }
+
+    fn frames(mesh: &PolyMesh) -> Vec<Vec<Vec3>> {
+        (1..=6).map(|k| bent(mesh, (100.0 * k as f32 / 6.0).to_radians())).collect()
+    }
+
+    #[test]
+    fn a_default_bake_is_within_five_percent_of_the_converged_solve_in_every_frame() {
+        let mesh = cylinder(48, 60, 0.5, 4.0);
+        let frames = frames(&mesh);
+        let default = StepOptions::default().iterations;
+        for closeness in [0.05, 0.01] {
+            let baked = bake(&mesh, &frames, default, closeness);
+            let mut reference = PyramidDeformer::bind(mesh.input(), DeformerOptions::default()).unwrap();
+            for (k, (input, x)) in frames.iter().zip(&baked).enumerate() {
+                let converged = reference.solve(input, 1000, Closeness::Uniform(closeness)).unwrap();
+                let error = rms(x, &converged) / rms(&converged, input);
+                println!("closeness {closeness} frame {k}: {error:.4}");
+                // Frame 0 is cold (from the input), the others warm.
+                assert!(error <= 0.05, "closeness {closeness}, frame {k}: convergence error {error:.4} at {default} iterations");
+            }
+        }
+    }
+
+    #[test]
+    fn bakes_beyond_the_default_iteration_count_differ_by_at_most_five_percent() {
+        let mesh = cylinder(48, 60, 0.5, 4.0);
+        let frames = frames(&mesh);
+        let default = StepOptions::default().iterations;
+        for closeness in [0.05, 0.01] {
+            let baked = bake(&mesh, &frames, default, closeness);
+            for more in [2 * default, 4 * default, 10 * default] {
+                let other = bake(&mesh, &frames, more, closeness);
+                for (k, ((a, b), input)) in baked.iter().zip(&other).zip(&frames).enumerate() {
+                    let difference = rms(a, b) / rms(b, input);
+                    assert!(difference <= 0.05, "closeness {closeness}, frame {k}: {default} and {more} iterations differ by {difference:.4}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn warm_frames_start_from_the_last_solution() {
+        // A still input baked twice: the second frame starts where the first
+        // ended, so one iteration leaves it (almost) where it was.
+        let mesh = cylinder(48, 60, 0.5, 4.0);
+        let input = bent(&mesh, 1.2);
+        let mut sequence = Sequence::bind(mesh.input(), DeformerOptions::default()).unwrap();
+        let (first, _) = sequence.step(&input, &mut [], &StepOptions::new(200, Closeness::Default)).unwrap();
+        let (second, _) = sequence.step(&input, &mut [], &StepOptions::new(1, Closeness::Default)).unwrap();
+        let scale = rms(&first, &input);
+        assert!(rms(&second, &first) < 1e-3 * scale, "the warm frame moved {} of the displacement", rms(&second, &first) / scale);
+        // After a reset the frame starts cold again.
+        sequence.reset();
+        let (cold, _) = sequence.step(&input, &mut [], &StepOptions::new(1, Closeness::Default)).unwrap();
+        assert!(rms(&cold, &first) > 0.1 * scale);
+    }
+}
