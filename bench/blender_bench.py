@@ -201,7 +201,7 @@ def collisions(bpy, np, rows, threads, workdir, grid: int, frame_count: int) -> 
         job.step()
     job.commit()
     times = [1000 * t for t in job.times]
-    record("Tegument collisions (10 it.)", times, job.audit_totals, "input + refit + CCD passes + solve + cache write")
+    record("Tegument collisions (default it.)", times, job.audit_totals, "input + refit + CCD passes + solve + cache write")
     rows.add(case, "Tegument collisions: pinched (most in a frame)", job.most_pinched, "", threads)
 
     # Cloth pinned towards the animation (the skin does not move by itself,

@@ -76,25 +76,25 @@ def summary(rows: Rows) -> list[Line]:
     tube = r"armature-bent tube, 100k vertices"
     case = rows.find("scaling", tube, "armature only: frame")["case"]
     iteration_ratio = rows.value("pyramid", r"sphere 100k .*", "targets: iteration / reference", threads=2)
-    comparison = "deformer, 10 iterations"
+    comparison = "deformer, default iterations (Corrective Smooth: 10)"
     armature = rows.value("scaling", tube, "armature only: frame")
     corrective = rows.value("scaling", tube, "Corrective Smooth (10 it.): frame")
     lines.append(Line(comparison, case, "armature only (what both start from)", armature,
                       note="frame change + depsgraph + read positions"))
     lines.append(Line(comparison, case, "Blender Corrective Smooth", corrective, note=f"its own cost {corrective - armature:.1f} ms"))
     ratio = rows.value("scaling", tube, "Tegument frame / Corrective Smooth frame")
-    lines.append(Line(comparison, case, "Tegument Pyramid Deform", rows.value("scaling", tube, "Tegument (10 it.): frame"),
+    lines.append(Line(comparison, case, "Tegument Pyramid Deform", rows.value("scaling", tube, "Tegument (default it.): frame"),
                       times_bandwidth=iteration_ratio,
                       note=f"{ratio:.2f}× Corrective Smooth's frame; solve {rows.value('scaling', tube, 'Tegument frame: solve'):.1f} ms; "
                            "× bandwidth: one solver iteration (100k sphere, 2 threads)"))
 
     # Collisions: the same skin and collider, three tools, audited the same way.
     skin = r"skin .* vs sphere .*"
-    case = rows.find("blender", skin, "Tegument collisions (10 it.): frame")["case"]
+    case = rows.find("blender", skin, "Tegument collisions (default it.): frame")["case"]
     in_loop_ratio = rows.value("collide", r"skin .* vs collider .*", "in-loop pass / reference", threads=2)
     comparison = "collisions (per frame; counts over all frames)"
     for label, method, note in (
-        ("Tegument collisions (10 it.)", "Tegument Pyramid Deform + collisions",
+        ("Tegument collisions (default it.)", "Tegument Pyramid Deform + collisions",
          f"pinched {rows.value('blender', skin, 'Tegument collisions: pinched (most in a frame)'):.0f}; "
          "× bandwidth: one in-loop collision pass (tegument-core benchmark)"),
         ("Cloth (pinned, collision quality 5)", "Blender Cloth pinned to the animation, collision quality 5", ""),
@@ -204,7 +204,7 @@ def scaling_lines(rows: Rows) -> list[Line]:
     """The bake loop from 100k to 5M vertices (bench/bake_scaling.py): per size, the armature alone,
     Corrective Smooth and Tegument's whole bake frame, with bind time, bind memory and the frame's
     phases; the largest size's time per vertex against the smallest's."""
-    comparison = "bake loop at scale (whole frames, 10 it.)"
+    comparison = "bake loop at scale (whole frames, default iterations)"
     cases = sorted({row["case"] for row in rows.rows if row["benchmark"] == "scaling"},
                    key=lambda case: rows.value("scaling", re.escape(case), "vertices"))
     if not cases:
@@ -214,12 +214,12 @@ def scaling_lines(rows: Rows) -> list[Line]:
     for case in cases:
         value = lambda metric: rows.value("scaling", re.escape(case), metric)  # noqa: E731
         phases = ", ".join(f"{phase} {value(f'Tegument frame: {phase}'):.1f}" for phase in FRAME_PHASES)
-        rest = value("Tegument (10 it.): frame") - sum(value(f"Tegument frame: {phase}") for phase in FRAME_PHASES)
+        rest = value("Tegument (default it.): frame") - sum(value(f"Tegument frame: {phase}") for phase in FRAME_PHASES)
         growth = "" if case == cases[0] else f" ({per_vertex[case] / per_vertex[cases[0]]:.2f}× at {cases[0].split(', ')[-1]})"
         lines += [
             Line(comparison, case, "armature only (what both start from)", value("armature only: frame")),
             Line(comparison, case, "Blender Corrective Smooth", value("Corrective Smooth (10 it.): frame")),
-            Line(comparison, case, "Tegument Pyramid Deform (bake frame)", value("Tegument (10 it.): frame"),
+            Line(comparison, case, "Tegument Pyramid Deform (bake frame)", value("Tegument (default it.): frame"),
                  peak_mib=value("bind: peak memory"),
                  note=f"{value('Tegument frame / Corrective Smooth frame'):.2f}× Corrective Smooth's frame; "
                       f"{value('Tegument frame per vertex'):.0f} ns per vertex{growth}; ms: {phases}, rest {rest:.1f}; "
