@@ -250,7 +250,10 @@ class PyramidDeformer:
         contacts with friction; then the solve runs, and after every iteration
         contacts along each vertex's move are detected and resolved again.
         The first call, and the first after :meth:`reset`, starts from
-        ``positions`` itself. Vertices squeezed between colliders are pinched:
+        ``positions`` itself; without colliders and dynamics, every later
+        call starts its solve from the last output moved as the input moved
+        (a warm start: same solution, reached in fewer iterations), where
+        :meth:`solve` always starts from the input. Vertices squeezed between colliders are pinched:
         kept near the solve's result, never NaN, and listed in
         :attr:`last_step`. ``iterations`` and ``closeness`` as in :meth:`solve`.
 
