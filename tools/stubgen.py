@@ -100,6 +100,9 @@ PARAMS = {
 }
 
 # Return types of functions and methods, and types of properties.
+# Properties that can also be set (pyo3 getset descriptors do not say).
+SETTERS = {"PyramidDeformer.accelerated"}
+
 RETURNS = {
     "transform_points": "Float32",
     "audit": "AuditReport",
@@ -117,6 +120,7 @@ RETURNS = {
     "Mesh.problem_vertices": "Int32",
     "Mesh.report": "MeshReport",
     "PyramidDeformer.vertex_count": "int",
+    "PyramidDeformer.accelerated": "bool",
     "PyramidDeformer.welded_vertex_count": "int",
     "PyramidDeformer.pinned_vertices": "Int32",
     "PyramidDeformer.pinned_reasons": "dict[str, Int32]",
@@ -239,6 +243,9 @@ def _class(name: str, cls) -> str:
             head = f"    def {member_name}(self) -> {_return_type(qualname)}:"
             doc = _docstring(member, "        ")
             lines.append(f"{head}\n{doc}" if doc else f"{head} ...")
+            if qualname in SETTERS:
+                lines.append(f"    @{member_name}.setter")
+                lines.append(f"    def {member_name}(self, value: {_return_type(qualname)}) -> None: ...")
         elif callable(member):
             lines.append(_function(member_name, qualname, member, "    ", method=True))
     return "\n".join(lines)

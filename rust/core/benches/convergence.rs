@@ -1,6 +1,6 @@
 //! Convergence of the Pyramid Deform solve (issue 28): convergence error
-//! against wall time, plain local/global iterations ("plain", the solver
-//! before issue 28) against the default solver ("accelerated": the
+//! against wall time, plain local/global iterations ("plain", the default)
+//! against the accelerated solver ("accelerated", Converge in the add-on: the
 //! multilevel correction of `solve::coarse`), cold (a first frame, starting from the input) and
 //! warm (the next frame of a bake, starting from the previous frame's result
 //! moved with the input), on the 100k benchmark tube at closeness 0.05 and

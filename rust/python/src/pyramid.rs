@@ -116,6 +116,25 @@ impl PyramidDeformer {
         self.vertex_count
     }
 
+    /// Whether the solver is accelerated (``False`` by default): every
+    /// iteration then also corrects the smooth part of the error on coarser
+    /// levels of the mesh (multigrid), so that 6 iterations get within 5 % of
+    /// the converged solution of the same settings, where plain iterations
+    /// need hundreds at low closeness. An iteration costs about three plain
+    /// ones at 100k vertices. Same solution either way.
+    #[getter]
+    fn accelerated(&self, py: Python<'_>) -> PyResult<bool> {
+        self.with(py, |core| Ok(core.deformer_mut().accelerated()))
+    }
+
+    #[setter]
+    fn set_accelerated(&self, py: Python<'_>, on: bool) -> PyResult<()> {
+        self.with(py, |core| {
+            core.deformer_mut().set_accelerated(on);
+            Ok(())
+        })
+    }
+
     /// Number of vertices the solver works on: the mesh's, with vertices
     /// that coincide at rest (split UV or sharp-normal seams, as glTF, FBX and
     /// USD importers deliver them) welded into one. Results come back per

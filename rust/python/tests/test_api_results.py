@@ -105,7 +105,7 @@ def test_defaults_come_from_the_core_and_are_the_keyword_defaults():
     assert isinstance(d, tegument.Defaults)
     # closeness: the add-on's 0.05 became the core's default after 0.1.0 (it was 0.1).
     assert d.closeness == pytest.approx(0.05)
-    assert (d.iterations, d.substeps, d.scale_safe, d.strain_mode) == (6, 1, True, "unified")
+    assert (d.iterations, d.substeps, d.scale_safe, d.strain_mode) == (10, 1, True, "unified")
     dynamics = tegument.Dynamics()
     assert (dynamics.frame_time, dynamics.mass, dynamics.damping) == pytest.approx((d.frame_time, d.mass, d.damping))
     assert dynamics.gravity == pytest.approx(d.gravity)

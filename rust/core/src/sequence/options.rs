@@ -47,15 +47,9 @@ pub struct StepOptions<'a> {
     pub strain: Option<StrainOptions<'a>>,
 }
 
-/// Solver iterations per substep by default: with the multilevel correction
-/// (`solve::coarse`) six deliver the converged solve within 5 % at closeness
-/// 0.05 and 0.01, cold and warm, from 3k to 100k vertices (issue 28; five
-/// leave a cold frame at closeness 0.01 on a 3k tube 6 % away).
-pub const DEFAULT_ITERATIONS: usize = 6;
-
 impl Default for StepOptions<'_> {
     fn default() -> Self {
-        StepOptions { iterations: DEFAULT_ITERATIONS, closeness: Closeness::Default, substeps: 1, dynamics: None, strain: None }
+        StepOptions { iterations: 10, closeness: Closeness::Default, substeps: 1, dynamics: None, strain: None }
     }
 }
 

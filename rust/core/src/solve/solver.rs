@@ -109,6 +109,11 @@ impl Solver {
         }
     }
 
+    /// Whether the coarse-level correction is on.
+    pub fn coarse_correction(&self) -> bool {
+        self.coarse_enabled
+    }
+
     /// Unknowns of the coarse level (0 when there is none); builds the system if needed.
     pub fn coarse_len(&mut self) -> Result<usize> {
         self.prepare()?;
