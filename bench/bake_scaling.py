@@ -7,8 +7,8 @@ For each size, in a fresh Blender process (so that peak memory is that size's ow
   memory above what it held before;
 - then three rounds, each of *Corrective Smooth* (10 iterations) on top of the armature, the same
   frames, whole frame, with Tegument's modifier left out; and 16 frames of *Tegument*'s bake job
-  (``BakeJob.step``: evaluate the stack above Tegument, read, solve at the default iteration count (6
-  since issue 28), write the PC2
+  (``BakeJob.step``: evaluate the stack above Tegument, read, solve at the add-on's default settings
+  (10 plain iterations), write the PC2
   frame), whole frame, with its breakdown by phase as the job records it
   (``BakeJob.phase_seconds``). The medians over all rounds are compared, and each round's ratio
   is reported beside them: both deformers are measured in the same minutes.
@@ -58,7 +58,7 @@ def peak_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def one_size(name: str, zip_path: str) -> dict:
+def one_size(name: str, zip_path: str, converge: bool = False) -> dict:
     user = tempfile.mkdtemp(prefix="tegument-scaling-user-")
     os.environ["BLENDER_USER_RESOURCES"] = user
     import bpy
@@ -106,6 +106,8 @@ def one_size(name: str, zip_path: str) -> dict:
     before_mib, before_peak = rss_mib(), peak_mib()
     started = time.perf_counter()
     assert bpy.ops.tegument.deform_add() == {"FINISHED"}
+    if converge:
+        limb.tegument.converge, limb.tegument.iterations = True, 6  # the accelerated solver at its 5 % count
     job = bake.BakeJob(bpy.context, limb, range(1, 1 + ROUNDS * JOB_FRAMES))
     bind_s = time.perf_counter() - started
     bind_peak = max(peak_mib() - before_mib, 0.0)
@@ -152,7 +154,7 @@ def one_size(name: str, zip_path: str) -> dict:
     return dict(
         size=name, vertices=vertices, build_s=build_s, armature_s=armature, corrective_s=corrective,
         tegument_s=tegument_frame, round_ratios=round_ratios, breakdown_s=breakdown, bind_s=bind_s, bind_peak_mib=bind_peak,
-        peak_mib=peak_mib(), baseline_peak_mib=before_peak, threads=os.cpu_count() or 1,
+        peak_mib=peak_mib(), baseline_peak_mib=before_peak, threads=os.cpu_count() or 1, converge=converge,
     )
 
 
@@ -165,7 +167,8 @@ def rows_of(result: dict) -> list[dict]:
         ("vertices", result["vertices"], "", ""),
         ("armature only: frame", ms(result["armature_s"]), "ms", "frame_set + depsgraph + read positions"),
         ("Corrective Smooth (10 it.): frame", ms(result["corrective_s"]), "ms", "armature + Corrective Smooth"),
-        ("Tegument (default it.): frame", ms(result["tegument_s"]), "ms", "BakeJob.step, whole"),
+        ("Tegument (default it.): frame", ms(result["tegument_s"]), "ms",
+         "BakeJob.step, whole" + (" (Converge, 6 iterations)" if result.get("converge") else "")),
         ("Tegument frame / Corrective Smooth frame", result["tegument_s"] / result["corrective_s"], "x",
          "target ≤ 0.5; per round " + ", ".join(f"{r:.2f}" for r in result["round_ratios"])),
         ("Tegument frame per vertex", 1e9 * result["tegument_s"] / result["vertices"], "ns", ""),
@@ -183,16 +186,18 @@ def main() -> int:
     parser.add_argument("--zip", default=os.environ.get("TEGUMENT_EXTENSION_ZIP"))
     parser.add_argument("--out", type=pathlib.Path, default=ROOT / "bench" / "results")
     parser.add_argument("--sizes", default=",".join(SIZES), help=f"comma-separated, of {', '.join(SIZES)}")
+    parser.add_argument("--converge", action="store_true", help="bake with Converge (the accelerated solver) on")
     parser.add_argument("--one", help=argparse.SUPPRESS)  # internal: measure one size, print JSON
     args = parser.parse_args()
     if args.one:
-        print("RESULT " + json.dumps(one_size(args.one, args.zip)), flush=True)
+        print("RESULT " + json.dumps(one_size(args.one, args.zip, args.converge)), flush=True)
         return 0
     rows = []
     for name in args.sizes.split(","):
         if name not in SIZES:
             parser.error(f"unknown size {name!r}; known: {', '.join(SIZES)}")
-        done = subprocess.run([sys.executable, __file__, "--one", name, "--zip", str(args.zip)], capture_output=True, text=True)
+        command = [sys.executable, __file__, "--one", name, "--zip", str(args.zip)] + (["--converge"] if args.converge else [])
+        done = subprocess.run(command, capture_output=True, text=True)
         lines = [line for line in done.stdout.splitlines() if line.startswith("RESULT ")]
         if done.returncode != 0 or not lines:
             sys.stderr.write(done.stdout[-4000:] + done.stderr[-4000:])

