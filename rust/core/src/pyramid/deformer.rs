@@ -46,8 +46,9 @@ pub const PINNED_CLOSENESS: f32 = 1e4;
 
 /// Iterations at which the accelerated solver ([`PyramidDeformer::set_accelerated`])
 /// is within 5 % of the converged solve at closeness 0.05 and 0.01, cold and
-/// warm, from 3k to 100k vertices (issue 28; five leave a cold closeness-0.01
-/// frame on a 3k tube 6 % away).
+/// warm, on meshes of a few thousand vertices and more (issue 28; five leave
+/// a cold closeness-0.01 frame on a 3k tube 6 % away, and a 1.5k-vertex limb
+/// needs ten).
 pub const ACCELERATED_ITERATIONS: usize = 6;
 
 /// Most iterations one solve accepts; more is certainly a mistake.
