@@ -26,10 +26,9 @@ def read_pc2(path) -> tuple[np.ndarray, float]:
     return np.frombuffer(data, dtype="<f4", offset=PC2_HEADER).reshape(frames, vertices, 3), float(start)
 
 
-@pytest.fixture
-def limb(tmp_path):
-    """A small armature-bent tube in a saved .blend, so `//` cache paths resolve into tmp_path."""
-    limb, rig = demo_scene.build_limb(segments=16, rings=12)
+def saved_limb(tmp_path, segments: int = 16, rings: int = 12):
+    """An armature-bent tube (90° over frames 1–6) in a saved .blend, so `//` cache paths resolve into tmp_path."""
+    limb, rig = demo_scene.build_limb(segments=segments, rings=rings)
     demo_scene.animate_bend(rig, 1, 6, angle_deg=90)
     scene = bpy.context.scene
     scene.frame_start, scene.frame_end = 1, 6
@@ -37,6 +36,12 @@ def limb(tmp_path):
     bpy.context.view_layer.objects.active = limb
     limb.select_set(True)
     return limb, rig
+
+
+@pytest.fixture
+def limb(tmp_path):
+    """A small limb (210 vertices)."""
+    return saved_limb(tmp_path)
 
 
 def upstream(obj, frame: int) -> np.ndarray:
@@ -114,13 +119,7 @@ def test_converge_bakes_the_converged_look_in_six_iterations(tmp_path):
     on meshes of a thousand vertices or two the coarse levels do less (docs/pyramid-deform.md)."""
     import tegument
 
-    obj, rig = demo_scene.build_limb(segments=64, rings=96)
-    demo_scene.animate_bend(rig, 1, 6, angle_deg=90)
-    scene = bpy.context.scene
-    scene.frame_start, scene.frame_end = 1, 6
-    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "limb.blend"))
-    bpy.context.view_layer.objects.active = obj
-    obj.select_set(True)
+    obj, _ = saved_limb(tmp_path, segments=64, rings=96)
     assert bpy.ops.tegument.deform_add() == {"FINISHED"}
     settings = obj.tegument
     settings.closeness = 0.01

@@ -121,12 +121,17 @@ def test_plain_mode_does_not_survive_scaling():
     assert max_distance(plain.solve(scaled, closeness=0.05), scaled) > 1e-4 * diagonal(scaled)
 
 
-@pytest.mark.parametrize("scale_safe", [False, True])
-def test_candy_wrapper_residual_falls_monotonically(scale_safe):
+def candy_wrapper_case(scale_safe):
+    """A tube twisted 150° and bent 60° by skinning, and a deformer bound to it."""
     length = 4.0
     rest, corners, sizes = cylinder_arrays(24, 16, 0.5, length)
     lbs = candy_wrapper(rest, length, np.radians(150), np.radians(60))
-    deformer = tegument.PyramidDeformer(rest, corners, sizes, scale_safe=scale_safe)
+    return lbs, tegument.PyramidDeformer(rest, corners, sizes, scale_safe=scale_safe)
+
+
+@pytest.mark.parametrize("scale_safe", [False, True])
+def test_candy_wrapper_residual_falls_monotonically(scale_safe):
+    lbs, deformer = candy_wrapper_case(scale_safe)
     assert not deformer.accelerated
     # solve(k iterations) from the same input is the k-th iterate.
     residuals = [deformer.residual(deformer.solve(lbs, iterations=k)) for k in range(11)]
@@ -138,23 +143,21 @@ def test_candy_wrapper_residual_falls_monotonically(scale_safe):
 
 @pytest.mark.parametrize("scale_safe", [False, True])
 def test_accelerated_solve_converges_with_every_iteration(scale_safe):
-    length = 4.0
-    rest, corners, sizes = cylinder_arrays(24, 16, 0.5, length)
-    lbs = candy_wrapper(rest, length, np.radians(150), np.radians(60))
-    deformer = tegument.PyramidDeformer(rest, corners, sizes, scale_safe=scale_safe)
+    lbs, deformer = candy_wrapper_case(scale_safe)
     plain = [deformer.solve(lbs, iterations=k) for k in (6, 400)]
     deformer.accelerated = True
     assert deformer.accelerated
     # Each iteration is closer to the converged solve (issue 28's convergence
     # error), which is the plain solver's. This twist (150° over a third of a
-    # 16-ring tube) is extreme: 6 iterations get within 6.2 % (scale safe) and
-    # 3.7 %; the core's tests hold 5 % on bends. Plain: 30-40 %.
+    # 16-ring, 384-vertex tube) is extreme and the mesh small: 6 iterations get
+    # within 6.7 % (scale safe) and 4.0 %, plain ones 61 % and 56 %; the core's
+    # tests hold 5 % on bends of larger meshes.
     converged = deformer.solve(lbs, iterations=400)
     rms = lambda a, b: np.sqrt(((a - b) ** 2).sum(1).mean())  # noqa: E731
     assert rms(converged, plain[1]) < 2e-3 * rms(converged, lbs)
     errors = [rms(deformer.solve(lbs, iterations=k), converged) / rms(lbs, converged) for k in range(11)]
     assert all(b < a for a, b in zip(errors, errors[1:])), errors
-    assert errors[6] <= 0.07, errors
+    assert errors[6] <= 0.08, errors
     assert rms(plain[0], converged) / rms(lbs, converged) > 3 * errors[6]
 
 
