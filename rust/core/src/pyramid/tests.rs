@@ -744,7 +744,7 @@ fn accelerated(mesh: &PolyMesh) -> PyramidDeformer {
 
 #[test]
 fn accelerated_solver_reaches_the_plain_fixed_point() {
-    // Issue 28: the coarse correction and Anderson's method change how fast
+    // Issue 28: the multilevel correction (and its damping) change how fast
     // the solve gets there, never where it goes.
     let length = 4.0;
     let mesh = cylinder(48, 60, 0.5, length);
