@@ -48,8 +48,9 @@
 //! next. Damping by 0.9 removes it and costs little (the coarse levels carry
 //! the smooth error the damping slows).
 //!
-//! The smoothing is sequential and the other loops write disjoint outputs in
-//! a fixed order: results do not depend on the thread count.
+//! The smoothing runs Gauss–Seidel inside fixed blocks of rows (in parallel,
+//! Jacobi between the blocks) and the other loops write disjoint outputs in a
+//! fixed order: results do not depend on the thread count.
 
 use std::sync::Arc;
 
@@ -216,12 +217,11 @@ pub(super) struct Coarse {
     /// Levels smoothed by Gauss–Seidel, finest first; empty when the first
     /// level is the coarsest.
     levels: Vec<Level>,
+    /// The coarsest level (the first one when `levels` is empty), its
+    /// right-hand side and its solution.
     coarsest: Coarsest,
     coarsest_rhs: Vec<Vec3>,
     coarsest_error: Vec<Vec3>,
-    /// The first level's right-hand side and error when it is the coarsest.
-    first_rhs: Vec<Vec3>,
-    first_error: Vec<Vec3>,
     /// Per first-level aggregate: no held vertex in it.
     free: Vec<bool>,
 }
@@ -332,8 +332,6 @@ impl Coarse {
             coarsest,
             coarsest_rhs: vec![Vec3::ZERO; last],
             coarsest_error: vec![Vec3::ZERO; last],
-            first_rhs: vec![Vec3::ZERO; count],
-            first_error: vec![Vec3::ZERO; count],
             free: vec![true; count],
         }))
     }
@@ -354,7 +352,7 @@ impl Coarse {
         let (offsets, columns, values) = (&self.offsets, &self.columns, &self.values);
         let rhs = match self.levels.first_mut() {
             Some(level) => &mut level.rhs,
-            None => &mut self.first_rhs,
+            None => &mut self.coarsest_rhs,
         };
         {
             let g = &*g;
@@ -379,8 +377,8 @@ impl Coarse {
             });
         }
         let error = if self.levels.is_empty() {
-            self.coarsest.solve(&self.first_rhs, &mut self.first_error);
-            &self.first_error
+            self.coarsest.solve(&self.coarsest_rhs, &mut self.coarsest_error);
+            &self.coarsest_error
         } else {
             self.cycle(0);
             &self.levels[0].error
