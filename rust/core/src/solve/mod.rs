@@ -20,6 +20,7 @@
 //! disjoint outputs and every sum runs in a fixed order.
 
 mod anderson;
+mod chebyshev;
 mod closeness;
 mod coarse;
 mod constraint;

@@ -6,6 +6,7 @@ use faer::sparse::linalg::cholesky::SymbolicCholesky;
 use glam::Vec3;
 
 use super::anderson::Anderson;
+use super::chebyshev::Chebyshev;
 use super::coarse::Coarse;
 use super::constraint::{Constraint, Context};
 use super::system::{RowBlock, System, SystemKind};
@@ -74,6 +75,9 @@ pub struct Solver {
     /// vertices the hook then moved.
     before_hook: Vec<Vec3>,
     hook_moved: Vec<bool>,
+    /// The corrected iteration's iterate before the current one, for its
+    /// Chebyshev extrapolation (see [`super::chebyshev`]).
+    previous: Vec<Vec3>,
 }
 
 impl Solver {
@@ -93,6 +97,7 @@ impl Solver {
             coarse: None,
             before_hook: Vec::new(),
             hook_moved: Vec::new(),
+            previous: Vec::new(),
         }
     }
 
@@ -322,6 +327,10 @@ impl Solver {
         };
 
         let accelerated = anderson.is_some() || self.coarse.is_some();
+        let mut chebyshev = Chebyshev::new();
+        if self.coarse.is_some() {
+            self.previous.resize(self.vertex_count, Vec3::ZERO);
+        }
         let mut hook_moved = false;
         // Ping-pong between the caller's buffer and our own, copying at most once.
         let mut in_work = false;
@@ -346,7 +355,11 @@ impl Solver {
             // correction leaves out the residual of the vertices the hook
             // moved, so that it still vanishes where the hook holds them.
             if let Some(coarse) = self.coarse.as_mut() {
-                coarse.correct(current, next, hook_moved.then_some(&self.hook_moved[..]));
+                if hook_moved {
+                    chebyshev.restart();
+                }
+                let weight = chebyshev.next_weight();
+                coarse.correct(current, next, hook_moved.then_some(&self.hook_moved[..]), &mut self.previous, weight);
             }
             if let Some(history) = anderson.as_deref_mut() {
                 if hook_moved {
