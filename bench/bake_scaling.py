@@ -72,6 +72,7 @@ def one_size(name: str, zip_path: str, converge: bool = False) -> dict:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.preferences.addon_enable(module=addon)
     from bl_ext.user_default.tegument.deform import bake
+    import tegument  # the wheel the extension bundles
 
     workdir = pathlib.Path(tempfile.mkdtemp(prefix="tegument-scaling-"))
     bpy.ops.wm.save_as_mainfile(filepath=str(workdir / "scaling.blend"))
@@ -107,7 +108,7 @@ def one_size(name: str, zip_path: str, converge: bool = False) -> dict:
     started = time.perf_counter()
     assert bpy.ops.tegument.deform_add() == {"FINISHED"}
     if converge:
-        limb.tegument.converge, limb.tegument.iterations = True, 6  # the accelerated solver at its 5 % count
+        limb.tegument.converge, limb.tegument.iterations = True, tegument.DEFAULTS.accelerated_iterations
     job = bake.BakeJob(bpy.context, limb, range(1, 1 + ROUNDS * JOB_FRAMES))
     bind_s = time.perf_counter() - started
     bind_peak = max(peak_mib() - before_mib, 0.0)
@@ -155,6 +156,7 @@ def one_size(name: str, zip_path: str, converge: bool = False) -> dict:
         size=name, vertices=vertices, build_s=build_s, armature_s=armature, corrective_s=corrective,
         tegument_s=tegument_frame, round_ratios=round_ratios, breakdown_s=breakdown, bind_s=bind_s, bind_peak_mib=bind_peak,
         peak_mib=peak_mib(), baseline_peak_mib=before_peak, threads=os.cpu_count() or 1, converge=converge,
+        iterations=limb.tegument.iterations,
     )
 
 
@@ -168,7 +170,7 @@ def rows_of(result: dict) -> list[dict]:
         ("armature only: frame", ms(result["armature_s"]), "ms", "frame_set + depsgraph + read positions"),
         ("Corrective Smooth (10 it.): frame", ms(result["corrective_s"]), "ms", "armature + Corrective Smooth"),
         ("Tegument (default it.): frame", ms(result["tegument_s"]), "ms",
-         "BakeJob.step, whole" + (" (Converge, 6 iterations)" if result.get("converge") else "")),
+         "BakeJob.step, whole" + (f" (Converge, {result['iterations']} iterations)" if result.get("converge") else "")),
         ("Tegument frame / Corrective Smooth frame", result["tegument_s"] / result["corrective_s"], "x",
          "target ≤ 0.5; per round " + ", ".join(f"{r:.2f}" for r in result["round_ratios"])),
         ("Tegument frame per vertex", 1e9 * result["tegument_s"] / result["vertices"], "ns", ""),

@@ -76,6 +76,7 @@ def main() -> int:
     parser.add_argument("--zip", type=pathlib.Path, default=os.environ.get("TEGUMENT_EXTENSION_ZIP"))
     parser.add_argument("--collide-grid", type=int, default=316, help="skin grid subdivisions of the collision case (316: ~100k vertices)")
     parser.add_argument("--collide-frames", type=int, default=8)
+    parser.add_argument("--cases", default="collisions,character", help="comma-separated, of collisions, character")
     args = parser.parse_args()
     user = tempfile.mkdtemp(prefix="tegument-bench-user-")
     os.environ["BLENDER_USER_RESOURCES"] = user
@@ -94,8 +95,11 @@ def main() -> int:
     workdir = pathlib.Path(tempfile.mkdtemp(prefix="tegument-bench-"))
     bpy.ops.wm.save_as_mainfile(filepath=str(workdir / "bench.blend"))
 
-    collisions(bpy, np, rows, threads, workdir, args.collide_grid, args.collide_frames)
-    character(bpy, np, rows, threads, workdir)
+    cases = args.cases.split(",")
+    if "collisions" in cases:
+        collisions(bpy, np, rows, threads, workdir, args.collide_grid, args.collide_frames)
+    if "character" in cases:
+        character(bpy, np, rows, threads, workdir)
 
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "blender.json").write_text(json.dumps(rows.rows, indent=1))
@@ -327,12 +331,70 @@ def character(bpy, np, rows, threads, workdir) -> None:
         rows.add(case, "Tegument frame / Corrective Smooth frame", tegument_frame / corrective, "x", threads)
         rows.add(case, "pinned by bind", pinned, "", threads, "vertices that follow the input")
         rows.add(case, "split vertices", int((groups != np.arange(len(groups))).sum()), "", threads, "coincident with another at rest")
-        ours = character_demo.read_cache(obj)[-1]
+        cache = character_demo.read_cache(obj)
+        ours = cache[-1]
+        figures = convergence(bpy, np, obj, job, cache, scene)
+        default = f"Converge {'on' if obj.tegument.converge else 'off'}, {obj.tegument.iterations} it."
+        rows.add(case, "Tegument: convergence error, worst baked frame", figures["baked"], "", threads,
+                 f"the bake at the add-on's defaults ({default}); RMS |x − x_inf| / RMS |x_inf − input| (issue 28)")
+        rows.add(case, "Tegument Converge: convergence error, worst frame", figures["converge"], "", threads,
+                 f"Converge on, {figures['converge_iterations']} it.: each frame's solve as a bake runs it")
+        rows.add(case, "Tegument: x_inf moves in as many iterations again", figures["drift"], "", threads,
+                 f"{REFERENCE_ITERATIONS} against {2 * REFERENCE_ITERATIONS} iterations, the last frame")
         for method, positions in (("skinning", skinning), ("Corrective Smooth", smoothed), ("Tegument", ours)):
             figures = character_demo.frame_figures(positions, rest, corners, sizes, groups)
             rows.add(case, f"{method}: spike max", figures["spike_max"], "", threads, f"frame {last}")
             rows.add(case, f"{method}: self-intersecting pairs", figures["self_intersections"], "", threads, f"frame {last}")
             rows.add(case, f"{method}: seam gap", 1000 * figures["seam_gap"], "mm", threads, f"frame {last}")
+
+
+# Iterations of the reference solve (x_inf): the accelerated solver's change per iteration is below
+# 1e-7 of the character's size long before (the bench checks it at the last frame, against twice as many).
+REFERENCE_ITERATIONS = 1000
+
+
+def convergence(bpy, np, obj, job, cache, scene) -> dict:
+    """Issue 28's convergence error on the posed character: per frame, a solve against the same
+    solve continued until it stops moving (x_inf: the accelerated solver at REFERENCE_ITERATIONS),
+    relative to how far x_inf is from the frame's input. "baked": the bake's cache (the add-on's
+    settings); "converge": Converge at its iteration count, each frame solved from its input as
+    the add-on's bakes without colliders do. Each the worst over the frames whose displacement is
+    at least a tenth of the last frame's (the first frames of the pose barely move: a ratio of two
+    tiny numbers). "drift": how far x_inf moves in twice the iterations at the last frame."""
+    import tegument
+    from bl_ext.user_default.tegument.deform import evaluate
+
+    def rms(a, b):
+        return float(np.sqrt(((np.asarray(a, np.float64) - b) ** 2).sum(axis=1).mean()))
+
+    deformer, closeness = job.deformer, job.closeness
+    converge_iterations = tegument.DEFAULTS.accelerated_iterations
+    accelerated = deformer.accelerated
+    modifier = evaluate.tegument_modifier(obj)
+    modifier.show_viewport = False  # the input: the stack above Tegument
+    baked, converged, scales, last = [], [], [], None
+    try:
+        deformer.accelerated = True
+        for k, frame in enumerate(job.frames):
+            scene.frame_set(frame)
+            depsgraph = bpy.context.evaluated_depsgraph_get()
+            world = np.array(evaluate.evaluated_positions(obj, depsgraph)[1])
+            x_inf = deformer.solve(world, iterations=REFERENCE_ITERATIONS, closeness=closeness)
+            scale = rms(x_inf, world)
+            ours = evaluate.to_world(np.ascontiguousarray(cache[k]), obj.evaluated_get(depsgraph).matrix_world)
+            fast = deformer.solve(world, iterations=converge_iterations, closeness=closeness)
+            scales.append(scale)
+            baked.append(rms(ours, x_inf) / scale if scale > 0 else 0.0)
+            converged.append(rms(fast, x_inf) / scale if scale > 0 else 0.0)
+            last = world, x_inf
+        world, x_inf = last
+        drift = rms(deformer.solve(world, iterations=2 * REFERENCE_ITERATIONS, closeness=closeness), x_inf) / scales[-1]
+    finally:
+        deformer.accelerated = accelerated
+        modifier.show_viewport = True
+    moving = [k for k, scale in enumerate(scales) if scale >= 0.1 * scales[-1]]
+    return dict(baked=max(baked[k] for k in moving), converge=max(converged[k] for k in moving),
+                converge_iterations=converge_iterations, drift=drift)
 
 
 if __name__ == "__main__":

@@ -192,8 +192,19 @@ def character_lines(rows: Rows) -> list[Line]:
                           tegument["value"],
                           note=f"{rows.value('blender', case, 'Tegument frame / Corrective Smooth frame'):.2f}× Corrective Smooth's frame; "
                                f"{rows.value('blender', case, 'pinned by bind'):.0f} vertices pinned by bind "
-                               f"({rows.value('blender', case, 'split vertices'):.0f} split at seams); " + shape("Tegument")))
+                               f"({rows.value('blender', case, 'split vertices'):.0f} split at seams); " + shape("Tegument")
+                               + f"; convergence error, worst frame: {convergence(rows, case)}"))
     return lines
+
+
+def convergence(rows: Rows, case: str) -> str:
+    """Issue 28's convergence error of the character's frames: the bake at the add-on's defaults
+    and each frame's solve with Converge (bench/blender_bench.py `convergence`)."""
+    baked = rows.find("blender", case, "Tegument: convergence error, worst baked frame")
+    converge = rows.find("blender", case, "Tegument Converge: convergence error, worst frame")
+    iterations = re.search(r"(\d+) it\.", converge["note"])
+    return (f"{100 * baked['value']:.1f} % at the defaults, {100 * converge['value']:.1f} % with Converge"
+            + (f" ({iterations.group(1)} it.)" if iterations else ""))
 
 
 # The phases of a bake frame as BakeJob records them (addon/deform/bake.py, PhaseClock).
