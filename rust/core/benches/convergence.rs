@@ -20,26 +20,14 @@ mod common;
 use std::time::Instant;
 
 use common::{machine, median_ms, with_threads, Report};
-use glam::{Mat3, Vec3};
+use glam::Vec3;
+use tegument_core::mesh::fixtures::{makehuman_body, makehuman_obj, smooth_bend as bend};
 use tegument_core::mesh::shapes::{cylinder, PolyMesh};
 use tegument_core::pyramid::{Closeness, DeformerOptions, PyramidDeformer};
 
 const KS: &[usize] = &[1, 2, 3, 4, 5, 6, 8, 10, 15, 20, 40];
 const TOLERANCE: f64 = 1e-7;
 const MAX_ITERATIONS: usize = 30_000;
-
-fn bend(mesh: &PolyMesh, axis_z: f32, low: f32, high: f32, angle: f32, twist: f32) -> Vec<Vec3> {
-    let pivot = Vec3::new(0.0, 0.0, axis_z);
-    let turn = Mat3::from_rotation_x(angle) * Mat3::from_rotation_z(twist);
-    mesh.positions
-        .iter()
-        .map(|&p| {
-            let t = ((p.z - low) / (high - low)).clamp(0.0, 1.0);
-            let w = t * t * (3.0 - 2.0 * t);
-            p * (1.0 - w) + (turn * (p - pivot) + pivot) * w
-        })
-        .collect()
-}
 
 fn rms(a: &[Vec3], b: &[Vec3]) -> f64 {
     (a.iter().zip(b).map(|(p, q)| (*p - *q).as_dvec3().length_squared()).sum::<f64>() / a.len() as f64).sqrt()
@@ -48,36 +36,6 @@ fn rms(a: &[Vec3], b: &[Vec3]) -> f64 {
 fn size(positions: &[Vec3]) -> f64 {
     let (lo, hi) = positions.iter().fold((Vec3::MAX, Vec3::MIN), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
     (hi - lo).length() as f64
-}
-
-/// The MakeHuman base mesh's "body" group, z up, decimetres.
-fn load_body(path: &std::path::Path) -> Option<PolyMesh> {
-    let text = std::fs::read_to_string(path).ok()?;
-    let (mut all, mut faces, mut group) = (Vec::new(), Vec::<Vec<usize>>::new(), String::new());
-    for line in text.lines() {
-        let mut parts = line.split_whitespace();
-        match parts.next() {
-            Some("v") => {
-                let c: Vec<f32> = parts.take(3).map(|v| v.parse().unwrap()).collect();
-                all.push(Vec3::new(c[0], -c[2], c[1]) * 0.1);
-            }
-            Some("g") => group = parts.next().unwrap_or("").to_string(),
-            Some("f") if group == "body" => faces.push(parts.map(|r| r.split('/').next().unwrap().parse::<usize>().unwrap() - 1).collect()),
-            _ => {}
-        }
-    }
-    let mut used: Vec<usize> = faces.iter().flatten().copied().collect();
-    used.sort_unstable();
-    used.dedup();
-    let mut index = vec![usize::MAX; all.len()];
-    for (i, &v) in used.iter().enumerate() {
-        index[v] = i;
-    }
-    let mut mesh = PolyMesh { positions: used.iter().map(|&v| all[v]).collect(), ..Default::default() };
-    for f in &faces {
-        mesh.push_polygon(&f.iter().map(|&v| index[v]).collect::<Vec<_>>());
-    }
-    Some(mesh)
 }
 
 #[derive(Clone, Copy)]
@@ -172,8 +130,8 @@ fn main() {
     for closeness in [0.05, 0.01] {
         case(&mut report, &format!("{label} ({} v) c={closeness}", tube.positions.len()), &tube, &frame1, &frame2, closeness);
     }
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/makehuman/base.obj");
-    match load_body(&path) {
+    let path = makehuman_obj();
+    match makehuman_body(&path) {
         Some(body) => {
             // The upper body bent forward about the waist, then a little further.
             let frame1 = bend(&body, 0.1, 0.0, 0.25, 0.9, 0.3);

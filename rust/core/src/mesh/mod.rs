@@ -9,6 +9,7 @@
 
 mod aggregate;
 mod elements;
+pub mod fixtures;
 pub mod shapes;
 mod topology;
 mod transform;

@@ -82,6 +82,9 @@ const MIN_AGGREGATES: usize = 8;
 /// iteration: the time buys more as iterations.
 const SWEEPS: usize = 1;
 
+/// Vertices of a block of the last pass (see [`Coarse::correct`]).
+const APPLY_BLOCK: usize = 4096;
+
 /// Rows of a block of the smoothing sweeps (see [`Csr::sweep`]).
 const BLOCK: usize = 1024;
 
@@ -357,7 +360,7 @@ impl Coarse {
         held: Option<&[bool]>,
         previous: &mut [Vec3],
         weight: f32,
-    ) {
+    ) -> f64 {
         let (offsets, columns, values) = (&self.offsets, &self.columns, &self.values);
         let rhs = match self.levels.first_mut() {
             Some(level) => &mut level.rhs,
@@ -402,14 +405,28 @@ impl Coarse {
             free[aggregate[i] as usize] = false;
         }
         let free = &*free;
-        // One pass for the step, the correction and the extrapolation.
-        g.par_iter_mut().zip(x).zip(previous).enumerate().with_min_len(4096).for_each(|(i, ((gi, xi), pi))| {
-            let a = aggregate[i] as usize;
-            let correction = if free[a] { error[a] } else { Vec3::ZERO };
-            let corrected = *xi + (*gi - *xi) * RELAXATION + correction;
-            *gi = *pi + (corrected - *pi) * weight;
-            *pi = *xi;
-        });
+        // One pass for the step, the correction and the extrapolation, and
+        // the residual's squared norm, summed by fixed blocks in order.
+        let sums: Vec<f64> = g
+            .par_chunks_mut(APPLY_BLOCK)
+            .zip(x.par_chunks(APPLY_BLOCK))
+            .zip(previous.par_chunks_mut(APPLY_BLOCK))
+            .enumerate()
+            .map(|(b, ((g, x), previous))| {
+                let mut sum = 0.0f64;
+                for (k, ((gi, xi), pi)) in g.iter_mut().zip(x).zip(previous).enumerate() {
+                    let a = aggregate[b * APPLY_BLOCK + k] as usize;
+                    let step = *gi - *xi;
+                    sum += step.length_squared() as f64;
+                    let correction = if free[a] { error[a] } else { Vec3::ZERO };
+                    let corrected = *xi + step * RELAXATION + correction;
+                    *gi = *pi + (corrected - *pi) * weight;
+                    *pi = *xi;
+                }
+                sum
+            })
+            .collect();
+        sums.iter().sum()
     }
 
     /// One V-cycle on level `l`, from its `rhs` into its `error`.

@@ -328,6 +328,7 @@ impl Solver {
 
         let accelerated = anderson.is_some() || self.coarse.is_some();
         let mut chebyshev = Chebyshev::new();
+        let mut last_residual = f64::INFINITY;
         if self.coarse.is_some() {
             self.previous.resize(self.vertex_count, Vec3::ZERO);
         }
@@ -359,7 +360,13 @@ impl Solver {
                     chebyshev.restart();
                 }
                 let weight = chebyshev.next_weight();
-                coarse.correct(current, next, hook_moved.then_some(&self.hook_moved[..]), &mut self.previous, weight);
+                let residual = coarse.correct(current, next, hook_moved.then_some(&self.hook_moved[..]), &mut self.previous, weight);
+                // A residual that grew: the extrapolation overshot where the
+                // iteration is far from linear (see `chebyshev`); start again.
+                if residual > last_residual {
+                    chebyshev.restart();
+                }
+                last_residual = residual;
             }
             if let Some(history) = anderson.as_deref_mut() {
                 if hook_moved {
