@@ -4,60 +4,13 @@
 
 use std::time::Instant;
 
-use glam::{Mat3, Vec3};
+use glam::Vec3;
+use tegument_core::mesh::fixtures::{makehuman_body, smooth_bend as bend};
 use tegument_core::mesh::shapes::{cylinder, PolyMesh};
 use tegument_core::pyramid::{Closeness, DeformerOptions, PyramidDeformer};
 
-fn bend(mesh: &PolyMesh, axis_z: f32, low: f32, high: f32, angle: f32, twist: f32) -> Vec<Vec3> {
-    let pivot = Vec3::new(0.0, 0.0, axis_z);
-    let turn = Mat3::from_rotation_x(angle) * Mat3::from_rotation_z(twist);
-    mesh.positions
-        .iter()
-        .map(|&p| {
-            let t = ((p.z - low) / (high - low)).clamp(0.0, 1.0);
-            let w = t * t * (3.0 - 2.0 * t);
-            p * (1.0 - w) + (turn * (p - pivot) + pivot) * w
-        })
-        .collect()
-}
-
 fn rms(a: &[Vec3], b: &[Vec3]) -> f64 {
     (a.iter().zip(b).map(|(p, q)| (*p - *q).as_dvec3().length_squared()).sum::<f64>() / a.len() as f64).sqrt()
-}
-
-fn load_obj_body(path: &str) -> PolyMesh {
-    let text = std::fs::read_to_string(path).expect("read obj");
-    let mut all = Vec::new();
-    let mut faces: Vec<Vec<usize>> = Vec::new();
-    let mut group = String::new();
-    for line in text.lines() {
-        let mut parts = line.split_whitespace();
-        match parts.next() {
-            Some("v") => {
-                let c: Vec<f32> = parts.take(3).map(|v| v.parse().unwrap()).collect();
-                all.push(Vec3::new(c[0], -c[2], c[1]) * 0.1);
-            }
-            Some("g") => group = parts.next().unwrap_or("").to_string(),
-            Some("f") if group == "body" => {
-                faces.push(parts.map(|r| r.split('/').next().unwrap().parse::<usize>().unwrap() - 1).collect())
-            }
-            _ => {}
-        }
-    }
-    let mut used: Vec<usize> = faces.iter().flatten().copied().collect();
-    used.sort_unstable();
-    used.dedup();
-    let mut index = vec![usize::MAX; all.len()];
-    for (i, &v) in used.iter().enumerate() {
-        index[v] = i;
-    }
-    let mut mesh = PolyMesh::default();
-    mesh.positions = used.iter().map(|&v| all[v]).collect();
-    for f in &faces {
-        let corners: Vec<usize> = f.iter().map(|&v| index[v]).collect();
-        mesh.push_polygon(&corners);
-    }
-    mesh
 }
 
 fn report(name: &str, mesh: &PolyMesh, input: &[Vec3], closeness: f32) {
@@ -84,7 +37,7 @@ fn main() {
         report("tube 100k", &tube, &tube_input, closeness);
     }
     if let Some(path) = std::env::args().nth(1) {
-        let body = load_obj_body(&path);
+        let body = makehuman_body(std::path::Path::new(&path)).expect("a readable MakeHuman base.obj");
         // Bend the upper body forward about a waist pivot, with a blend zone.
         let input = bend(&body, 0.1, 0.0, 0.25, 0.9, 0.3);
         for closeness in [0.05, 0.01] {
