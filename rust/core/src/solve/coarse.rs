@@ -349,6 +349,7 @@ impl Coarse {
     /// `P e₁`, `e₁` from one V-cycle on `A₁ e₁ = ω Pᵀ M (g − x)`, extrapolated
     /// from the iterate before, `previous + weight · (that − previous)`
     /// (see [`super::chebyshev`]; weight 1 = none); `previous` then holds `x`.
+    /// Returns the residual's squared norm, `Σ |g − x|²` before all that.
     ///
     /// `held` marks vertices whose residual is left out (a hook holds them
     /// where the step cannot go), so that the correction vanishes at the
