@@ -361,11 +361,9 @@ def convergence(bpy, np, obj, job, cache, scene) -> dict:
     the add-on's bakes without colliders do. Each the worst over the frames whose displacement is
     at least a tenth of the last frame's (the first frames of the pose barely move: a ratio of two
     tiny numbers). "drift": how far x_inf moves in twice the iterations at the last frame."""
+    import measures
     import tegument
     from bl_ext.user_default.tegument.deform import evaluate
-
-    def rms(a, b):
-        return float(np.sqrt(((np.asarray(a, np.float64) - b) ** 2).sum(axis=1).mean()))
 
     deformer, closeness = job.deformer, job.closeness
     converge_iterations = tegument.DEFAULTS.accelerated_iterations
@@ -380,20 +378,20 @@ def convergence(bpy, np, obj, job, cache, scene) -> dict:
             depsgraph = bpy.context.evaluated_depsgraph_get()
             world = np.array(evaluate.evaluated_positions(obj, depsgraph)[1])
             x_inf = deformer.solve(world, iterations=REFERENCE_ITERATIONS, closeness=closeness)
-            scale = rms(x_inf, world)
             ours = evaluate.to_world(np.ascontiguousarray(cache[k]), obj.evaluated_get(depsgraph).matrix_world)
             fast = deformer.solve(world, iterations=converge_iterations, closeness=closeness)
+            error, scale = measures.convergence_error(ours, x_inf, world)
+            baked.append(error)
+            converged.append(measures.convergence_error(fast, x_inf, world)[0])
             scales.append(scale)
-            baked.append(rms(ours, x_inf) / scale if scale > 0 else 0.0)
-            converged.append(rms(fast, x_inf) / scale if scale > 0 else 0.0)
             last = world, x_inf
         world, x_inf = last
-        drift = rms(deformer.solve(world, iterations=2 * REFERENCE_ITERATIONS, closeness=closeness), x_inf) / scales[-1]
+        longer = deformer.solve(world, iterations=2 * REFERENCE_ITERATIONS, closeness=closeness)
+        drift = measures.convergence_error(longer, x_inf, world)[0]
     finally:
         deformer.accelerated = accelerated
         modifier.show_viewport = True
-    moving = [k for k, scale in enumerate(scales) if scale >= 0.1 * scales[-1]]
-    return dict(baked=max(baked[k] for k in moving), converge=max(converged[k] for k in moving),
+    return dict(baked=measures.worst_moving(baked, scales), converge=measures.worst_moving(converged, scales),
                 converge_iterations=converge_iterations, drift=drift)
 
 

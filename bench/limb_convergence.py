@@ -22,12 +22,10 @@ ITERATIONS = (5, 6, 10, 50)
 
 def main() -> int:
     import bpy
+    import measures
     import numpy as np
     import scene as demo_scene
     import tegument
-
-    def rms(a, b):
-        return float(np.sqrt(((np.asarray(a, np.float64) - b) ** 2).sum(axis=1).mean()))
 
     for segments, rings in LIMBS:
         bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -46,8 +44,8 @@ def main() -> int:
         deformer.accelerated = True
         for closeness in (0.05, 0.01):
             x_inf = deformer.solve(source, iterations=2000, closeness=closeness)
-            scale = rms(x_inf, source)
-            errors = [rms(deformer.solve(source, iterations=k, closeness=closeness), x_inf) / scale for k in ITERATIONS]
+            errors = [measures.convergence_error(deformer.solve(source, iterations=k, closeness=closeness), x_inf, source)[0]
+                      for k in ITERATIONS]
             print(f"{len(rest):>6} vertices, closeness {closeness}: "
                   + ", ".join(f"{k} it. {100 * e:.1f} %" for k, e in zip(ITERATIONS, errors)), flush=True)
     return 0

@@ -39,7 +39,7 @@ def main() -> None:
     columns = 2
     lines = (len(cases) + columns - 1) // columns
     fig, axes = plt.subplots(lines, columns, figsize=(5.5 * columns, 3.8 * lines), squeeze=False)
-    styles = {"plain": ("tab:blue", "o", "plain iterations (before)"), "accelerated": ("tab:red", "s", "multilevel correction (Converge, opt-in)")}
+    styles = {"plain": ("tab:blue", "o", "plain iterations (before)"), "accelerated": ("tab:red", "s", "accelerated: multilevel + Chebyshev (Converge, opt-in)")}
     for ax, case in zip(axes.flat, cases):
         for solver, (color, marker, label) in styles.items():
             points = sorted(curves.get((case, solver), []), key=lambda p: p[2])

@@ -195,19 +195,16 @@ def test_converge_bakes_the_hard_pose_within_five_percent_of_converged(variant):
     def world(local):
         return (local @ matrix[:3, :3].T + matrix[:3, 3]).astype(np.float32)
 
-    def rms(a, b):
-        return float(np.sqrt(((np.asarray(a, np.float64) - b) ** 2).sum(axis=1).mean()))
-
     first, last = character_demo.POSE_FRAMES
-    errors, scales = {}, {}
+    errors, scales = [], []
     for frame in range(first, last + 1):
         source = world(character_demo.upstream_local(obj, frame))
         x_inf = reference.solve(source, iterations=1000, closeness=settings.closeness)
-        scales[frame] = rms(x_inf, source)
-        errors[frame] = rms(world(cache[frame - first]), x_inf) / scales[frame] if scales[frame] > 0 else 0.0
-    moving = {frame: error for frame, error in errors.items() if scales[frame] >= 0.1 * scales[last]}
-    assert len(moving) >= 6, scales
-    assert max(moving.values()) <= 0.05, moving
+        error, scale = measures.convergence_error(world(cache[frame - first]), x_inf, source)
+        errors.append(error)
+        scales.append(scale)
+    assert sum(scale >= 0.1 * scales[-1] for scale in scales) >= 6, scales
+    assert measures.worst_moving(errors, scales) <= 0.05, errors
 
 
 @pytest.mark.parametrize("variant", character_demo.VARIANTS)

@@ -11,6 +11,8 @@ Pyramid Deform on the same frames. Plain numpy on the mesh's own arrays, plus Bl
   glTF, FBX and USD imports) and how far apart they end up.
 - :func:`self_intersections`: pairs of faces that intersect although they share no vertex
   (vertices coincident at rest count as shared, so a closed split seam is not an intersection).
+- :func:`convergence_error` and :func:`worst_moving`: issue 28's convergence error of a solve
+  against the same solve run to a standstill, and its worst over the frames of a pose that move.
 """
 
 from __future__ import annotations
@@ -124,3 +126,23 @@ def self_intersections(positions: np.ndarray, corner_verts: np.ndarray, polygon_
     shared_id = np.asarray(groups if groups is not None else np.arange(int(corner_verts.max(initial=-1)) + 1))
     sets = [frozenset(shared_id[p].tolist()) for p in polygons]
     return sum(1 for i, j in tree.overlap(tree) if i < j and not (sets[i] & sets[j]))
+
+
+# ------------------------------------------------------------------------- convergence (issue 28)
+
+def convergence_error(result: np.ndarray, converged: np.ndarray, source: np.ndarray) -> tuple[float, float]:
+    """``(error, displacement)``: issue 28's convergence error RMS |x − x_inf| / RMS |x_inf − input|
+    of ``result`` against the converged solve ``converged`` of the input ``source`` (0 where the
+    solve does not move the input), and that RMS displacement."""
+    def rms(a, b):
+        return float(np.sqrt(((np.asarray(a, np.float64) - b) ** 2).sum(axis=1).mean()))
+
+    displacement = rms(converged, source)
+    return (rms(result, converged) / displacement if displacement > 0 else 0.0), displacement
+
+
+def worst_moving(errors: list[float], displacements: list[float], fraction: float = 0.1) -> float:
+    """The worst error over the frames whose displacement is at least ``fraction`` of the last
+    frame's: the first frames of a pose barely move, and their error is a ratio of two tiny numbers."""
+    moving = [e for e, d in zip(errors, displacements) if d >= fraction * displacements[-1]]
+    return max(moving)
