@@ -783,21 +783,61 @@ fn accelerated_solver_keeps_the_plain_fixed_point_where_the_iteration_is_far_fro
 
 #[test]
 fn accelerated_solver_converges_in_its_iterations_at_low_closeness() {
-    // Issue 28's figure: convergence error ≤ 5% at ACCELERATED_ITERATIONS,
-    // here on a 6k-vertex tube at closeness 0.01, where plain
-    // iterations have gone about a sixth of the way.
+    // Issue 28's figure: convergence error ≤ 5 % with the add-on's Converge
+    // settings (the tolerance stops the solve before its limit) and at six
+    // fixed iterations, here on a 6k-vertex tube at closeness 0.01, where
+    // plain iterations have gone about a sixth of the way.
     let mesh = cylinder(64, 100, 0.5, 4.0);
     let input = candy_wrapper(&mesh, 4.0, 60f32.to_radians(), 90f32.to_radians());
-    let iterations = crate::pyramid::ACCELERATED_ITERATIONS;
+    let limit = crate::pyramid::ACCELERATED_ITERATIONS;
     let mut deformer = accelerated(&mesh);
     let closeness = Closeness::Uniform(0.01);
     let converged = deformer.solve(&input, 2000, closeness).unwrap();
     let scale = rms_distance(&converged, &input);
-    let error = rms_distance(&deformer.solve(&input, iterations, closeness).unwrap(), &converged) / scale;
+    let error = |x: Vec<Vec3>| rms_distance(&x, &converged) / scale;
+    let six = error(deformer.solve(&input, 6, closeness).unwrap());
+    deformer.set_tolerance(Some(crate::pyramid::CONVERGE_TOLERANCE)).unwrap();
+    let stopped = error(deformer.solve(&input, limit, closeness).unwrap());
+    let took = deformer.last_iterations();
+    deformer.set_tolerance(None).unwrap();
     plain(&mut deformer);
-    let old = rms_distance(&deformer.solve(&input, iterations, closeness).unwrap(), &converged) / scale;
-    assert!(error <= 0.05, "{iterations} iterations: convergence error {error} (plain {old})");
+    let old = error(deformer.solve(&input, 6, closeness).unwrap());
+    assert!(six <= 0.05, "6 iterations: convergence error {six} (plain {old})");
+    assert!(stopped <= 0.05 && took < limit, "with the tolerance: convergence error {stopped} after {took} iterations");
     assert!(old > 0.5, "plain iterations converge faster than expected here: {old}");
+}
+
+#[test]
+fn a_tolerance_stops_a_solve_whose_start_is_its_solution_and_a_hook_still_holds() {
+    let length = 4.0;
+    let mesh = cylinder(32, 40, 0.5, length);
+    let input = candy_wrapper(&mesh, length, 0.0, 90f32.to_radians());
+    let mut deformer = accelerated(&mesh);
+    deformer.set_tolerance(Some(0.02)).unwrap();
+    let closeness = Closeness::Uniform(0.05);
+    // From its own converged result, a solve stops after two steps (the
+    // rule needs two to read a ratio).
+    let mut x = deformer.solve(&input, 400, closeness).unwrap();
+    deformer.solve_into(&input, &mut x, 50, closeness, None).unwrap();
+    assert_eq!(deformer.last_iterations(), 2);
+    // With a hook: the solve stops after a hook has run, so its floor holds.
+    let floor = input.iter().map(|p| p.y).fold(f32::MAX, f32::min) + 0.3;
+    let mut floor_hook = |_: usize, _: &[Vec3], after: &mut [Vec3]| -> crate::Result<()> {
+        for p in after.iter_mut() {
+            p.y = p.y.max(floor);
+        }
+        Ok(())
+    };
+    let start: Vec<Vec3> = input.iter().map(|p| Vec3::new(p.x, p.y.max(floor), p.z)).collect();
+    let mut x = start.clone();
+    deformer.solver_mut().solve(&start, &mut x, 1000, Some(&mut floor_hook)).unwrap();
+    println!("the hooked solve stopped after {} iterations", deformer.last_iterations());
+    assert!(deformer.last_iterations() < 1000, "the rule never stopped the hooked solve");
+    assert!(x.iter().all(|p| p.y >= floor));
+    // Plain iterations run their count whatever the tolerance.
+    plain(&mut deformer);
+    deformer.solve_into(&input, &mut x, 7, closeness, None).unwrap();
+    assert_eq!(deformer.last_iterations(), 7);
 }
 
 #[test]

@@ -201,6 +201,17 @@ struct Level {
     scratch: Vec<Vec3>,
 }
 
+/// Squared norms over the vertices, from [`Coarse::correct`].
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Sums {
+    /// `Σ |G(x) − x|²`: the plain iteration's residual.
+    pub residual: f64,
+    /// `Σ |x' − x|²`: the accelerated step.
+    pub step: f64,
+    /// `Σ |x' − input|²`: how far the new iterate is from the input.
+    pub offset: f64,
+}
+
 /// The coarse levels of one solver for one set of weights.
 pub(super) struct Coarse {
     /// Aggregate of each vertex on the first level.
@@ -341,7 +352,8 @@ impl Coarse {
     /// `P e₁`, `e₁` from one V-cycle on `A₁ e₁ = ω Pᵀ M (g − x)`, extrapolated
     /// from the iterate before, `previous + weight · (that − previous)`
     /// (see [`super::chebyshev`]; weight 1 = none); `previous` then holds `x`.
-    /// Returns the residual's squared norm, `Σ |g − x|²` before all that.
+    /// Returns the squared norms of the residual (`g − x` before all that),
+    /// of the accelerated step and of the new iterate's offset from `input`.
     ///
     /// `held` marks vertices whose residual is left out (a hook holds them
     /// where the step cannot go), so that the correction vanishes at the
@@ -353,7 +365,8 @@ impl Coarse {
         held: Option<&[bool]>,
         previous: &mut [Vec3],
         weight: f32,
-    ) -> f64 {
+        input: &[Vec3],
+    ) -> Sums {
         let (offsets, columns, values) = (&self.offsets, &self.columns, &self.values);
         let rhs = match self.levels.first_mut() {
             Some(level) => &mut level.rhs,
@@ -399,27 +412,39 @@ impl Coarse {
         }
         let free = &*free;
         // One pass for the step, the correction and the extrapolation, and
-        // the residual's squared norm, summed by fixed blocks in order.
-        let sums: Vec<f64> = g
+        // the norms, summed by fixed blocks in order.
+        let extrapolate = weight != 1.0;
+        let sums: Vec<Sums> = g
             .par_chunks_mut(APPLY_BLOCK)
             .zip(x.par_chunks(APPLY_BLOCK))
             .zip(previous.par_chunks_mut(APPLY_BLOCK))
-            .enumerate()
-            .map(|(b, ((g, x), previous))| {
-                let mut sum = 0.0f64;
-                for (k, ((gi, xi), pi)) in g.iter_mut().zip(x).zip(previous).enumerate() {
-                    let a = aggregate[b * APPLY_BLOCK + k] as usize;
-                    let step = *gi - *xi;
-                    sum += step.length_squared() as f64;
+            .zip(input.par_chunks(APPLY_BLOCK))
+            .zip(aggregate.par_chunks(APPLY_BLOCK))
+            .map(|((((g, x), previous), input), aggregate)| {
+                let (mut residual, mut step, mut offset) = (0.0f32, 0.0f32, 0.0f32);
+                for ((((gi, xi), pi), ii), &a) in g.iter_mut().zip(x).zip(previous).zip(input).zip(aggregate) {
+                    let a = a as usize;
+                    let plain = *gi - *xi;
+                    residual += plain.length_squared();
                     let correction = if free[a] { error[a] } else { Vec3::ZERO };
-                    let corrected = *xi + step * RELAXATION + correction;
-                    *gi = *pi + (corrected - *pi) * weight;
+                    let corrected = *xi + plain * RELAXATION + correction;
+                    // Weight 1 exactly: `p + (c − p)` can differ from `c` in
+                    // the last bit, which would make a solve depend on the
+                    // solve before it (the previous iterate it left behind).
+                    let next = if extrapolate { *pi + (corrected - *pi) * weight } else { corrected };
+                    step += (next - *xi).length_squared();
+                    offset += (next - *ii).length_squared();
+                    *gi = next;
                     *pi = *xi;
                 }
-                sum
+                Sums { residual: residual as f64, step: step as f64, offset: offset as f64 }
             })
             .collect();
-        sums.iter().sum()
+        sums.iter().fold(Sums::default(), |a, b| Sums {
+            residual: a.residual + b.residual,
+            step: a.step + b.step,
+            offset: a.offset + b.offset,
+        })
     }
 
     /// One cycle on level `l`, from its `rhs` into its `error`: the

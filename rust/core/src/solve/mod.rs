@@ -25,12 +25,14 @@ mod closeness;
 mod coarse;
 mod constraint;
 mod solver;
+mod stopping;
 mod system;
 mod targets;
 
 pub use closeness::Closeness;
 pub use constraint::{Constraint, Context, DiagonalChunk, Rows};
 pub use solver::{ConstraintId, IterationHook, Solver};
+pub use stopping::Tolerance;
 pub use system::SystemKind;
 pub use targets::Targets;
 

@@ -4,11 +4,13 @@ use std::sync::Arc;
 
 use faer::sparse::linalg::cholesky::SymbolicCholesky;
 use glam::Vec3;
+use rayon::prelude::*;
 
 use super::anderson::Anderson;
 use super::chebyshev::Chebyshev;
 use super::coarse::Coarse;
 use super::constraint::{Constraint, Context};
+use super::stopping::{self, Tolerance};
 use super::system::{RowBlock, System, SystemKind};
 use crate::mesh::validate_positions;
 use crate::{Error, Result};
@@ -78,6 +80,11 @@ pub struct Solver {
     /// The corrected iteration's iterate before the current one, for its
     /// Chebyshev extrapolation (see [`super::chebyshev`]).
     previous: Vec<Vec3>,
+    /// Stop an accelerated solve once its estimated error is below this
+    /// fraction of the displacement (see [`Solver::set_tolerance`]).
+    tolerance: Option<Tolerance>,
+    /// Iterations the last solve ran.
+    last_iterations: usize,
 }
 
 impl Solver {
@@ -98,7 +105,39 @@ impl Solver {
             before_hook: Vec::new(),
             hook_moved: Vec::new(),
             previous: Vec::new(),
+            tolerance: None,
+            last_iterations: 0,
         }
+    }
+
+    /// Lets an accelerated solve stop before its iteration count once the
+    /// error it has left, estimated from its last steps, is within the
+    /// tolerance (`None`: always run the count). See [`stopping`]. Plain
+    /// iterations converge too slowly for the estimate to hold: those solves
+    /// run their count. With a hook the rule measures the iterate the hook
+    /// left, so a solve stops where the hook's guarantees hold (contacts
+    /// resolved after every iteration).
+    pub fn set_tolerance(&mut self, tolerance: Option<Tolerance>) -> Result<()> {
+        if let Some(t) = tolerance {
+            if !(t.relative.is_finite() && t.relative > 0.0 && t.floor.is_finite() && t.floor >= 0.0) {
+                return Err(Error::invalid(format!(
+                    "tolerance is {} (floor {}); it must be a positive number",
+                    t.relative, t.floor
+                )));
+            }
+        }
+        self.tolerance = tolerance;
+        Ok(())
+    }
+
+    /// The stopping tolerance (see [`Solver::set_tolerance`]).
+    pub fn tolerance(&self) -> Option<Tolerance> {
+        self.tolerance
+    }
+
+    /// Iterations the last solve ran (its count, or fewer with a tolerance).
+    pub fn last_iterations(&self) -> usize {
+        self.last_iterations
     }
 
     /// Turns the coarse-level correction on or off (see [`super::coarse`]);
@@ -333,6 +372,11 @@ impl Solver {
             self.previous.resize(self.vertex_count, Vec3::ZERO);
         }
         let mut hook_moved = false;
+        let mut stop = match (self.tolerance, &self.coarse) {
+            (Some(tolerance), Some(_)) => Some(stopping::Rule::new(tolerance)),
+            _ => None,
+        };
+        self.last_iterations = iterations;
         // Ping-pong between the caller's buffer and our own, copying at most once.
         let mut in_work = false;
         for iteration in 0..iterations {
@@ -342,6 +386,9 @@ impl Solver {
                 (&*positions, &mut self.work)
             };
             let context = Context { positions: current, input };
+            // Squared norms of this iteration's step and of the iterate's
+            // offset from the input, for the stopping rule.
+            let mut step_norms: Option<(f64, f64)> = None;
             if !system.solve_fused(&self.rhs_constant, &variable, &context, next) {
                 for &(constraint, start) in &variable {
                     let rows = constraint.rows().len();
@@ -360,13 +407,14 @@ impl Solver {
                     chebyshev.restart();
                 }
                 let weight = chebyshev.next_weight();
-                let residual = coarse.correct(current, next, hook_moved.then_some(&self.hook_moved[..]), &mut self.previous, weight);
+                let sums = coarse.correct(current, next, hook_moved.then_some(&self.hook_moved[..]), &mut self.previous, weight, input);
                 // A residual that grew: the extrapolation overshot where the
                 // iteration is far from linear (see `chebyshev`); start again.
-                if residual > last_residual {
+                if sums.residual > last_residual {
                     chebyshev.restart();
                 }
-                last_residual = residual;
+                last_residual = sums.residual;
+                step_norms = Some((sums.step, sums.offset));
             }
             if let Some(history) = anderson.as_deref_mut() {
                 if hook_moved {
@@ -388,8 +436,19 @@ impl Solver {
                     }));
                     hook_moved = self.hook_moved.iter().any(|&m| m);
                 }
+                // The hook moved the iterate: measure where it left it.
+                if stop.is_some() {
+                    step_norms = Some(step_norms_of(current, next, input));
+                }
             }
             in_work = !in_work;
+            if let (Some(rule), Some((step, offset))) = (stop.as_mut(), step_norms) {
+                let rms = |sum: f64| (sum / self.vertex_count as f64).sqrt();
+                if rule.converged(rms(step), rms(offset)) {
+                    self.last_iterations = iteration + 1;
+                    break;
+                }
+            }
         }
         if in_work {
             positions.copy_from_slice(&self.work);
@@ -405,6 +464,25 @@ impl Solver {
         }
         Ok(())
     }
+}
+
+/// `(Σ |after − before|², Σ |after − input|²)`, summed by fixed blocks in order.
+fn step_norms_of(before: &[Vec3], after: &[Vec3], input: &[Vec3]) -> (f64, f64) {
+    const BLOCK: usize = 4096;
+    let sums: Vec<(f64, f64)> = after
+        .par_chunks(BLOCK)
+        .zip(before.par_chunks(BLOCK))
+        .zip(input.par_chunks(BLOCK))
+        .map(|((after, before), input)| {
+            let (mut step, mut offset) = (0.0f32, 0.0f32);
+            for ((a, b), i) in after.iter().zip(before).zip(input) {
+                step += (*a - *b).length_squared();
+                offset += (*a - *i).length_squared();
+            }
+            (step as f64, offset as f64)
+        })
+        .collect();
+    sums.iter().fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1))
 }
 
 fn check_weights(constraint: &dyn Constraint, weights: &[f32]) -> Result<()> {
