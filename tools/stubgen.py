@@ -85,6 +85,7 @@ PARAMS = {
     "orientation": "float",
     "smoothing": "float",
     "warm_start": "bool",
+    "warm": "bool",
     "memory_limit": "int | None",
     "sample_warped": "bool",
     "udim": "int | None",
@@ -101,7 +102,7 @@ PARAMS = {
 
 # Return types of functions and methods, and types of properties.
 # Properties that can also be set (pyo3 getset descriptors do not say).
-SETTERS = {"PyramidDeformer.accelerated"}
+SETTERS = {"PyramidDeformer.accelerated", "PyramidDeformer.tolerance"}
 
 RETURNS = {
     "transform_points": "Float32",
@@ -121,6 +122,8 @@ RETURNS = {
     "Mesh.report": "MeshReport",
     "PyramidDeformer.vertex_count": "int",
     "PyramidDeformer.accelerated": "bool",
+    "PyramidDeformer.tolerance": "float | None",
+    "PyramidDeformer.last_iterations": "int",
     "PyramidDeformer.welded_vertex_count": "int",
     "PyramidDeformer.pinned_vertices": "Int32",
     "PyramidDeformer.pinned_reasons": "dict[str, Int32]",

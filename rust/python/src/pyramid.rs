@@ -44,6 +44,8 @@ pub struct PyramidDeformer {
     last_step: Mutex<Option<StepReport>>,
     /// The last frame's input, kept for its allocation: see [`points_into`].
     input: Mutex<Vec<glam::Vec3>>,
+    /// The last :meth:`solve`'s input and result, where a warm solve starts from.
+    solved: Mutex<Option<(Vec<glam::Vec3>, Vec<glam::Vec3>)>>,
 }
 
 impl PyramidDeformer {
@@ -106,6 +108,7 @@ impl PyramidDeformer {
             vertex_count: core.vertex_count(),
             inner: Mutex::new(core),
             last_step: Mutex::new(None),
+            solved: Mutex::new(None),
             input: Mutex::new(Vec::new()),
         })
     }
@@ -120,8 +123,10 @@ impl PyramidDeformer {
     /// iteration then also corrects the smooth part of the error on coarser
     /// levels of the mesh (multigrid, with Chebyshev extrapolation), so that 6 iterations get within 5 % of
     /// the converged solution of the same settings, where plain iterations
-    /// need hundreds at low closeness. An iteration costs about three plain
-    /// ones at 100k vertices. Same solution either way.
+    /// need hundreds at low closeness. An iteration costs about two and a
+    /// half plain ones at 100k vertices. Same solution either way. With a
+    /// :attr:`tolerance` and warm solves, frames that follow each other take
+    /// 2–4 iterations.
     #[getter]
     fn accelerated(&self, py: Python<'_>) -> PyResult<bool> {
         self.with(py, |core| Ok(core.deformer_mut().accelerated()))
@@ -133,6 +138,31 @@ impl PyramidDeformer {
             core.deformer_mut().set_accelerated(on);
             Ok(())
         })
+    }
+
+    /// When an accelerated solve may stop before its iteration count
+    /// (``None`` by default: it runs them all): once its estimated
+    /// convergence error, the distance left to the converged solution, is at
+    /// most this fraction of the displacement (RMS over the vertices; offsets
+    /// below a tenth of an edge count as that much). The count becomes a
+    /// limit; :attr:`last_iterations` says how many ran. Plain iterations
+    /// always run their count; a :meth:`step` with colliders or strain limits
+    /// stops after an iteration whose contact passes have run.
+    /// ``tegument.DEFAULTS.tolerance`` is the add-on's Converge setting.
+    #[getter]
+    fn tolerance(&self, py: Python<'_>) -> PyResult<Option<f32>> {
+        self.with(py, |core| Ok(core.deformer_mut().tolerance()))
+    }
+
+    #[setter]
+    fn set_tolerance(&self, py: Python<'_>, tolerance: Option<f32>) -> PyResult<()> {
+        self.with(py, |core| core.deformer_mut().set_tolerance(tolerance))
+    }
+
+    /// Iterations the last solve ran: its count, or fewer with a :attr:`tolerance`.
+    #[getter]
+    fn last_iterations(&self, py: Python<'_>) -> PyResult<usize> {
+        self.with(py, |core| Ok(core.deformer_mut().last_iterations()))
     }
 
     /// Number of vertices the solver works on: the mesh's, with vertices
@@ -185,7 +215,14 @@ impl PyramidDeformer {
     /// ``[0, 1]``, or a float32 ``(N,)`` array of per-vertex
     /// weights in ``[0, 1]`` (1 = follow the input exactly, 0 = keep only the
     /// local shape). Deterministic whatever the thread count.
-    #[pyo3(signature = (positions, iterations = StepOptions::default().iterations as i64, closeness = None, *, out = None))]
+    ///
+    /// With ``warm`` the solve starts from the last :meth:`solve`'s result
+    /// moved as the input moved (its offset from its input, added to this
+    /// input) instead of from the input: the same solution, reached in fewer
+    /// iterations when frames follow each other, which :attr:`tolerance`
+    /// turns into time. The first solve, and the first after :meth:`reset`
+    /// or a failed one, start from the input.
+    #[pyo3(signature = (positions, iterations = StepOptions::default().iterations as i64, closeness = None, *, out = None, warm = false))]
     fn solve<'py>(
         &self,
         py: Python<'py>,
@@ -193,20 +230,38 @@ impl PyramidDeformer {
         iterations: i64,
         closeness: Option<&Bound<'py, PyAny>>,
         out: Option<&Bound<'py, PyAny>>,
+        warm: bool,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let (input, iterations, weights) = self.frame_args(positions, iterations, closeness)?;
         let output = out_or_new(py, out, self.vertex_count)?;
-        // The solve starts from the input and runs in the returned array itself:
-        // no result vector to copy out at 100k+ vertices per frame.
+        // Taken out, not held: the lock must not be held while the solve
+        // runs without the GIL (another thread could hold the GIL and wait on it).
+        let last = self.solved.lock().unwrap_or_else(|e| e.into_inner()).take();
+        // The solve runs in the returned array itself: no result vector to
+        // copy out at 100k+ vertices per frame.
         {
             let mut writable = output.readwrite();
             let flat = writable.as_slice_mut().expect("C-contiguous: made here or checked by out_arg");
             let out: &mut [glam::Vec3] = bytemuck::cast_slice_mut(flat);
-            out.copy_from_slice(&input);
+            match last.as_ref().filter(|_| warm) {
+                // The last result moved as the input moved.
+                Some((last_input, last_result)) => {
+                    for (((o, i), r), l) in out.iter_mut().zip(&input).zip(last_result).zip(last_input) {
+                        *o = *i + (*r - *l);
+                    }
+                }
+                None => out.copy_from_slice(&input),
+            }
             let input = &input;
             self.with(py, move |core| core.solve_into(input, out, iterations, weights.as_closeness(), None))?;
         }
-        self.keep_input(input);
+        // Remember this solve for the next warm one; the older input's
+        // allocation serves the next frame's.
+        let (spare, mut result) = last.unwrap_or_default();
+        result.clear();
+        result.extend_from_slice(bytemuck::cast_slice(output.readonly().as_slice().expect("C-contiguous")));
+        *self.solved.lock().unwrap_or_else(|e| e.into_inner()) = Some((input, result));
+        self.keep_input(spare);
         Ok(output)
     }
 
@@ -305,14 +360,15 @@ impl PyramidDeformer {
         Ok(velocity.map(|v| positions_to_py(py, &v)))
     }
 
-    /// Forgets the last output of :meth:`step`: the next step starts from its
-    /// input. With ``history`` (float32 ``(N, 3)``, free of collisions), the
+    /// Forgets the last output of :meth:`step` and :meth:`solve`: the next
+    /// step, and the next warm solve, start from their input. With ``history`` (float32 ``(N, 3)``, free of collisions), the
     /// next step starts from there instead, as if a step had produced it: how
     /// a bake resumes after frames it has already cached.
     #[pyo3(signature = (history = None))]
     fn reset(&self, py: Python<'_>, history: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
         let history = history.map(|h| positions_arg("history", h, Some(self.vertex_count))).transpose()?;
         *self.last_step.lock().unwrap_or_else(|e| e.into_inner()) = None;
+        *self.solved.lock().unwrap_or_else(|e| e.into_inner()) = None;
         self.with(py, move |core| match &history {
             Some(h) => core.set_history(h),
             None => {
@@ -506,6 +562,7 @@ fn _defaults<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
     let warp = WarpSettings::default();
     d.set_item("iterations", step.iterations)?;
     d.set_item("accelerated_iterations", tegument_core::pyramid::ACCELERATED_ITERATIONS)?;
+    d.set_item("tolerance", decimal(tegument_core::pyramid::CONVERGE_TOLERANCE))?;
     d.set_item("closeness", decimal(tegument_core::pyramid::DEFAULT_CLOSENESS))?;
     d.set_item("substeps", step.substeps)?;
     d.set_item("scale_safe", DeformerOptions::default().scale_safe)?;

@@ -161,6 +161,39 @@ def test_accelerated_solve_converges_with_every_iteration(scale_safe):
     assert rms(plain[0], converged) / rms(lbs, converged) > 3 * errors[6]
 
 
+def test_a_tolerance_stops_converged_solves_and_warm_solves_start_from_the_last_result():
+    lbs, deformer = candy_wrapper_case(True)
+    assert deformer.tolerance is None
+    deformer.accelerated = True
+    converged = deformer.solve(lbs, iterations=400)
+    rms = lambda a, b: float(np.sqrt(((a - b) ** 2).sum(1).mean()))  # noqa: E731
+    scale = rms(converged, lbs)
+    deformer.tolerance = tegument.DEFAULTS.tolerance
+    assert deformer.tolerance == pytest.approx(0.02)
+    cold = deformer.solve(lbs, iterations=tegument.DEFAULTS.accelerated_iterations)
+    cold_iterations = deformer.last_iterations
+    assert cold_iterations <= tegument.DEFAULTS.accelerated_iterations
+    assert rms(cold, converged) <= 0.05 * scale
+    # The same frame again, warm: it starts where the last solve ended and stops at once.
+    warm = deformer.solve(lbs, iterations=50, warm=True)
+    assert deformer.last_iterations == 2 < cold_iterations
+    assert rms(warm, converged) <= 0.05 * scale
+    # After a reset the warm solve has nothing to start from: it is a cold one.
+    deformer.reset()
+    again = deformer.solve(lbs, iterations=tegument.DEFAULTS.accelerated_iterations, warm=True)
+    np.testing.assert_array_equal(again, cold)
+    # Plain iterations run their count; a bad tolerance is refused and changes nothing.
+    deformer.accelerated = False
+    deformer.solve(lbs, iterations=7)
+    assert deformer.last_iterations == 7
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(tegument.TegumentError, match="it must be a positive number"):
+            deformer.tolerance = bad
+    assert deformer.tolerance == pytest.approx(0.02)
+    deformer.tolerance = None
+    assert deformer.tolerance is None
+
+
 def jacobi_reference(rest, corners, sizes, pinned, source, closeness, sweeps, scale_safe):
     """StretchMesh-style Jacobi reconstruction, in numpy, encoded here from the
     rest mesh (not by the library): normal of the one-ring polygon, plane

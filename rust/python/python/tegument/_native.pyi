@@ -188,11 +188,16 @@ class PyramidDeformer:
         iteration then also corrects the smooth part of the error on coarser
         levels of the mesh (multigrid, with Chebyshev extrapolation), so that 6 iterations get within 5 % of
         the converged solution of the same settings, where plain iterations
-        need hundreds at low closeness. An iteration costs about three plain
-        ones at 100k vertices. Same solution either way.
+        need hundreds at low closeness. An iteration costs about two and a
+        half plain ones at 100k vertices. Same solution either way. With a
+        :attr:`tolerance` and warm solves, frames that follow each other take
+        2–4 iterations.
         """
     @accelerated.setter
     def accelerated(self, value: bool) -> None: ...
+    @property
+    def last_iterations(self) -> int:
+        """Iterations the last solve ran: its count, or fewer with a :attr:`tolerance`."""
     @property
     def last_step(self) -> StepReport | None:
         """What the last :meth:`step` did, or ``None``: a
@@ -227,8 +232,8 @@ class PyramidDeformer:
         They follow the input positions exactly.
         """
     def reset(self, history: Floats | None = None) -> None:
-        """Forgets the last output of :meth:`step`: the next step starts from its
-        input. With ``history`` (float32 ``(N, 3)``, free of collisions), the
+        """Forgets the last output of :meth:`step` and :meth:`solve`: the next
+        step, and the next warm solve, start from their input. With ``history`` (float32 ``(N, 3)``, free of collisions), the
         next step starts from there instead, as if a step had produced it: how
         a bake resumes after frames it has already cached.
         """
@@ -237,7 +242,7 @@ class PyramidDeformer:
         distance of each encoded vertex from where its one-ring puts it,
         relative to the mean rest edge length. 0 at rest and under rigid motion.
         """
-    def solve(self, positions: Floats, iterations: int = ..., closeness: float | Floats | None = None, *, out: Float32 | None = None) -> Float32:
+    def solve(self, positions: Floats, iterations: int = ..., closeness: float | Floats | None = None, *, out: Float32 | None = None, warm: bool = False) -> Float32:
         """Solves one frame and returns float32 ``(N, 3)`` positions: ``out`` if
         given (a float32 ``(N, 3)`` C-contiguous array, reused frame after
         frame to spare a large allocation), else a new array.
@@ -248,6 +253,13 @@ class PyramidDeformer:
         ``[0, 1]``, or a float32 ``(N,)`` array of per-vertex
         weights in ``[0, 1]`` (1 = follow the input exactly, 0 = keep only the
         local shape). Deterministic whatever the thread count.
+
+        With ``warm`` the solve starts from the last :meth:`solve`'s result
+        moved as the input moved (its offset from its input, added to this
+        input) instead of from the input: the same solution, reached in fewer
+        iterations when frames follow each other, which :attr:`tolerance`
+        turns into time. The first solve, and the first after :meth:`reset`
+        or a failed one, start from the input.
         """
     def step(self, positions: Floats, colliders: Sequence[Collider] | None = None, iterations: int = ..., closeness: float | Floats | None = None, substeps: int = ..., dynamics: Dynamics | None = None, max_stretch: float | Floats | None = None, strain_mode: Literal["unified", "post"] = ..., *, out: Float32 | None = None) -> Float32:
         """Solves the next frame of an animation against ``colliders`` and
@@ -281,6 +293,20 @@ class PyramidDeformer:
         :attr:`Collider.positions` become where they receded.
         ``out`` as in :meth:`solve`.
         """
+    @property
+    def tolerance(self) -> float | None:
+        """When an accelerated solve may stop before its iteration count
+        (``None`` by default: it runs them all): once its estimated
+        convergence error, the distance left to the converged solution, is at
+        most this fraction of the displacement (RMS over the vertices; offsets
+        below a tenth of an edge count as that much). The count becomes a
+        limit; :attr:`last_iterations` says how many ran. Plain iterations
+        always run their count; a :meth:`step` with colliders or strain limits
+        stops after an iteration whose contact passes have run.
+        ``tegument.DEFAULTS.tolerance`` is the add-on's Converge setting.
+        """
+    @tolerance.setter
+    def tolerance(self, value: float | None) -> None: ...
     @property
     def velocity(self) -> Float32 | None:
         """Velocities at the end of the last dynamic :meth:`step`, float32

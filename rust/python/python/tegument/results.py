@@ -207,8 +207,11 @@ class Defaults(_Report):
     iterations: int
     """``PyramidDeformer.solve``/``step``: solver iterations per frame."""
     accelerated_iterations: int
-    """Iterations at which the accelerated solver (``PyramidDeformer.accelerated``) is within 5 %
-    of the converged solve on meshes of a few thousand vertices and more (the add-on's Converge)."""
+    """The add-on's Converge iteration limit: the accelerated solver (``PyramidDeformer.accelerated``)
+    with :attr:`tolerance` stops before it once converged."""
+    tolerance: float
+    """``PyramidDeformer.tolerance`` of the add-on's Converge: a solve stops once its estimated
+    convergence error is at most this fraction of the displacement."""
     closeness: float
     """Pull of each vertex towards its input when ``closeness`` is None."""
     substeps: int
