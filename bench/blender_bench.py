@@ -338,7 +338,7 @@ def character(bpy, np, rows, threads, workdir) -> None:
         rows.add(case, "Tegument: convergence error, worst baked frame", figures["baked"], "", threads,
                  f"the bake at the add-on's defaults ({default}); RMS |x − x_inf| / RMS |x_inf − input| (issue 28)")
         rows.add(case, "Tegument Converge: convergence error, worst frame", figures["converge"], "", threads,
-                 f"Converge on, {figures['converge_iterations']} it.: each frame's solve as a bake runs it")
+                 f"Converge on, at most {figures['converge_iterations']} it., each frame solved from its input (a cold start)")
         rows.add(case, "Tegument: x_inf moves in as many iterations again", figures["drift"], "", threads,
                  f"{REFERENCE_ITERATIONS} against {2 * REFERENCE_ITERATIONS} iterations, the last frame")
         for method, positions in (("skinning", skinning), ("Corrective Smooth", smoothed), ("Tegument", ours)):
@@ -357,8 +357,9 @@ def convergence(bpy, np, obj, job, cache, scene) -> dict:
     """Issue 28's convergence error on the posed character: per frame, a solve against the same
     solve continued until it stops moving (x_inf: the accelerated solver at REFERENCE_ITERATIONS),
     relative to how far x_inf is from the frame's input. "baked": the bake's cache (the add-on's
-    settings); "converge": Converge at its iteration count, each frame solved from its input as
-    the add-on's bakes without colliders do. Each the worst over the frames whose displacement is
+    settings: Converge, each frame from the last one's result); "converge": Converge at its tolerance
+    and iteration limit, each frame solved from its input (a still, or the first frame of a bake).
+    Each the worst over the frames whose displacement is
     at least a tenth of the last frame's (the first frames of the pose barely move: a ratio of two
     tiny numbers). "drift": how far x_inf moves in twice the iterations at the last frame."""
     import measures
@@ -367,7 +368,7 @@ def convergence(bpy, np, obj, job, cache, scene) -> dict:
 
     deformer, closeness = job.deformer, job.closeness
     converge_iterations = tegument.DEFAULTS.accelerated_iterations
-    accelerated = deformer.accelerated
+    accelerated, tolerance = deformer.accelerated, deformer.tolerance
     modifier = evaluate.tegument_modifier(obj)
     modifier.show_viewport = False  # the input: the stack above Tegument
     baked, converged, scales, last = [], [], [], None
@@ -377,8 +378,10 @@ def convergence(bpy, np, obj, job, cache, scene) -> dict:
             scene.frame_set(frame)
             depsgraph = bpy.context.evaluated_depsgraph_get()
             world = np.array(evaluate.evaluated_positions(obj, depsgraph)[1])
+            deformer.tolerance = None
             x_inf = deformer.solve(world, iterations=REFERENCE_ITERATIONS, closeness=closeness)
             ours = evaluate.to_world(np.ascontiguousarray(cache[k]), obj.evaluated_get(depsgraph).matrix_world)
+            deformer.tolerance = tegument.DEFAULTS.tolerance
             fast = deformer.solve(world, iterations=converge_iterations, closeness=closeness)
             error, scale = measures.convergence_error(ours, x_inf, world)
             baked.append(error)
@@ -386,10 +389,11 @@ def convergence(bpy, np, obj, job, cache, scene) -> dict:
             scales.append(scale)
             last = world, x_inf
         world, x_inf = last
+        deformer.tolerance = None
         longer = deformer.solve(world, iterations=2 * REFERENCE_ITERATIONS, closeness=closeness)
         drift = measures.convergence_error(longer, x_inf, world)[0]
     finally:
-        deformer.accelerated = accelerated
+        deformer.accelerated, deformer.tolerance = accelerated, tolerance
         modifier.show_viewport = True
     return dict(baked=measures.worst_moving(baked, scales), converge=measures.worst_moving(converged, scales),
                 converge_iterations=converge_iterations, drift=drift)

@@ -199,12 +199,12 @@ def character_lines(rows: Rows) -> list[Line]:
 
 def convergence(rows: Rows, case: str) -> str:
     """Issue 28's convergence error of the character's frames: the bake at the add-on's defaults
-    and each frame's solve with Converge (bench/blender_bench.py `convergence`)."""
+    and each frame solved by Converge from its input (bench/blender_bench.py `convergence`)."""
     baked = rows.find("blender", case, "Tegument: convergence error, worst baked frame")
     converge = rows.find("blender", case, "Tegument Converge: convergence error, worst frame")
     iterations = re.search(r"(\d+) it\.", converge["note"])
-    return (f"{100 * baked['value']:.1f} % at the defaults, {100 * converge['value']:.1f} % with Converge"
-            + (f" ({iterations.group(1)} it.)" if iterations else ""))
+    return (f"{100 * baked['value']:.1f} % at the defaults, {100 * converge['value']:.1f} % with Converge from each frame's input"
+            + (f" (at most {iterations.group(1)} it.)" if iterations else ""))
 
 
 # The phases of a bake frame as BakeJob records them (addon/deform/bake.py, PhaseClock).

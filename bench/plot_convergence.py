@@ -2,8 +2,9 @@
 
 Reads the rows `cargo bench -p tegument-core --bench convergence` wrote to
 bench/results/convergence.json ("<solver>: curve k=<iterations>", value = convergence error, note =
-"<ms> ms" with 2 threads) and draws one panel per case (cold and warm) into
-docs/images/pyramid-convergence.png.
+"<ms> ms" with 2 threads), and the add-on's default ("default (Converge): convergence error", note
+"<ms> ms, <k> iterations": where its stopping rule ended), and draws one panel per case (cold and
+warm) into docs/images/pyramid-convergence.png.
 
     .venv/bin/python bench/plot_convergence.py [--results bench/results/convergence.json] [--out docs/images/pyramid-convergence.png]
 """
@@ -31,7 +32,11 @@ def main() -> None:
     args = parser.parse_args()
     rows = json.loads(args.results.read_text())
     curves: dict[tuple[str, str], list[tuple[float, float, int]]] = {}
+    defaults: dict[str, tuple[float, float, int]] = {}
     for row in rows:
+        if row["metric"] == "default (Converge): convergence error" and row["value"] is not None:
+            ms, iterations = re.fullmatch(r"([\d.]+) ms, (\d+) iterations", row["note"]).groups()
+            defaults[row["case"]] = (float(ms), row["value"], int(iterations))
         match = re.fullmatch(r"(\w+): curve k=(\d+)", row["metric"])
         if match and row["value"] is not None:
             curves.setdefault((row["case"], match[1]), []).append((float(row["note"].split()[0]), row["value"], int(match[2])))
@@ -39,7 +44,8 @@ def main() -> None:
     columns = 2
     lines = (len(cases) + columns - 1) // columns
     fig, axes = plt.subplots(lines, columns, figsize=(5.5 * columns, 3.8 * lines), squeeze=False)
-    styles = {"plain": ("tab:blue", "o", "plain iterations (before)"), "accelerated": ("tab:red", "s", "accelerated: multilevel + Chebyshev (Converge, opt-in)")}
+    styles = {"plain": ("tab:blue", "o", "plain iterations (Converge off)"),
+              "accelerated": ("tab:red", "s", "accelerated: multilevel + Chebyshev, fixed count")}
     for ax, case in zip(axes.flat, cases):
         for solver, (color, marker, label) in styles.items():
             points = sorted(curves.get((case, solver), []), key=lambda p: p[2])
@@ -48,6 +54,11 @@ def main() -> None:
             ax.plot([p[0] for p in points], [max(p[1], 1e-5) for p in points], marker=marker, color=color, label=label)
             for ms, error, k in points:
                 ax.annotate(str(k), (ms, max(error, 1e-5)), textcoords="offset points", xytext=(3, 4), fontsize=7, color=color)
+        if case in defaults:
+            ms, error, k = defaults[case]
+            ax.plot([ms], [max(error, 1e-5)], marker="*", markersize=13, color="black", linestyle="none",
+                    label="default (Converge): stopped at its tolerance")
+            ax.annotate(f"{k} it.", (ms, max(error, 1e-5)), textcoords="offset points", xytext=(6, -10), fontsize=7)
         ax.axhline(0.05, color="gray", linestyle="--", linewidth=1, label="5% target")
         ax.set_xscale("log")
         ax.set_yscale("log")

@@ -76,3 +76,17 @@ def shared_data(*parts: str) -> pathlib.Path:
             pytest.fail(message + " (required under CI)")
         pytest.skip(message)
     return path
+
+
+def wheel_bake(deformer, inputs, settings) -> list:
+    """What a plain bake (no colliders, dynamics or strain limits) writes, from the wheel: the frames
+    ``inputs`` (world space, in bake order) solved at the add-on's settings ``settings``
+    (``obj.tegument``). With Converge (the default) the solver is accelerated, stops at the add-on's
+    tolerance, and every frame after the first starts from the one before (a warm solve)."""
+    import tegument
+
+    deformer.accelerated = settings.converge
+    deformer.tolerance = tegument.DEFAULTS.tolerance if settings.converge else None
+    deformer.reset()
+    return [deformer.solve(x, iterations=settings.iterations, closeness=settings.closeness, warm=settings.converge)
+            for x in inputs]

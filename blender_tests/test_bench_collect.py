@@ -33,7 +33,7 @@ def character_rows() -> list[dict]:
                  row("blender", case, "pinned by bind", 6 + k, unit=""), row("blender", case, "split vertices", 1137 * k, unit=""),
                  row("blender", case, "Tegument: convergence error, worst baked frame", 0.5 - 0.01 * k, unit=""),
                  row("blender", case, "Tegument Converge: convergence error, worst frame", 0.02 + 0.01 * k, unit="")]
-        rows[-1]["note"] = "Converge on, 6 it.: each frame's solve as a bake runs it"
+        rows[-1]["note"] = "Converge on, at most 12 it., each frame solved from its input (a cold start)"
         for m, method in enumerate(("skinning", "Corrective Smooth", "Tegument")):
             rows += [row("blender", case, f"{method}: spike max", 0.6 - 0.2 * m, unit=""),
                      row("blender", case, f"{method}: self-intersecting pairs", 150 - 10 * m, unit=""),
@@ -127,7 +127,7 @@ def test_the_character_lines_compare_corrective_smooth_and_tegument_on_each_vari
                            ("Tegument Pyramid Deform (10 it.)", 15.0))]
     assert lines[4].note == "spike max 0.40, 140 self-intersecting face pairs, seam gap 40.00 mm"
     assert lines[5].note.startswith("0.50× Corrective Smooth's frame; 7 vertices pinned by bind (1137 split at seams); spike max 0.20, 130")
-    assert lines[5].note.endswith("; convergence error, worst frame: 49.0 % at the defaults, 3.0 % with Converge (6 it.)")
+    assert lines[5].note.endswith("; convergence error, worst frame: 49.0 % at the defaults, 3.0 % with Converge from each frame's input (at most 12 it.)")
 
 
 def test_the_scaling_lines_go_by_size_with_the_frame_phases_and_the_growth_per_vertex():

@@ -84,6 +84,7 @@ class BakeJob:
         self.start_frame = self.settings.frame_start
         self.frame_before = self.scene.frame_current
         self.times: list[float] = []
+        self.iterations_used: list[int] = []  # per frame: Converge stops once converged
         self.last_phases: dict[str, float] = {}  # the last frame's time by phase (PhaseClock)
         self._existing = None
         self.done = 0
@@ -112,6 +113,8 @@ class BakeJob:
             self._open_collider_caches(context, keep_existing)
             if self.uses_step:
                 self._start_history(frames.start)
+            else:
+                self.deformer.reset()  # the first frame is solved from its input (Converge warm-starts the rest)
         except BaseException:
             for writer in self.collider_writers.values():
                 writer.abort()
@@ -200,6 +203,7 @@ class BakeJob:
         clock.mark("write")
         self.last_phases = clock.phases
         self.times.append(clock.total)
+        self.iterations_used.append(self.deformer.last_iterations)
         step = self.deformer.last_step
         if step is not None and self.uses_step:
             self.worst_stretch = max(self.worst_stretch, step.worst_stretch)
@@ -211,7 +215,7 @@ class BakeJob:
 
     def progress_line(self) -> str:
         return (f"{self.log_prefix}: {self.label} frame {self.frames[self.done - 1]} ({self.done}/{len(self.frames)}) "
-                f"{1000 * self.times[-1]:.1f} ms, ETA {self.eta_seconds():.1f} s")
+                f"{1000 * self.times[-1]:.1f} ms, {self.iterations_used[-1]} it., ETA {self.eta_seconds():.1f} s")
 
     def outcome(self) -> str:
         return f"{self.writer.frames} frames, {self.settings.last_frame_ms:.1f} ms per frame"
@@ -337,8 +341,11 @@ def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=N
 
     With colliders (``rig``), dynamics, substeps or strain limits (``options``,
     from :func:`evaluate.step_options`) the frame is a history-based step from
-    the deformer's last output; otherwise a plain solve from the input. With
-    ``buffers`` the arrays are the job's own, valid until its next frame.
+    the deformer's last output; otherwise a plain solve from the input, or with
+    Converge from the last solve's result moved as the input moved (a warm
+    start: the solve stops once converged, so frames that follow each other
+    take few iterations). With ``buffers`` the arrays are the job's own, valid
+    until its next frame.
     """
     options = options or {}
     history = bool(rig) or bool(options)
@@ -357,7 +364,10 @@ def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=N
         )
     matrix = obj.evaluated_get(depsgraph).matrix_world
     iterations = obj.tegument.iterations
-    deformer.accelerated = obj.tegument.converge  # a no-op unless it changed
+    converge = obj.tegument.converge
+    deformer.accelerated = converge  # a no-op unless it changed
+    # Converge stops once converged, and starts each frame from the last one's result.
+    deformer.tolerance = tegument.DEFAULTS.tolerance if converge else None
     if rig:
         rig.update(depsgraph, frame)
         clock.mark("colliders")
@@ -369,7 +379,7 @@ def solve_frame(scene, obj, frame: int, deformer, closeness, rig=None, options=N
             colliders_now = rig.colliders if rig else None
             solved = deformer.step(world, colliders_now, iterations=iterations, closeness=closeness, out=out, **options)
         else:
-            solved = deformer.solve(world, iterations=iterations, closeness=closeness, out=out)
+            solved = deformer.solve(world, iterations=iterations, closeness=closeness, out=out, warm=converge)
     except tegument.TegumentError as error:
         # The wheel refuses non-finite input too; the search for the culprit costs a pass, so only here.
         vertex = mesh_arrays.first_non_finite(world)
