@@ -1,7 +1,8 @@
 //! Convergence of the Pyramid Deform solve (issue 28): convergence error
-//! against wall time, plain local/global iterations ("plain", the default)
-//! against the accelerated solver ("accelerated", Converge in the add-on: the
-//! multilevel correction of `solve::coarse`), cold (a first frame, starting from the input) and
+//! against wall time, plain local/global iterations ("plain") against the
+//! accelerated solver ("accelerated": the multilevel correction of
+//! `solve::coarse`), and the add-on's default (Converge: the accelerated
+//! solver stopped by its tolerance within its iteration limit), cold (a first frame, starting from the input) and
 //! warm (the next frame of a bake, starting from the previous frame's result
 //! moved with the input), on the 100k benchmark tube at closeness 0.05 and
 //! 0.01 and on the MakeHuman body (`../shared/data/makehuman/base.obj`;
@@ -23,7 +24,7 @@ use common::{machine, median_ms, with_threads, Report};
 use glam::Vec3;
 use tegument_core::mesh::fixtures::{makehuman_body, makehuman_obj, smooth_bend as bend};
 use tegument_core::mesh::shapes::{cylinder, PolyMesh};
-use tegument_core::pyramid::{Closeness, DeformerOptions, PyramidDeformer};
+use tegument_core::pyramid::{Closeness, DeformerOptions, PyramidDeformer, ACCELERATED_ITERATIONS, CONVERGE_TOLERANCE};
 
 const KS: &[usize] = &[1, 2, 3, 4, 5, 6, 8, 10, 15, 20, 40];
 const TOLERANCE: f64 = 1e-7;
@@ -109,6 +110,32 @@ fn case(report: &mut Report, name: &str, mesh: &PolyMesh, frame1: &[Vec3], frame
                 })
             });
             report.add(&format!("{name} warm"), &format!("{tag}: curve k={k}"), rms(&warm, &reference2) / scale2, "", 2, &format!("{ms:.3} ms"));
+        }
+        // The add-on's default (Converge): the tolerance stops the solve
+        // within the iteration limit; the warm frame starts from the cold
+        // frame's default result moved with the input, as a bake does.
+        if let Solver::Accelerated = solver {
+            deformer.set_tolerance(Some(CONVERGE_TOLERANCE)).unwrap();
+            let mut out = frame1.to_vec();
+            let ms = with_threads(2, || {
+                median_ms(3, || {
+                    out.copy_from_slice(frame1);
+                    deformer.solve_into(frame1, &mut out, ACCELERATED_ITERATIONS, Closeness::Uniform(closeness), None).unwrap();
+                })
+            });
+            let took = deformer.last_iterations();
+            report.add(&format!("{name} cold"), "default (Converge): convergence error", rms(&out, &reference) / scale, "", 2, &format!("{ms:.3} ms, {took} iterations"));
+            let start: Vec<Vec3> = out.iter().zip(frame2).zip(frame1).map(|((x, b), a)| *x + (*b - *a)).collect();
+            let mut warm = start.clone();
+            let ms = with_threads(2, || {
+                median_ms(3, || {
+                    warm.copy_from_slice(&start);
+                    deformer.solve_into(frame2, &mut warm, ACCELERATED_ITERATIONS, Closeness::Uniform(closeness), None).unwrap();
+                })
+            });
+            let took = deformer.last_iterations();
+            report.add(&format!("{name} warm"), "default (Converge): convergence error", rms(&warm, &reference2) / scale2, "", 2, &format!("{ms:.3} ms, {took} iterations"));
+            deformer.set_tolerance(None).unwrap();
         }
         // Same fixed point: the two solvers' x_inf, relative to the displacement.
         if let Solver::Accelerated = solver {
