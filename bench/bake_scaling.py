@@ -58,7 +58,7 @@ def peak_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def one_size(name: str, zip_path: str, plain: bool = False) -> dict:
+def one_size(name: str, zip_path: str, converge: bool = False) -> dict:
     user = tempfile.mkdtemp(prefix="tegument-scaling-user-")
     os.environ["BLENDER_USER_RESOURCES"] = user
     import bpy
@@ -107,8 +107,8 @@ def one_size(name: str, zip_path: str, plain: bool = False) -> dict:
     before_mib, before_peak = rss_mib(), peak_mib()
     started = time.perf_counter()
     assert bpy.ops.tegument.deform_add() == {"FINISHED"}
-    if plain:
-        limb.tegument.converge, limb.tegument.iterations = False, tegument.DEFAULTS.iterations
+    if converge:
+        limb.tegument.converge, limb.tegument.iterations = True, tegument.DEFAULTS.accelerated_iterations
     job = bake.BakeJob(bpy.context, limb, range(1, 1 + ROUNDS * JOB_FRAMES))
     bind_s = time.perf_counter() - started
     bind_peak = max(peak_mib() - before_mib, 0.0)
@@ -155,7 +155,7 @@ def one_size(name: str, zip_path: str, plain: bool = False) -> dict:
     return dict(
         size=name, vertices=vertices, build_s=build_s, armature_s=armature, corrective_s=corrective,
         tegument_s=tegument_frame, round_ratios=round_ratios, breakdown_s=breakdown, bind_s=bind_s, bind_peak_mib=bind_peak,
-        peak_mib=peak_mib(), baseline_peak_mib=before_peak, threads=os.cpu_count() or 1, converge=not plain,
+        peak_mib=peak_mib(), baseline_peak_mib=before_peak, threads=os.cpu_count() or 1, converge=converge,
         iterations=limb.tegument.iterations,
         iterations_used=sum(job.iterations_used) / len(job.iterations_used),
     )
@@ -190,18 +190,18 @@ def main() -> int:
     parser.add_argument("--zip", default=os.environ.get("TEGUMENT_EXTENSION_ZIP"))
     parser.add_argument("--out", type=pathlib.Path, default=ROOT / "bench" / "results")
     parser.add_argument("--sizes", default=",".join(SIZES), help=f"comma-separated, of {', '.join(SIZES)}")
-    parser.add_argument("--plain", action="store_true",
-                        help="bake with Converge off (plain iterations, each frame from its input; the default before issue 28)")
+    parser.add_argument("--converge", action="store_true",
+                        help="bake with Converge on (the accelerated solver at its iteration limit, warm frames)")
     parser.add_argument("--one", help=argparse.SUPPRESS)  # internal: measure one size, print JSON
     args = parser.parse_args()
     if args.one:
-        print("RESULT " + json.dumps(one_size(args.one, args.zip, args.plain)), flush=True)
+        print("RESULT " + json.dumps(one_size(args.one, args.zip, args.converge)), flush=True)
         return 0
     rows = []
     for name in args.sizes.split(","):
         if name not in SIZES:
             parser.error(f"unknown size {name!r}; known: {', '.join(SIZES)}")
-        command = [sys.executable, __file__, "--one", name, "--zip", str(args.zip)] + (["--plain"] if args.plain else [])
+        command = [sys.executable, __file__, "--one", name, "--zip", str(args.zip)] + (["--converge"] if args.converge else [])
         done = subprocess.run(command, capture_output=True, text=True)
         lines = [line for line in done.stdout.splitlines() if line.startswith("RESULT ")]
         if done.returncode != 0 or not lines:

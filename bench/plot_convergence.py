@@ -2,7 +2,7 @@
 
 Reads the rows `cargo bench -p tegument-core --bench convergence` wrote to
 bench/results/convergence.json ("<solver>: curve k=<iterations>", value = convergence error, note =
-"<ms> ms" with 2 threads), and the add-on's default ("default (Converge): convergence error", note
+"<ms> ms" with 2 threads), and the add-on's Converge ("Converge: convergence error", note
 "<ms> ms, <k> iterations": where its stopping rule ended), and draws one panel per case (cold and
 warm) into docs/images/pyramid-convergence.png.
 
@@ -34,7 +34,7 @@ def main() -> None:
     curves: dict[tuple[str, str], list[tuple[float, float, int]]] = {}
     defaults: dict[str, tuple[float, float, int]] = {}
     for row in rows:
-        if row["metric"] == "default (Converge): convergence error" and row["value"] is not None:
+        if row["metric"] == "Converge: convergence error" and row["value"] is not None:
             ms, iterations = re.fullmatch(r"([\d.]+) ms, (\d+) iterations", row["note"]).groups()
             defaults[row["case"]] = (float(ms), row["value"], int(iterations))
         match = re.fullmatch(r"(\w+): curve k=(\d+)", row["metric"])
@@ -44,7 +44,7 @@ def main() -> None:
     columns = 2
     lines = (len(cases) + columns - 1) // columns
     fig, axes = plt.subplots(lines, columns, figsize=(5.5 * columns, 3.8 * lines), squeeze=False)
-    styles = {"plain": ("tab:blue", "o", "plain iterations (Converge off)"),
+    styles = {"plain": ("tab:blue", "o", "plain iterations (the default)"),
               "accelerated": ("tab:red", "s", "accelerated: multilevel + Chebyshev, fixed count")}
     for ax, case in zip(axes.flat, cases):
         for solver, (color, marker, label) in styles.items():
@@ -57,7 +57,7 @@ def main() -> None:
         if case in defaults:
             ms, error, k = defaults[case]
             ax.plot([ms], [max(error, 1e-5)], marker="*", markersize=13, color="black", linestyle="none",
-                    label="default (Converge): stopped at its tolerance")
+                    label="Converge (add-on): stopped at its tolerance")
             ax.annotate(f"{k} it.", (ms, max(error, 1e-5)), textcoords="offset points", xytext=(6, -10), fontsize=7)
         ax.axhline(0.05, color="gray", linestyle="--", linewidth=1, label="5% target")
         ax.set_xscale("log")

@@ -234,14 +234,18 @@ def frame_figures(positions: np.ndarray, rest: np.ndarray, corners: np.ndarray, 
     return figures
 
 
-def add_and_bake(obj, cache_path: str, frames=POSE_FRAMES) -> dict:
+def add_and_bake(obj, cache_path: str, frames=POSE_FRAMES, converge: bool = False) -> dict:
     """Add Pyramid Deform to ``obj`` and bake ``frames`` through the add-on's operators, as a user
-    would (default settings: Converge, its iteration limit and closeness); returns the bind's
-    figures and the bake's time."""
+    would (default iterations and closeness; with ``converge``, Converge on with its iteration
+    limit); returns the bind's figures and the bake's time."""
     _select_only(obj)
     if bpy.ops.tegument.deform_add() != {"FINISHED"}:
         raise RuntimeError(f"Add Pyramid Deform failed on {obj.name}: {obj.tegument.warnings}")
     settings = obj.tegument
+    if converge:
+        import tegument
+
+        settings.converge, settings.iterations = True, tegument.DEFAULTS.accelerated_iterations
     pinned, warnings = pinned_count(obj), settings.bind_warnings
     settings.cache_path = cache_path
     settings.frame_start, settings.frame_end = frames

@@ -1,7 +1,7 @@
 //! Convergence of the Pyramid Deform solve (issue 28): convergence error
 //! against wall time, plain local/global iterations ("plain") against the
 //! accelerated solver ("accelerated": the multilevel correction of
-//! `solve::coarse`), and the add-on's default (Converge: the accelerated
+//! `solve::coarse`), and the add-on's Converge (the accelerated
 //! solver stopped by its tolerance within its iteration limit), cold (a first frame, starting from the input) and
 //! warm (the next frame of a bake, starting from the previous frame's result
 //! moved with the input), on the 100k benchmark tube at closeness 0.05 and
@@ -111,7 +111,7 @@ fn case(report: &mut Report, name: &str, mesh: &PolyMesh, frame1: &[Vec3], frame
             });
             report.add(&format!("{name} warm"), &format!("{tag}: curve k={k}"), rms(&warm, &reference2) / scale2, "", 2, &format!("{ms:.3} ms"));
         }
-        // The add-on's default (Converge): the tolerance stops the solve
+        // The add-on's Converge: the tolerance stops the solve
         // within the iteration limit; the warm frame starts from the cold
         // frame's default result moved with the input, as a bake does.
         if let Solver::Accelerated = solver {
@@ -124,7 +124,7 @@ fn case(report: &mut Report, name: &str, mesh: &PolyMesh, frame1: &[Vec3], frame
                 })
             });
             let took = deformer.last_iterations();
-            report.add(&format!("{name} cold"), "default (Converge): convergence error", rms(&out, &reference) / scale, "", 2, &format!("{ms:.3} ms, {took} iterations"));
+            report.add(&format!("{name} cold"), "Converge: convergence error", rms(&out, &reference) / scale, "", 2, &format!("{ms:.3} ms, {took} iterations"));
             let start: Vec<Vec3> = out.iter().zip(frame2).zip(frame1).map(|((x, b), a)| *x + (*b - *a)).collect();
             let mut warm = start.clone();
             let ms = with_threads(2, || {
@@ -134,7 +134,7 @@ fn case(report: &mut Report, name: &str, mesh: &PolyMesh, frame1: &[Vec3], frame
                 })
             });
             let took = deformer.last_iterations();
-            report.add(&format!("{name} warm"), "default (Converge): convergence error", rms(&warm, &reference2) / scale2, "", 2, &format!("{ms:.3} ms, {took} iterations"));
+            report.add(&format!("{name} warm"), "Converge: convergence error", rms(&warm, &reference2) / scale2, "", 2, &format!("{ms:.3} ms, {took} iterations"));
             deformer.set_tolerance(None).unwrap();
         }
         // Same fixed point: the two solvers' x_inf, relative to the displacement.
