@@ -6,6 +6,7 @@ import errno
 import math
 import os
 import pathlib
+import re
 import signal
 
 import bpy
@@ -114,7 +115,7 @@ def test_round_trip_matches_the_wheel(limb, capfd):
     assert attribute_names(obj.data) == attributes
 
 
-def test_converge_bakes_the_converged_look_in_few_iterations(tmp_path):
+def test_converge_bakes_the_converged_look_in_few_iterations(tmp_path, capfd):
     """Issue 28: with Converge (the accelerated solver, stopping at its tolerance within
     ``tegument.DEFAULTS.accelerated_iterations``, bake frames from the last one's result) every
     frame is within 5 % of the converged solve of the same settings; the default, 10 plain
@@ -130,11 +131,14 @@ def test_converge_bakes_the_converged_look_in_few_iterations(tmp_path):
     reference = tegument.PyramidDeformer(rest, corners, sizes, scale_safe=settings.scale_safe)
     reference.accelerated = True
     m_inv = np.linalg.inv(np.array(obj.matrix_world))
-    errors = {}
+    errors, taken = {}, {}
     assert not settings.converge and settings.iterations == tegument.DEFAULTS.iterations, "the defaults"
     for converge, iterations in ((False, tegument.DEFAULTS.iterations), (True, tegument.DEFAULTS.accelerated_iterations)):
         settings.converge, settings.iterations = converge, iterations
+        capfd.readouterr()
         assert bpy.ops.tegument.bake() == {"FINISHED"}
+        # The progress lines say how many iterations each frame took.
+        taken[converge] = [int(k) for k in re.findall(r"ms, (\d+) it\., ETA", capfd.readouterr().out)]
         frames, _ = read_pc2(bpy.path.abspath(settings.cache_path))
         worst = 0.0
         for frame in (2, 4, 6):
@@ -147,6 +151,9 @@ def test_converge_bakes_the_converged_look_in_few_iterations(tmp_path):
         errors[converge] = worst
     assert errors[True] <= 0.05, errors
     assert errors[False] > 4 * errors[True], errors
+    # Plain iterations run their count; Converge's warm frames stop at the tolerance, well before its limit.
+    assert taken[False] == [tegument.DEFAULTS.iterations] * 6, taken
+    assert len(taken[True]) == 6 and max(taken[True][1:]) < tegument.DEFAULTS.accelerated_iterations, taken
 
 
 def test_a_moved_turned_and_scaled_rig_bakes_in_world_space_and_caches_object_space(limb):

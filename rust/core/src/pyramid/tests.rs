@@ -807,6 +807,17 @@ fn accelerated_solver_converges_in_its_iterations_at_low_closeness() {
     assert!(old > 0.5, "plain iterations converge faster than expected here: {old}");
 }
 
+/// An iteration hook that pushes every vertex back above `y = floor` (a
+/// stand-in for the stepper's in-loop collision pass).
+fn floor_hook(floor: f32) -> impl FnMut(usize, &[Vec3], &mut [Vec3]) -> crate::Result<()> {
+    move |_, _, after| {
+        for p in after.iter_mut() {
+            p.y = p.y.max(floor);
+        }
+        Ok(())
+    }
+}
+
 #[test]
 fn a_tolerance_stops_a_solve_whose_start_is_its_solution_and_a_hook_still_holds() {
     let length = 4.0;
@@ -822,12 +833,7 @@ fn a_tolerance_stops_a_solve_whose_start_is_its_solution_and_a_hook_still_holds(
     assert_eq!(deformer.last_iterations(), 2);
     // With a hook: the solve stops after a hook has run, so its floor holds.
     let floor = input.iter().map(|p| p.y).fold(f32::MAX, f32::min) + 0.3;
-    let mut floor_hook = |_: usize, _: &[Vec3], after: &mut [Vec3]| -> crate::Result<()> {
-        for p in after.iter_mut() {
-            p.y = p.y.max(floor);
-        }
-        Ok(())
-    };
+    let mut floor_hook = floor_hook(floor);
     let start: Vec<Vec3> = input.iter().map(|p| Vec3::new(p.x, p.y.max(floor), p.z)).collect();
     let mut x = start.clone();
     deformer.solver_mut().solve(&start, &mut x, 1000, Some(&mut floor_hook)).unwrap();
@@ -850,12 +856,7 @@ fn accelerated_solve_with_a_hook_that_moves_positions() {
     let mesh = cylinder(32, 40, 0.5, length);
     let input = candy_wrapper(&mesh, length, 0.0, 90f32.to_radians());
     let floor = input.iter().map(|p| p.y).fold(f32::MAX, f32::min) + 0.3;
-    let mut floor_hook = |_: usize, _: &[Vec3], after: &mut [Vec3]| -> crate::Result<()> {
-        for p in after.iter_mut() {
-            p.y = p.y.max(floor);
-        }
-        Ok(())
-    };
+    let mut floor_hook = floor_hook(floor);
     let input: Vec<Vec3> = input.iter().map(|p| Vec3::new(p.x, p.y.max(floor), p.z)).collect();
     let run = |deformer: &mut PyramidDeformer, iterations: usize, hook: &mut dyn crate::solve::IterationHook| {
         let mut x = input.clone();
