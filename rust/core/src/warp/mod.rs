@@ -65,10 +65,12 @@ pub(crate) const RELAXATION: f32 = 0.5;
 /// Solver settings.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WarpSettings {
-    /// PBD iterations on the finest level. A cold solve (from the identity)
-    /// runs `iterations · 2^l` on level `l` (at most 96, or `iterations` if
-    /// larger); a warm solve runs `iterations` on the levels down to 256²
-    /// only (the coarser ones hold little change of a warm-started warp).
+    /// Multigrid cycles per frame (see `solver/multigrid.rs`): a warm solve
+    /// runs this many cycles from the previous frame's warp, a cold one (from
+    /// the identity) solves each level from the coarsest up with one cycle
+    /// more than this. Each cycle brings the warp closer to the finest
+    /// level's fixed point, the converged warp; more cycles never move it
+    /// away from it.
     pub iterations: u32,
     /// Fraction in [0, 1] by which each projected segment is rotated back
     /// towards its rest direction (times its rigidity).
@@ -90,7 +92,7 @@ pub struct WarpSettings {
 
 impl Default for WarpSettings {
     fn default() -> Self {
-        WarpSettings { iterations: 4, orientation: 0.05, smoothing: 0.1, warm_start: true, memory_limit: DEFAULT_MEMORY_LIMIT, sample_warped: false }
+        WarpSettings { iterations: 1, orientation: 0.05, smoothing: 0.1, warm_start: true, memory_limit: DEFAULT_MEMORY_LIMIT, sample_warped: false }
     }
 }
 
@@ -172,6 +174,18 @@ impl TileWarp {
         let (dx, dy) = (&self.solver.levels[0].dx, &self.solver.levels[0].dy);
         invert::invert(dx, dy, w, h, udim_offset(self.layout.udim), &mut self.redirection);
     }
+}
+
+/// What [`UvWarp::converge`] reached (the largest over the tiles).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Convergence {
+    /// Multigrid cycles run.
+    pub cycles: usize,
+    /// The largest change of a node (texels) in the last cycle.
+    pub cycle_change: f32,
+    /// The largest change of a node (texels) in the last of the finest
+    /// level's plain iterations that followed.
+    pub iteration_change: f32,
 }
 
 /// A UV warp of one mesh: one grid per UDIM tile its UVs touch.
@@ -260,35 +274,45 @@ impl UvWarp {
         Ok(())
     }
 
-    /// Continues the last solve on the finest level, `iterations` at a time,
-    /// until no node moves more than `tolerance` texels in one iteration or
-    /// `max_iterations` have run, then repairs folds and inverts: the
-    /// converged warp `x_∞` the convergence error is measured against.
-    /// Returns the iterations run and the largest change of a node in the
-    /// last of them. For benchmarks and tests.
+    /// Continues the last solve until it has converged: the converged warp
+    /// `x_∞` convergence errors are measured against (issue 28: positions
+    /// change by less than `tolerance` texels in an iteration). Runs
+    /// multigrid cycles (at most `max_cycles`) until a cycle moves no node by
+    /// more than `tolerance`, then checks the finest level's own iteration:
+    /// `check` plain iterations, of which the last must move no node by more
+    /// than `tolerance` either (a fixed point of the cycles that the finest
+    /// level would leave is not `x_∞`). Repairs folds (none expected) and
+    /// inverts. Needs the [`solver::Variant::Multigrid`] solver. For
+    /// benchmarks and tests.
     #[doc(hidden)]
-    pub fn converge(&mut self, deformed: &[Vec3], tolerance: f32, max_iterations: usize) -> Result<(usize, f32)> {
+    pub fn converge(&mut self, deformed: &[Vec3], tolerance: f32, max_cycles: usize, check: usize) -> Result<Convergence> {
         self.mesh.check_positions("deformed positions", deformed)?;
-        let (mut run, mut last) = (0, 0.0f32);
+        let mut out = Convergence::default();
+        let settings = WarpSettings { iterations: 1, ..self.settings.clone() };
         for tile in &mut self.tiles {
-            let gd = tile.layout.triangle_metrics(&self.mesh, deformed);
-            let (mut done, mut change) = (0, 0.0f32);
-            while done < max_iterations {
-                let step = 16.min(max_iterations - done);
-                change = tile.solver.iterate_finest(&tile.layout.ids, &gd, step, &self.settings);
-                done += step;
-                if change < tolerance {
-                    break;
-                }
+            if tile.solver.variant() != solver::Variant::Multigrid {
+                return Err(Error::invalid("converge needs the multigrid solver"));
             }
+            let gd = tile.layout.triangle_metrics(&self.mesh, deformed);
+            let ids = &tile.layout.ids;
+            let (mut cycles, mut change) = (0, f32::INFINITY);
+            while cycles < max_cycles && change >= tolerance {
+                let (bx, by) = (tile.solver.levels[0].dx.clone(), tile.solver.levels[0].dy.clone());
+                tile.solver.solve(ids, &gd, true, &settings);
+                let lv = &tile.solver.levels[0];
+                change = lv.dx.iter().zip(&bx).chain(lv.dy.iter().zip(&by)).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+                cycles += 1;
+            }
+            let plain = tile.solver.iterate_finest_plain(ids, &gd, check, &settings);
+            out.cycles = out.cycles.max(cycles);
+            out.cycle_change = out.cycle_change.max(change);
+            out.iteration_change = out.iteration_change.max(plain);
             tile.solver.repair();
             let (w, h) = (self.width, self.height);
             let lv = &tile.solver.levels[0];
             invert::invert(&lv.dx, &lv.dy, w, h, udim_offset(tile.layout.udim), &mut tile.redirection);
-            run = run.max(done);
-            last = last.max(change);
         }
-        Ok((run, last))
+        Ok(out)
     }
 
     /// Forgets the previous frame: the next solve starts from the identity.
