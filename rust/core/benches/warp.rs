@@ -6,7 +6,8 @@
 //!
 //! `cargo bench -p tegument-core --bench warp` (set `TEGUMENT_WARP_SIZES=1024,2048`
 //! to choose sizes, `TEGUMENT_WARP_THREADS=2` for the pool size,
-//! `TEGUMENT_WARP_FRAMES` for the number of warm frames, default 10).
+//! `TEGUMENT_WARP_FRAMES` for the number of warm frames, default 10;
+//! `TEGUMENT_WARP_VARIANT=cascade` runs the solver of `main` before the multigrid).
 
 mod common;
 
@@ -50,9 +51,15 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// over the warm frames of the whole frame and of each stage.
 fn run_case(n: usize) -> Vec<(&'static str, f64)> {
     let (m, rig) = scene(n);
-    let settings = WarpSettings { iterations: 4, ..Default::default() };
+    // `TEGUMENT_WARP_VARIANT=cascade`: the solver of `main` before the
+    // multigrid (4 iterations per level), for comparisons in one build.
+    let cascade = std::env::var("TEGUMENT_WARP_VARIANT").is_ok_and(|v| v == "cascade");
+    let settings = WarpSettings { iterations: if cascade { 4 } else { WarpSettings::default().iterations }, ..Default::default() };
     let t = Instant::now();
     let mut warp = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &rig, mask: None }], settings).expect("warp");
+    if cascade {
+        warp.tiles[0].solver.set_variant(tegument_core::warp::solver::Variant::Cascade);
+    }
     let build = t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
     warp.solve(&pose(&m, 0)).expect("solve");

@@ -17,8 +17,9 @@
 //!    RMS|r_k − r_∞| / RMS|r_∞ − identity| over the redirection texture's
 //!    texels inside the chart;
 //! 3. fold-overs of the new solver's cold solves at every iteration count
-//!    1..64 at 2048² and 4096², before the end-of-solve repair (which then
-//!    has nothing to do) and after;
+//!    1..64 at 2048² and 4096², on this cylinder and on the tests' squares
+//!    scene, before the end-of-solve repair (which then has nothing to do)
+//!    and after;
 //! 4. bakes that differ only in iteration count: frames 0..10 of the warm
 //!    benchmark (frame 0 cold) at 1, 2, 4 and 8 cycles against 64, the
 //!    largest convergence-style difference per frame (issue 28 asks at most
@@ -35,7 +36,7 @@ mod common;
 
 use std::time::Instant;
 
-use tegument_core::warp::fixtures::{bend, scales_map, uv_cylinder, UvPolyMesh};
+use tegument_core::warp::fixtures::{bend, rectangles, scales_map, uv_cylinder, UvPolyMesh};
 use tegument_core::warp::solver::Variant;
 use tegument_core::warp::{TileMaps, UvWarp, WarpSettings};
 
@@ -194,27 +195,38 @@ fn main() {
                 ));
             }
         }
-        // 3. Fold-overs of the new solver's cold solves, every count 1..=64.
+        // 3. Fold-overs of the new solver's cold solves, every count 1..=64,
+        //    on the benchmark cylinder and on the tests' squares scene
+        //    (`warp::tests::squares_cylinder`: 64 × 32 quads, two rigid squares
+        //    on the squashed and the stretched side, full bend).
         let max = env_num("TEGUMENT_WARP_FOLD_MAX", 64);
+        let squares = uv_cylinder(64, 32, 1.0, std::f32::consts::TAU, 0.1);
+        let squares_bent = bend(&squares.positions, 2, 0, 0.0, 0.0, 0.5);
         for n in env_list("TEGUMENT_WARP_FOLD_SIZES", "2048,4096") {
-            let case = format!("{n}x{n} cylinder, cold, strongest bend");
-            let mut w = warp(&m, n, false, false);
-            let (mut raw, mut after, mut worst) = (0usize, 0usize, 0.0f64);
-            let t = Instant::now();
-            for k in 1..=max {
-                w.settings.iterations = k as u32;
-                w.solve(&strongest).expect("solve");
-                let q = &w.metrics(&strongest).expect("metrics")[0];
-                let (passes, scale) = w.tiles[0].solver.last_repair;
-                raw += (passes > 0 || scale < 1.0) as usize;
-                after += q.foldovers;
-                worst = worst.max(q.stretch_warped.mean);
-                eprintln!("  {n}² new k={k}: rigid stretch {:.4}, folds {}, repair ({passes}, {scale})", q.stretch_warped.mean, q.foldovers);
+            let s = 0.06;
+            let squares_rig = rectangles(n, n, &[(0.7 - s, 0.5 - s, 0.7 + s, 0.5 + s), (0.3 - s, 0.5 - s, 0.3 + s, 0.5 + s)]);
+            let scenes: [(&str, &UvPolyMesh, &[glam::Vec3], Vec<f32>); 2] = [("cylinder", &m, &strongest, scales_map(n, n, 24)), ("squares", &squares, &squares_bent, squares_rig)];
+            for (scene, mesh, def, rig) in scenes {
+                let case = format!("{n}x{n} {scene}, cold, strongest bend");
+                let settings = WarpSettings { warm_start: false, ..Default::default() };
+                let mut w = UvWarp::new(mesh.input(), &mesh.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &rig, mask: None }], settings).expect("warp");
+                let (mut raw, mut after, mut worst) = (0usize, 0usize, 0.0f64);
+                let t = Instant::now();
+                for k in 1..=max {
+                    w.settings.iterations = k as u32;
+                    w.solve(def).expect("solve");
+                    let q = &w.metrics(def).expect("metrics")[0];
+                    let (passes, scale) = w.tiles[0].solver.last_repair;
+                    raw += (passes > 0 || scale < 1.0) as usize;
+                    after += q.foldovers;
+                    worst = worst.max(q.stretch_warped.mean);
+                    eprintln!("  {n}² {scene} new k={k}: rigid stretch {:.4}, folds {}, repair ({passes}, {scale}), {:.0} s so far", q.stretch_warped.mean, q.foldovers, t.elapsed().as_secs_f64());
+                }
+                let note = format!("iteration counts 1..{max}, new solver; {:.0} s", t.elapsed().as_secs_f64());
+                report.add(&case, "cold solves that needed the fold repair", raw as f64, "", threads, &note);
+                report.add(&case, "fold-overs, summed over the cold solves", after as f64, "", threads, &note);
+                report.add(&case, "worst rigid stretch over the cold solves", worst, "", threads, &note);
             }
-            let note = format!("iteration counts 1..{max}, new solver; {:.0} s", t.elapsed().as_secs_f64());
-            report.add(&case, "cold solves that needed the fold repair", raw as f64, "", threads, &note);
-            report.add(&case, "fold-overs, summed over the cold solves", after as f64, "", threads, &note);
-            report.add(&case, "worst rigid stretch over the cold solves", worst, "", threads, &note);
         }
         // 4. Bakes that differ only in iteration count (issue 28: at most 5 %
         //    apart beyond the default): frames 0..=10 (0 cold, the others
