@@ -51,8 +51,9 @@ pub use solver::Solver;
 pub use tiles::{udim_offset, UvMesh};
 
 /// Bytes per texel of a tile's state, all levels and buffers counted
-/// (finest level ≈ 32 B, coarser levels ≈ 50 B × 1/3, construction temporaries).
-pub const BYTES_PER_TEXEL: u64 = 56;
+/// (finest level ≈ 40 B with the multigrid's saved iterate, coarser levels
+/// ≈ 66 B × 1/3 with its forcing, construction temporaries).
+pub const BYTES_PER_TEXEL: u64 = 70;
 /// Default memory limit: enough for 4096² tiles, not for 16384².
 pub const DEFAULT_MEMORY_LIMIT: u64 = 3 << 30;
 

@@ -27,15 +27,18 @@
 //!    node to the bounding box of its 8 neighbours, written to a second buffer
 //!    (Jacobi, deterministic).
 //!
-//! Levels go coarse to fine; a level's change is prolonged bilinearly to the
-//! next finer level (times that level's mask). Warm starts restrict the
+//! The default solver runs full-approximation-scheme multigrid cycles over
+//! the levels (`multigrid.rs`), converging to the finest level's fixed
+//! point. The earlier cascade (kept as [`Variant::Cascade`] and
+//! [`Variant::Legacy`]) goes coarse to fine once; a level's change is
+//! prolonged bilinearly to the next finer level (times that level's mask). Warm starts restrict the
 //! previous frame's fine warp to every level first. Fold-overs left on the
 //! finest level are repaired at the end (local relaxation, then a global
 //! scale towards the identity, which is always fold-free).
 
 //!
 //! Files: this one drives the hierarchy (levels, restriction, prolongation,
-//! the fast sweeps of [`super::sweep`]); `reference.rs` is the reference
+//! the fast sweeps of [`super::sweep`]); `multigrid.rs` the cycles; `reference.rs` is the reference
 //! path, one constraint at a time, which the sweeps must match bit for bit
 //! and which serves `sample_warped`; `folds.rs` counts and repairs
 //! fold-overs.
@@ -48,7 +51,6 @@ use rayon::prelude::*;
 
 use folds::{keep_areas, repair_folds};
 pub use folds::{cell_dets, count_folds};
-
 use reference::{iterate_reference, Direct, Indexed};
 use super::maps;
 use super::sweep::{self, ByTexel, ByTriangle, Metric, Sweep, TriRecord};
@@ -306,16 +308,17 @@ pub enum Variant {
     Legacy,
 }
 
-/// The mask of the next coarser level. The cascades erode it (seed eq. 8:
-/// a coarse constraint must not pull across a fixed border); the multigrid
-/// cycles only need fixed coarse nodes where all four finer ones are fixed
-/// or any is: erosion took 2^l texels of the border away from level `l`'s
-/// corrections, and the error there then decayed by 0.77 a cycle instead of
-/// 0.38 on the benchmark at 256² (the first cycle).
+/// Whether two variants build the same coarse masks.
 fn coarse_kind(variant: Variant) -> bool {
     variant == Variant::Multigrid
 }
 
+/// The mask of the next coarser level. The cascades erode it (seed eq. 8:
+/// a coarse constraint must not pull across a fixed border); the multigrid
+/// fixes a coarse node only where one of its four finer nodes is fixed:
+/// erosion took about 2^l texels along the chart borders away from level
+/// `l`'s corrections, and the first cycle then left 0.77 of the error
+/// instead of 0.38 on the benchmark cylinder at 256².
 fn coarse_mask(fine: &[u8], w: usize, h: usize, variant: Variant) -> Vec<u8> {
     match variant {
         Variant::Multigrid => maps::reduce_min(fine, w, h),
