@@ -149,10 +149,11 @@ impl Hierarchy {
     /// resolves its moves against the colliders after it.
     pub fn project(&self, x: &mut [Vec3], inverse_mass: &[f32], above: &[(Vec3, f32)], sweeps: usize) {
         let Some(top) = self.levels.len().checked_sub(1) else { return };
+        let masses = self.masses(x, inverse_mass);
         let mut handed: Vec<Vec3> = Vec::new();
         for l in (0..=top).rev() {
             let level = &self.levels[l];
-            let (centroid, weight) = level.centroids(x, inverse_mass);
+            let (centroid, weight) = masses[l].centroids();
             let mut offset = if l == top {
                 vec![Vec3::ZERO; level.count]
             } else {
@@ -185,30 +186,70 @@ impl Hierarchy {
     }
 }
 
-impl Level {
-    /// Each block's mass-weighted centroid at `x` (the plain one for a block
-    /// with a fixed vertex) and inverse mass (0 for such a block).
-    fn centroids(&self, x: &[Vec3], inverse_mass: &[f32]) -> (Vec<Vec3>, Vec<f32>) {
-        let mut mass = vec![0.0f32; self.count];
-        let mut sum = vec![Vec3::ZERO; self.count];
-        let mut plain = vec![(Vec3::ZERO, 0.0f32); self.count];
-        for (v, &b) in self.block_of.iter().enumerate() {
-            let w = inverse_mass[v];
-            let m = if w > 0.0 { 1.0 / w } else { f32::INFINITY };
-            mass[b as usize] += m;
-            if m.is_finite() {
-                sum[b as usize] += x[v] * m;
-            }
-            plain[b as usize].0 += x[v];
-            plain[b as usize].1 += 1.0;
-        }
-        let centroid = (0..self.count)
-            .map(|b| if mass[b].is_finite() && mass[b] > 0.0 { sum[b] / mass[b] } else { plain[b].0 / plain[b].1.max(1.0) })
-            .collect();
-        let weight = mass.iter().map(|&m| if m.is_finite() && m > 0.0 { 1.0 / m } else { 0.0 }).collect();
-        (centroid, weight)
+/// What the blocks of one level hold at some positions: per block, the
+/// mass (infinite with a fixed vertex), the mass-weighted sum of
+/// positions over its free vertices, and the plain sum and count.
+struct Masses {
+    mass: Vec<f32>,
+    sum: Vec<Vec3>,
+    plain: Vec<(Vec3, f32)>,
+}
+
+impl Masses {
+    fn new(count: usize) -> Self {
+        Masses { mass: vec![0.0; count], sum: vec![Vec3::ZERO; count], plain: vec![(Vec3::ZERO, 0.0); count] }
     }
 
+    /// Each block's mass-weighted centroid (the plain one for a block with a
+    /// fixed vertex) and inverse mass (0 for such a block).
+    fn centroids(&self) -> (Vec<Vec3>, Vec<f32>) {
+        let centroid = (0..self.mass.len())
+            .map(|b| {
+                let m = self.mass[b];
+                if m.is_finite() && m > 0.0 { self.sum[b] / m } else { self.plain[b].0 / self.plain[b].1.max(1.0) }
+            })
+            .collect();
+        let weight = self.mass.iter().map(|&m| if m.is_finite() && m > 0.0 { 1.0 / m } else { 0.0 }).collect();
+        (centroid, weight)
+    }
+}
+
+impl Hierarchy {
+    /// The [`Masses`] of every level at `x`: the finest from the vertices,
+    /// each coarser one from the level below it (one pass over the vertices
+    /// in all, not one a level).
+    fn masses(&self, x: &[Vec3], inverse_mass: &[f32]) -> Vec<Masses> {
+        let mut all: Vec<Masses> = Vec::with_capacity(self.levels.len());
+        let finest = &self.levels[0];
+        let mut own = Masses::new(finest.count);
+        for (v, &b) in finest.block_of.iter().enumerate() {
+            let (b, w) = (b as usize, inverse_mass[v]);
+            let m = if w > 0.0 { 1.0 / w } else { f32::INFINITY };
+            own.mass[b] += m;
+            if m.is_finite() {
+                own.sum[b] += x[v] * m;
+            }
+            own.plain[b].0 += x[v];
+            own.plain[b].1 += 1.0;
+        }
+        all.push(own);
+        for l in 1..self.levels.len() {
+            let below = &all[l - 1];
+            let mut own = Masses::new(self.levels[l].count);
+            for (c, &p) in self.levels[l - 1].parent.iter().enumerate() {
+                let p = p as usize;
+                own.mass[p] += below.mass[c];
+                own.sum[p] += below.sum[c];
+                own.plain[p].0 += below.plain[c].0;
+                own.plain[p].1 += below.plain[c].1;
+            }
+            all.push(own);
+        }
+        all
+    }
+}
+
+impl Level {
     /// Up to `sweeps` Gauss–Seidel sweeps over the block pairs, moving the
     /// blocks' offsets.
     fn sweep(&self, centroid: &[Vec3], weight: &[f32], offset: &mut [Vec3], sweeps: usize) {
