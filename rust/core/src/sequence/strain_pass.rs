@@ -33,14 +33,16 @@ pub(super) const STRAIN_ROUNDS_EARLY: usize = 2;
 /// and the material it needs is drawn from a band some 50 edges wide, every
 /// edge of it at its limit) ends its frames at 1.106–1.108 × the rest length
 /// (limit 1.1, promise 1.111) with 4 cycles in every round; with one cycle
-/// in the first round only, as before, 1.24; with 2 cycles, 1.112.
+/// of rigid blocks in the first round only, as before, at 1.24; with 2
+/// cycles, 1.112–1.113; with 8 cycles and no over-relaxation, 1.106–1.108
+/// for more time.
 pub(super) const MULTILEVEL_CYCLES: usize = 4;
 /// Sweeps per level of a multilevel cycle.
 pub(super) const MULTILEVEL_SWEEPS: usize = 4;
 /// Over-relaxation of the sweeps after a multilevel cycle
 /// ([`EdgeLimits::project_relaxed`]): on the flesh benchmark 1.6 took the
-/// worst edge from 1.113 to 1.108 for the same work; 1.8 with 2 cycles
-/// diverged (1.27).
+/// worst edge from 1.110–1.112 to 1.106–1.108 at 4 cycles for the same CPU
+/// time; 1.8 at 2 cycles diverged (1.27).
 pub(super) const OVER_RELAXATION: f32 = 1.6;
 /// Relative excess over an edge's limit that counts as holding.
 pub(super) const STRAIN_TOLERANCE: f32 = 1e-3;
