@@ -7,7 +7,8 @@
 //! `cargo bench -p tegument-core --bench warp` (set `TEGUMENT_WARP_SIZES=1024,2048`
 //! to choose sizes, `TEGUMENT_WARP_THREADS=2` for the pool size,
 //! `TEGUMENT_WARP_FRAMES` for the number of warm frames, default 10;
-//! `TEGUMENT_WARP_VARIANT=cascade` runs the solver of `main` before the multigrid).
+//! `TEGUMENT_WARP_VARIANT=cascade` runs the solver of `main` before the multigrid,
+//! `TEGUMENT_WARP_ITERATIONS` another count than the default).
 
 mod common;
 
@@ -54,7 +55,9 @@ fn run_case(n: usize) -> Vec<(&'static str, f64)> {
     // `TEGUMENT_WARP_VARIANT=cascade`: the solver of `main` before the
     // multigrid (4 iterations per level), for comparisons in one build.
     let cascade = std::env::var("TEGUMENT_WARP_VARIANT").is_ok_and(|v| v == "cascade");
-    let settings = WarpSettings { iterations: if cascade { 4 } else { WarpSettings::default().iterations }, ..Default::default() };
+    // `TEGUMENT_WARP_ITERATIONS`: another count than the variant's default.
+    let count = std::env::var("TEGUMENT_WARP_ITERATIONS").ok().and_then(|v| v.parse().ok());
+    let settings = WarpSettings { iterations: count.unwrap_or(if cascade { 4 } else { WarpSettings::default().iterations }), ..Default::default() };
     let t = Instant::now();
     let mut warp = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &rig, mask: None }], settings).expect("warp");
     if cascade {

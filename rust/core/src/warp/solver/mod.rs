@@ -283,6 +283,9 @@ pub struct Solver {
     /// Wall time of the per-frame preparation (restriction to the coarse
     /// levels, metric records) in the last solve (ms).
     pub last_prepare_ms: f64,
+    /// Cycles the finest level ran in the last solve if it was cold (0 after
+    /// a warm one): the full multigrid's and [`multigrid::settle`]'s.
+    pub last_cold_cycles: usize,
     /// The finest level's per-triangle records of the last solve (kept for
     /// their allocation).
     records: Vec<TriRecord>,
@@ -346,7 +349,7 @@ impl Solver {
             level.start_y = vec![0.0; lw * lh];
             levels.push(level);
         }
-        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, records: Vec::new(), reference: false, variant: Variant::default() }
+        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, last_cold_cycles: 0, records: Vec::new(), reference: false, variant: Variant::default() }
     }
 
     /// Chooses the solver (benchmarks and tests compare them); rebuilds the
@@ -562,6 +565,7 @@ impl Solver {
         };
         let bottom = levels - 1;
         let cycles = s.iterations as usize;
+        self.last_cold_cycles = 0;
         if warm {
             for _ in 0..cycles {
                 multigrid::cycle(&mut self.levels, 0, bottom, false, &steps);
@@ -587,6 +591,7 @@ impl Solver {
                     lv.start_y.fill(0.0);
                 }
             }
+            self.last_cold_cycles = cycles + 1 + multigrid::settle(&mut self.levels, bottom, &steps);
         }
         self.last_iterations = steps.counts.iter().map(|c| c.get()).collect();
         self.last_level_ms = steps.ms.iter().map(|c| c.get()).collect();
