@@ -52,9 +52,8 @@ pub use tiles::{udim_offset, UvMesh};
 
 /// Bytes per texel of a tile's state, all levels and buffers counted
 /// (finest level ≈ 40 B with the multigrid's saved iterate, coarser levels
-/// ≈ 66 B × 1/3 with its forcing, construction temporaries; a cold solve's
-/// settling check borrows 8 B a texel of the finest level for its duration).
-pub const BYTES_PER_TEXEL: u64 = 78;
+/// ≈ 66 B × 1/3 with its forcing, construction temporaries).
+pub const BYTES_PER_TEXEL: u64 = 70;
 /// Default memory limit: enough for 4096² tiles, not for 16384².
 pub const DEFAULT_MEMORY_LIMIT: u64 = 3 << 30;
 

@@ -770,15 +770,14 @@ fn redirection_difference(a: &[f32], b: &[f32], valid: &[u8], n: usize) -> f64 {
 /// frame): the benchmark cylinder's moving bend, frames 0..=10 of
 /// `benches/warp.rs`, at 256².
 ///
-/// Holds for frames solved on their own (warm starts off: each settles,
-/// whatever the count; measured 0.015–0.019), and for warm bakes at 4 cycles
-/// a frame or more from frame 2 on. **Not for warm bakes at the default 1 (or
-/// 2) cycles a frame, nor for a warm bake's first frame:** a cycle removes
-/// only 15–25 % of the distance to the converged warp on this scene, so
-/// warm frames of a moving bend fall behind (up to 0.10 at 1 cycle), and the
-/// frame time allows one cycle at 1024²; the first frame of a warm bake
-/// starts that trajectory rather than settling (see `solve_multigrid`). The
-/// last assertions pin the default where it was measured.
+/// Holds for warm bakes at 4 cycles a frame or more from frame 2 on. **Not
+/// for the default 1 (or 2) cycles a frame, nor for any bake's first, cold
+/// frame:** a cycle removes only 15–25 % of the distance to the converged
+/// warp on this scene, so warm frames of a moving bend fall behind (about
+/// 0.10 at 1 cycle), and the frame time allows one cycle at 1024²; a cold
+/// frame stops where its cycles left it. Settling cold solves to a
+/// tolerance fixed the first frame here but not on Spot (docs/performance.md).
+/// The last assertion pins the default where it was measured.
 #[test]
 fn bakes_that_differ_in_the_count_agree_where_measured() {
     let n = 256;
@@ -800,12 +799,6 @@ fn bakes_that_differ_in_the_count_agree_where_measured() {
     };
     let differences = |a: &[Vec<f32>], b: &[Vec<f32>], valid: &[u8]| -> Vec<f64> { a.iter().zip(b).map(|(a, b)| redirection_difference(a, b, valid, n)).collect() };
     let default = WarpSettings::default().iterations;
-    // Frames on their own: the default against 64 cycles.
-    let some = [0, 10];
-    let (reference, valid) = bake(64, false, &some);
-    let d = differences(&bake(default, false, &some).0, &reference, &valid);
-    eprintln!("frames on their own, default ({default}) against 64: {d:.3?}");
-    assert!(d.iter().all(|&d| d <= 0.05), "frames on their own, default against 64: {d:.3?}");
     // Warm bakes.
     let all: Vec<usize> = (0..=10).collect();
     let (reference, valid) = bake(64, true, &all);

@@ -283,9 +283,6 @@ pub struct Solver {
     /// Wall time of the per-frame preparation (restriction to the coarse
     /// levels, metric records) in the last solve (ms).
     pub last_prepare_ms: f64,
-    /// Cycles the finest level ran in the last solve if it was cold (0 after
-    /// a warm one): the full multigrid's and [`multigrid::settle`]'s.
-    pub last_cold_cycles: usize,
     /// The finest level's per-triangle records of the last solve (kept for
     /// their allocation).
     records: Vec<TriRecord>,
@@ -349,7 +346,7 @@ impl Solver {
             level.start_y = vec![0.0; lw * lh];
             levels.push(level);
         }
-        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, last_cold_cycles: 0, records: Vec::new(), reference: false, variant: Variant::default() }
+        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, records: Vec::new(), reference: false, variant: Variant::default() }
     }
 
     /// Chooses the solver (benchmarks and tests compare them); rebuilds the
@@ -565,7 +562,6 @@ impl Solver {
         };
         let bottom = levels - 1;
         let cycles = s.iterations as usize;
-        self.last_cold_cycles = 0;
         if warm {
             for _ in 0..cycles {
                 multigrid::cycle(&mut self.levels, 0, bottom, false, &steps);
@@ -591,15 +587,6 @@ impl Solver {
                     lv.start_y.fill(0.0);
                 }
             }
-            // A frame solved on its own (warm starts off) settles. The first
-            // frame of a warm bake does not: it starts the trajectory its warm
-            // frames follow (one count of cycles a frame behind the converged
-            // warp on a moving surface), and farm chunks are checked against
-            // that trajectory (blender_tests/test_farm.py: a settled start
-            // made the chunk without pre-roll closer, 0.14, and the pre-roll's
-            // margin over it fell under the tenfold the test asks).
-            let settling = if s.warm_start { 0 } else { multigrid::settle(&mut self.levels, bottom, &steps) };
-            self.last_cold_cycles = cycles + 1 + settling;
         }
         self.last_iterations = steps.counts.iter().map(|c| c.get()).collect();
         self.last_level_ms = steps.ms.iter().map(|c| c.get()).collect();
