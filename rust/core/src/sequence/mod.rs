@@ -60,7 +60,7 @@ use crate::collide::{Collider, Skin};
 use crate::mesh::{polygon_edges, MeshInput, Weld, SLIVER_RATIO, WELD_TOLERANCE};
 use crate::pyramid::{DeformerOptions, PyramidDeformer};
 use crate::solve::ConstraintId;
-use crate::strain::Hierarchy;
+use crate::strain::{EdgeForces, Hierarchy};
 use crate::Result;
 
 pub use dynamics::{Dynamics, MAX_SUBSTEPS, STIFFNESS_DENSITY};
@@ -108,6 +108,9 @@ pub struct Sequence {
     /// The multilevel blocks of the unified strain pass, built on the first
     /// step that needs them and kept while the limits stay the same.
     strain_levels: Option<Hierarchy>,
+    /// The strain limits' forces at the end of the last step (see
+    /// [`EdgeForces`]), where the next one starts from.
+    strain_forces: Option<EdgeForces>,
 }
 
 impl Sequence {
@@ -157,6 +160,7 @@ impl Sequence {
             skin_collider: None,
             carried_planes: None,
             strain_levels: None,
+            strain_forces: None,
         }
     }
 
@@ -179,6 +183,7 @@ impl Sequence {
         self.history = None;
         self.velocity = None;
         self.last_input = None;
+        self.strain_forces = None;
     }
 }
 
