@@ -234,10 +234,11 @@ def frame_figures(positions: np.ndarray, rest: np.ndarray, corners: np.ndarray, 
     return figures
 
 
-def add_and_bake(obj, cache_path: str, frames=POSE_FRAMES, converge: bool = False) -> dict:
+def add_and_bake(obj, cache_path: str, frames=POSE_FRAMES, converge: bool = False, self_collision: bool = False) -> dict:
     """Add Pyramid Deform to ``obj`` and bake ``frames`` through the add-on's operators, as a user
     would (default iterations and closeness; with ``converge``, Converge on with its iteration
-    limit); returns the bind's figures and the bake's time."""
+    limit; with ``self_collision``, Self Collision on at its defaults); returns the bind's figures
+    and the bake's time."""
     _select_only(obj)
     if bpy.ops.tegument.deform_add() != {"FINISHED"}:
         raise RuntimeError(f"Add Pyramid Deform failed on {obj.name}: {obj.tegument.warnings}")
@@ -246,6 +247,7 @@ def add_and_bake(obj, cache_path: str, frames=POSE_FRAMES, converge: bool = Fals
         import tegument
 
         settings.converge, settings.iterations = True, tegument.DEFAULTS.accelerated_iterations
+    settings.self_collision.enabled = self_collision
     pinned, warnings = pinned_count(obj), settings.bind_warnings
     settings.cache_path = cache_path
     settings.frame_start, settings.frame_end = frames

@@ -21,7 +21,7 @@ use glam::Vec3;
 
 use super::options::{SelfOptions, StepReport};
 use super::Sequence;
-use crate::collide::{Clearance, Collider, ColliderSet, InLoop, ResolveParams, SelfCollision, SelfSettings, Skin, Tangles};
+use crate::collide::{Candidates, Clearance, Collider, ColliderSet, ResolveParams, SelfCollision, SelfSettings, Skin, Tangles};
 use crate::{Error, Result};
 
 /// What self-collision carries through one step.
@@ -29,8 +29,11 @@ pub(super) struct SelfPass {
     settings: SelfSettings,
     takes_part: Option<Vec<bool>>,
     tangles: Tangles,
-    /// The in-loop candidates of the current substep.
-    in_loop: Option<InLoop>,
+    /// Per vertex, how far the solve may take it from its input: twice as
+    /// far as the last frame's did (the candidates' margins).
+    margin: Vec<f32>,
+    /// The candidates of the current substep, for its first and in-loop passes.
+    candidates: Option<Candidates>,
 }
 
 /// The tangles of the last output, with what they were found under.
@@ -61,14 +64,24 @@ impl Sequence {
             Some(k) => k.tangles,
             None => Tangles::at(collision, start, &options.settings, takes_part.as_deref())?.0,
         };
-        Ok(Some(SelfPass { settings: options.settings, takes_part, tangles, in_loop: None }))
+        let margin = match (&self.history, &self.last_input) {
+            (Some(output), Some(input)) if output.len() == start.len() && input.len() == start.len() => {
+                output.iter().zip(input).map(|(o, i)| 2.0 * (*o - *i).length()).collect()
+            }
+            _ => vec![0.0; start.len()],
+        };
+        Ok(Some(SelfPass { settings: options.settings, takes_part, tangles, margin, candidates: None }))
     }
 
     /// Counts the output's intersections into the report and keeps them as
     /// the next frame's tangles.
     pub(super) fn finish_self(&mut self, pass: SelfPass, output: &[Vec3], report: &mut StepReport) -> Result<()> {
         let collision = self.self_collision.as_ref().expect("begun");
-        let (tangles, crossing) = Tangles::at(collision, output, &pass.settings, pass.takes_part.as_deref())?;
+        // With no tangle at the start and nothing left pinched, every pass kept
+        // the skin free of intersections: nothing to look for.
+        let clean = pass.tangles.vertex_count() == 0 && report.self_pinched.is_empty();
+        let (tangles, crossing) =
+            if clean { (Tangles::default(), Vec::new()) } else { Tangles::at(collision, output, &pass.settings, pass.takes_part.as_deref())? };
         report.self_intersections = crossing.len();
         report.self_tangled = pass.tangles.vertex_count();
         report.self_pinched.sort_unstable();
@@ -78,12 +91,6 @@ impl Sequence {
     }
 }
 
-impl SelfPass {
-    /// A new substep: its in-loop passes gather their own candidates.
-    pub(super) fn new_substep(&mut self) {
-        self.in_loop = None;
-    }
-}
 
 /// The first pass's self-collision, after the colliders' (see the module
 /// documentation).
@@ -97,7 +104,8 @@ pub(super) fn first_pass(
     report: &mut StepReport,
 ) -> Result<()> {
     let part = pass.takes_part.as_deref();
-    let stats = collision.resolve_path(x_n, x, &pass.settings, &pass.tangles, part)?;
+    pass.candidates = Some(collision.candidates(x_n, x, &pass.margin, &pass.settings, &pass.tangles, part)?);
+    let stats = collision.resolve_path(&mut pass.candidates, x_n, x, &pass.settings, &pass.tangles, part)?;
     report.self_contacts += stats.contacts;
     report.self_held += stats.held.len();
     if colliders.is_empty() || (stats.contacts == 0 && stats.held.is_empty()) {
@@ -125,7 +133,7 @@ pub(super) fn in_loop(
     report: &mut StepReport,
 ) -> Result<()> {
     let (settings, tangles, part) = (&pass.settings, &pass.tangles, pass.takes_part.as_deref());
-    let stats = collision.resolve_in_loop(&mut pass.in_loop, before, after, settings, tangles, part)?;
+    let stats = collision.resolve_in_loop(&mut pass.candidates, before, after, settings, tangles, part)?;
     report.self_contacts += stats.contacts;
     let set = ColliderSet::new(colliders.iter().copied());
     let params = ResolveParams::in_loop();
@@ -138,7 +146,7 @@ pub(super) fn in_loop(
     let mut touching: Option<Vec<bool>> = None;
     let mut last: Vec<u32> = Vec::new();
     loop {
-        let mut bad = collision.in_loop_crossings(&mut pass.in_loop, before, after, touching.as_deref(), settings, tangles, part)?;
+        let mut bad = collision.in_loop_crossings(&mut pass.candidates, before, after, touching.as_deref(), settings, tangles, part)?;
         bad.extend(set.violations(before, after, skin, &last, &params));
         bad.retain(|&v| after[v as usize] != before[v as usize]);
         bad.sort_unstable();

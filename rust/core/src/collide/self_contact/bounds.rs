@@ -9,11 +9,12 @@
 //! margin how far a vertex may stray from it before the candidates are
 //! gathered again).
 //!
-//! * **Boxes.** Per node, the box of its start positions and the box of its
-//!   displacements (with 0, grown by the margins). Two vertices share their
-//!   time parameter, so the difference of two points of two nodes lies in
-//!   `start_A − start_B + t·(motion_A − motion_B)`, `t ∈ [0, 1]`: the
-//!   relative box of [`relative_gap`].
+//! * **Boxes.** Per node, the box of its start positions, the box of its
+//!   displacements and its largest margin. Two vertices share their time
+//!   parameter, so the difference of two points of two nodes lies in
+//!   `start_A − start_B + t·(motion_A − motion_B)`, `t ∈ [0, 1]`, give or
+//!   take the two margins: the relative box of [`relative_gap`]. A rigidly
+//!   moving limb moves its patches alike, and their relative box stays put.
 //! * **Normal cones** (Tang et al. 2009, continuous normal cones). A
 //!   triangle's normal `(b − a) × (c − a)` is quadratic in `t`; in Bernstein
 //!   form it is a non-negative combination of `n₀`, `(e₁(0) × e₂(1) + e₁(1) ×
@@ -31,10 +32,8 @@
 //!   twice, the disk cannot touch itself. A closed curve that winds twice
 //!   around a point turns by at least 4π in all (its height in any direction
 //!   has at least four critical points; Fáry–Milnor), so a projected
-//!   boundary whose turning stays below 4π over the whole motion proves it.
-//!   Each edge's projected direction turns by at most the angle between its
-//!   ends' projections (plus its margins' share), so the turning at the
-//!   start plus twice those bounds is a bound over the motion.
+//!   boundary whose turning stays below 4π over the whole motion proves it
+//!   (each exterior angle bounded over the motion, [`winds_once`]).
 
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -90,10 +89,26 @@ impl Cone {
 /// Slack on angles and boxes for the f32 arithmetic of the bounds.
 const ANGLE_SLACK: f32 = 1e-4;
 
+/// Where an element or a node starts, how it moves, and how far beyond that
+/// it may stray.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Span {
+    pub start: Bounds,
+    pub motion: Bounds,
+    pub margin: f32,
+}
+
+impl Span {
+    pub(super) const EMPTY: Span = Span { start: Bounds::EMPTY, motion: Bounds::EMPTY, margin: 0.0 };
+
+    pub(super) fn union(self, o: Span) -> Span {
+        Span { start: self.start.union(o.start), motion: self.motion.union(o.motion), margin: self.margin.max(o.margin) }
+    }
+}
+
 /// The bounds of every node of a tree over one motion.
 pub(super) struct NodeBounds {
-    pub start: Vec<Bounds>,
-    pub motion: Vec<Bounds>,
+    pub span: Vec<Span>,
     pub cone: Vec<Cone>,
     /// Whether the node holds a triangle taking part (the weights' region).
     pub active: Vec<bool>,
@@ -108,31 +123,29 @@ pub(super) struct Motion<'a> {
 }
 
 impl Motion<'_> {
-    /// The box of vertex `v`'s displacements, with 0, grown by its margin.
-    pub(super) fn displacement(&self, v: u32) -> Bounds {
-        let d = self.end[v as usize] - self.start[v as usize];
-        let m = Vec3::splat(self.margin[v as usize]);
-        Bounds { min: d.min(Vec3::ZERO) - m, max: d.max(Vec3::ZERO) + m }
-    }
-
-    pub(super) fn start_box(&self, corners: &[u32]) -> Bounds {
-        corners.iter().fold(Bounds::EMPTY, |b, &v| {
-            let p = self.start[v as usize];
-            Bounds { min: b.min.min(p), max: b.max.max(p) }
+    /// The span of an element with these corners.
+    pub(super) fn span(&self, corners: &[u32]) -> Span {
+        corners.iter().fold(Span::EMPTY, |b, &v| {
+            let (s, e) = (self.start[v as usize], self.end[v as usize]);
+            let d = e - s;
+            Span {
+                start: Bounds { min: b.start.min.min(s), max: b.start.max.max(s) },
+                motion: Bounds { min: b.motion.min.min(d), max: b.motion.max.max(d) },
+                margin: b.margin.max(self.margin[v as usize]),
+            }
         })
-    }
-
-    pub(super) fn motion_box(&self, corners: &[u32]) -> Bounds {
-        corners.iter().fold(Bounds::EMPTY, |b, &v| b.union(self.displacement(v)))
     }
 }
 
-/// The distance from the origin to the box that holds every difference of a
-/// point of `A` and a point of `B` over the motion (0 when they may meet).
-pub(super) fn relative_gap(start_a: &Bounds, motion_a: &Bounds, start_b: &Bounds, motion_b: &Bounds) -> f32 {
-    let lo = (start_a.min - start_b.max) + (motion_a.min - motion_b.max);
-    let hi = (start_a.max - start_b.min) + (motion_a.max - motion_b.min);
-    Vec3::ZERO.max(lo).max(-hi).length()
+/// A lower bound of the distance between any point of `a` and any point of
+/// `b` over the motion (0 when they may meet): the distance from the origin
+/// to their relative box, less the two margins.
+pub(super) fn relative_gap(a: &Span, b: &Span) -> f32 {
+    let drift_lo = (a.motion.min - b.motion.max).min(Vec3::ZERO);
+    let drift_hi = (a.motion.max - b.motion.min).max(Vec3::ZERO);
+    let lo = (a.start.min - b.start.max) + drift_lo;
+    let hi = (a.start.max - b.start.min) + drift_hi;
+    (Vec3::ZERO.max(lo).max(-hi).length() - a.margin - b.margin).max(0.0)
 }
 
 /// Bounds of one triangle: normals over the motion and their widening.
@@ -174,32 +187,26 @@ impl NodeBounds {
     /// triangle at tree position `p` is tested at all (None: all are).
     pub(super) fn new(tree: &PatchTree, motion: &Motion<'_>, takes_part: Option<&[bool]>) -> Self {
         let count = tree.nodes.len();
-        let leaf_bounds: Vec<(Bounds, Bounds, Cone, bool)> = tree
+        let leaf_bounds: Vec<(Span, Cone, bool)> = tree
             .leaves
             .par_iter()
             .with_min_len(64)
             .map(|&leaf| {
                 let node = tree.nodes[leaf as usize];
-                let (mut start, mut moved, mut cone, mut active) = (Bounds::EMPTY, Bounds::EMPTY, Cone::EMPTY, false);
+                let (mut span, mut cone, mut active) = (Span::EMPTY, Cone::EMPTY, false);
                 for p in node.range() {
                     let t = tree.triangles[p];
-                    start = start.union(motion.start_box(&t));
-                    moved = moved.union(motion.motion_box(&t));
+                    span = span.union(motion.span(&t));
                     cone = cone.union(triangle_cone(motion, t));
                     active |= takes_part.is_none_or(|flags| flags[p]);
                 }
-                (start, moved, cone, active)
+                (span, cone, active)
             })
             .collect();
-        let mut bounds = NodeBounds {
-            start: vec![Bounds::EMPTY; count],
-            motion: vec![Bounds::EMPTY; count],
-            cone: vec![Cone::EMPTY; count],
-            active: vec![false; count],
-        };
-        for (&leaf, (start, moved, cone, active)) in tree.leaves.iter().zip(leaf_bounds) {
+        let mut bounds = NodeBounds { span: vec![Span::EMPTY; count], cone: vec![Cone::EMPTY; count], active: vec![false; count] };
+        for (&leaf, (span, cone, active)) in tree.leaves.iter().zip(leaf_bounds) {
             let i = leaf as usize;
-            (bounds.start[i], bounds.motion[i], bounds.cone[i], bounds.active[i]) = (start, moved, cone, active);
+            (bounds.span[i], bounds.cone[i], bounds.active[i]) = (span, cone, active);
         }
         for i in (0..count).rev() {
             let node = tree.nodes[i];
@@ -207,8 +214,7 @@ impl NodeBounds {
                 continue;
             }
             let (l, r) = (node.left as usize, node.left as usize + 1);
-            bounds.start[i] = bounds.start[l].union(bounds.start[r]);
-            bounds.motion[i] = bounds.motion[l].union(bounds.motion[r]);
+            bounds.span[i] = bounds.span[l].union(bounds.span[r]);
             bounds.cone[i] = bounds.cone[l].union(bounds.cone[r]);
             bounds.active[i] = bounds.active[l] || bounds.active[r];
         }
@@ -223,31 +229,132 @@ impl NodeBounds {
             return false;
         }
         let Some(v) = self.cone[i].axis() else { return false };
-        let (b1, b2) = v.any_orthonormal_pair();
-        let project = |p: Vec3| Vec2::new(p.dot(b1), p.dot(b2));
-        let ring = tree.boundary(i);
-        let k = ring.len();
-        let edge = |j: usize, positions: &[Vec3]| project(positions[ring[(j + 1) % k] as usize]) - project(positions[ring[j] as usize]);
-        let mut turning = 0.0f32;
-        let mut drift = 0.0f32;
-        let mut previous = edge(k - 1, motion.start);
-        for j in 0..k {
-            let (e0, e1) = (edge(j, motion.start), edge(j, motion.end));
-            let m = motion.margin[ring[j] as usize] + motion.margin[ring[(j + 1) % k] as usize];
-            // The nearest the projected edge vector comes to zero over the motion.
-            let d = e1 - e0;
-            let t = if d.length_squared() > 0.0 { (-e0.dot(d) / d.length_squared()).clamp(0.0, 1.0) } else { 0.0 };
-            let r = (e0 + t * d).length();
-            if !(r > m * (1.0 + 1e-3) + 1e-12) {
-                return false;
-            }
-            drift += e0.perp_dot(e1).abs().atan2(e0.dot(e1)) + (m / r).min(1.0).asin();
-            turning += previous.perp_dot(e0).atan2(previous.dot(e0)).abs();
-            previous = e0;
-        }
-        let bound = turning + 2.0 * drift + ANGLE_SLACK * k as f32;
-        bound < 4.0 * std::f32::consts::PI - 1e-3
+        winds_once(v, tree.boundary(i), motion)
     }
+
+    /// Whether nodes `a` and `b` provably cannot touch each other: two
+    /// disks sharing one run of boundary edges (Tang et al.'s adjacent
+    /// patches) make a disk, which cannot touch itself if its normal cone
+    /// has an axis and its boundary winds once.
+    pub(super) fn cannot_touch_each_other(&self, tree: &PatchTree, motion: &Motion<'_>, a: usize, b: usize) -> bool {
+        if !(tree.disk[a] && tree.disk[b]) {
+            return false;
+        }
+        let Some(v) = self.cone[a].union(self.cone[b]).axis() else { return false };
+        let Some(ring) = joined(tree.boundary(a), tree.boundary(b)) else { return false };
+        winds_once(v, &ring, motion)
+    }
+}
+
+/// The boundary loop of two disks with loops `a` and `b` (vertex cycles in
+/// the triangles' winding) joined along the boundary they share, if that is
+/// one run of edges and they touch nowhere else: then their union is a disk.
+fn joined(a: &[u32], b: &[u32]) -> Option<Vec<u32>> {
+    let (na, nb) = (a.len(), b.len());
+    if na < 3 || nb < 3 {
+        return None;
+    }
+    // Where each vertex sits on b's loop; a shared edge x → y of a is y → x on b.
+    let mut on_b: std::collections::HashMap<u32, usize> = std::collections::HashMap::with_capacity(nb);
+    for (j, &v) in b.iter().enumerate() {
+        on_b.insert(v, j);
+    }
+    let shared = |i: usize| {
+        let (x, y) = (a[i], a[(i + 1) % na]);
+        on_b.get(&y).is_some_and(|&j| b[(j + 1) % nb] == x)
+    };
+    let flags: Vec<bool> = (0..na).map(shared).collect();
+    let count = flags.iter().filter(|&&f| f).count();
+    if count == 0 || count == na {
+        return None;
+    }
+    // The run's first edge: shared, its predecessor not; exactly one such.
+    let starts: Vec<usize> = (0..na).filter(|&i| flags[i] && !flags[(i + na - 1) % na]).collect();
+    let [first] = starts[..] else { return None };
+    let last = (first + count) % na; // the vertex where the run ends
+    // a from the run's end round to its start, then b from there back to the run's end.
+    let mut ring: Vec<u32> = (0..=na - count).map(|k| a[(last + k) % na]).collect();
+    let start_b = on_b[&a[first]];
+    let rest_b = nb - count; // b's edges outside the run
+    ring.extend((1..rest_b).map(|k| b[(start_b + k) % nb]));
+    // Touching anywhere else (a vertex on both loops off the run) makes a pinch.
+    let mut sorted = ring.clone();
+    sorted.sort_unstable();
+    sorted.windows(2).all(|w| w[0] != w[1]).then_some(ring)
+}
+
+/// Whether a closed boundary `ring`, projected along `v` over the motion,
+/// turns by less than 4π in all: it then winds at most once around any point
+/// (see the module documentation).
+///
+/// The turning is the sum of the exterior angles, each the angle between two
+/// consecutive projected edges `u(t)`, `w(t)`. Both are linear in `t`, so
+/// `u × w` and `u · w` are quadratics whose ranges over `[0, 1]` bound the
+/// angle, `|angle| ≤ atan2(max |u × w|, min u · w)` while the dot product
+/// stays positive (π otherwise), widened for the margins. A ring that only
+/// moves rigidly keeps every bound at its exact angle.
+fn winds_once(v: Vec3, ring: &[u32], motion: &Motion<'_>) -> bool {
+    let k = ring.len();
+    if k < 3 {
+        return false;
+    }
+    let (b1, b2) = v.any_orthonormal_pair();
+    let at = |j: usize, positions: &[Vec3]| {
+        let p = positions[ring[j % k] as usize];
+        Vec2::new(p.dot(b1), p.dot(b2))
+    };
+    // Projected edge j (from vertex j to j + 1) at the start, its change, and its margin.
+    let edge = |j: usize| {
+        let e0 = at(j + 1, motion.start) - at(j, motion.start);
+        let e1 = at(j + 1, motion.end) - at(j, motion.end);
+        let m = motion.margin[ring[j % k] as usize] + motion.margin[ring[(j + 1) % k] as usize];
+        (e0, e1 - e0, m)
+    };
+    let limit = 4.0 * std::f32::consts::PI - 1e-3;
+    let mut turning = 0.0f32;
+    let mut previous = edge(k - 1);
+    for j in 0..k {
+        let next = edge(j);
+        let ((u0, du, mu), (w0, dw, mw)) = (previous, next);
+        let cross = quadratic_range(u0.perp_dot(w0), u0.perp_dot(dw) + du.perp_dot(w0), du.perp_dot(dw));
+        let dot = quadratic_range(u0.dot(w0), u0.dot(dw) + du.dot(w0), du.dot(dw));
+        let (lu, lw) = (u0.length().max((u0 + du).length()), w0.length().max((w0 + dw).length()));
+        let spread = lu * mw + lw * mu + mu * mw;
+        turning += largest_angle((cross.0 - spread, cross.1 + spread), dot.0 - spread) + ANGLE_SLACK;
+        if turning >= limit {
+            return false;
+        }
+        previous = next;
+    }
+    turning < limit
+}
+
+/// The largest `|atan2(y, x)|` for `y` in `cross` and `x ≥ dot_min`.
+fn largest_angle((y_lo, y_hi): (f32, f32), dot_min: f32) -> f32 {
+    if y_lo > 0.0 || y_hi < 0.0 {
+        // One turning sense throughout: nearest π where x is least and |y| too (x < 0), or |y| most (x ≥ 0).
+        let (near, far) = if y_lo > 0.0 { (y_lo, y_hi) } else { (-y_hi, -y_lo) };
+        if dot_min >= 0.0 { far.atan2(dot_min) } else { near.atan2(dot_min) }
+    } else if dot_min > 0.0 {
+        y_lo.abs().max(y_hi.abs()).atan2(dot_min)
+    } else {
+        std::f32::consts::PI
+    }
+}
+
+/// `(min, max)` of `a + b·t + c·t²` over `t ∈ [0, 1]`.
+fn quadratic_range(a: f32, b: f32, c: f32) -> (f32, f32) {
+    let mut lo = a.min(a + b + c);
+    let mut hi = a.max(a + b + c);
+    if c != 0.0 {
+        let t = -b / (2.0 * c);
+        if t > 0.0 && t < 1.0 {
+            let y = a + b * t + c * t * t;
+            lo = lo.min(y);
+            hi = hi.max(y);
+        }
+    }
+    (lo, hi)
 }
 
 #[cfg(test)]
@@ -278,6 +385,30 @@ mod tests {
         let loose = Motion { start: &g.positions, end: &g.positions, margin: &big };
         let bounds = NodeBounds::new(&tree, &loose, None);
         assert!(!bounds.cannot_touch_itself(&tree, &loose, 0));
+    }
+
+    #[test]
+    fn two_adjacent_disks_join_into_one_along_their_shared_run() {
+        // Squares 0-1-4-3 and 1-2-5-4 of a 3 × 2 vertex grid, counter-clockwise.
+        let a = [0, 1, 4, 3];
+        let b = [1, 2, 5, 4];
+        let ring = joined(&a, &b).expect("they share edge 1-4");
+        assert_eq!(ring.len(), 6);
+        let mut sorted = ring.clone();
+        sorted.sort_unstable();
+        assert_eq!(sorted, vec![0, 1, 2, 3, 4, 5]);
+        // Touching at a vertex only, or not at all: no union disk.
+        assert!(joined(&[0, 1, 4, 3], &[4, 5, 8, 7]).is_none());
+        assert!(joined(&[0, 1, 4, 3], &[10, 11, 14, 13]).is_none());
+        // A grid split in two halves joins back to its whole boundary.
+        let g = grid(8, 4, 1.0);
+        let tree = tree_of(g.input());
+        let zero = vec![0.0; g.positions.len()];
+        let still = Motion { start: &g.positions, end: &g.positions, margin: &zero };
+        let bounds = NodeBounds::new(&tree, &still, None);
+        let (l, r) = (tree.nodes[0].left as usize, tree.nodes[0].left as usize + 1);
+        assert!(bounds.cannot_touch_each_other(&tree, &still, l, r));
+        assert_eq!(joined(tree.boundary(l), tree.boundary(r)).map(|r| r.len()), Some(tree.boundary(0).len()));
     }
 
     #[test]

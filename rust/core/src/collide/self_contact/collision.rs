@@ -69,16 +69,23 @@ impl SelfCollision {
             return Ok(());
         }
         let thickness = settings.thickness;
+        // At most a quarter of the shortest edge at a vertex: a contact never
+        // asks to keep skin farther apart than the mesh's own spacing.
         let mut separation = vec![thickness; self.vertex_count];
+        for &[a, b] in &self.edges {
+            let quarter = 0.25 * (self.rest[a as usize] - self.rest[b as usize]).length();
+            for v in [a, b] {
+                separation[v as usize] = separation[v as usize].min(quarter);
+            }
+        }
         if thickness > 0.0 {
-            // Every pair within the thickness at rest, with no curvature
-            // culling: pairs in a smooth patch come closer than a bend lets the
-            // cone test see.
+            // Pairs already within the thickness at rest (overlapping shells,
+            // skin resting on skin): each keeps half its rest distance.
             let zero = vec![0.0; self.vertex_count];
             let motion = Motion { start: &self.rest, end: &self.rest, margin: &zero };
             let exclusion = &self.exclusion;
             let accept = |a: &[u32], b: &[u32]| !exclusion.excluded(a, b);
-            let pairs = self.gather(&motion, thickness, false, None, &accept);
+            let pairs = self.gather(&motion, thickness, true, None, &accept);
             let close: Vec<(ElementPair, f32)> = pairs
                 .into_par_iter()
                 .filter_map(|pair| {

@@ -8,8 +8,12 @@
 //!   no candidate: the flat and gently curved skin, almost all of it, is
 //!   left after a few nodes;
 //! * otherwise its two children are tested each on its own and against
-//!   each other, and two nodes whose relative box ([`relative_gap`]) stays
-//!   farther apart than the reach hold none;
+//!   each other; two nodes whose relative box ([`relative_gap`]) stays
+//!   farther apart than the reach hold none, nor do two adjacent disks whose
+//!   union cannot touch itself
+//!   ([`NodeBounds::cannot_touch_each_other`], Tang et al.'s
+//!   connectivity culling: without it every shared border would be walked
+//!   down to its leaves);
 //! * two leaves: their triangles' relative boxes, then each element pair.
 //!
 //! Each vertex and each edge is *owned* by the first triangle of the tree's
@@ -21,9 +25,8 @@
 
 use glam::Vec3;
 
-use super::bounds::{relative_gap, Motion, NodeBounds};
+use super::bounds::{relative_gap, Motion, NodeBounds, Span};
 use super::tree::PatchTree;
-use crate::collide::bvh::Bounds;
 
 /// A pair of elements: a vertex and a triangle (`corners = [v, a, b, c]`)
 /// or two edges (`[a0, a1, b0, b1]`).
@@ -139,14 +142,14 @@ impl Gather<'_> {
         if node.count < PARALLEL_BELOW {
             let mut out = self.self_test(l);
             out.extend(self.self_test(r));
-            self.pair_test(l, r, &mut out);
+            self.pair_test(l, r, true, &mut out);
             return out;
         }
         let ((mut out, right), between) = rayon::join(
             || rayon::join(|| self.self_test(l), || self.self_test(r)),
             || {
                 let mut between = Vec::new();
-                self.pair_test(l, r, &mut between);
+                self.pair_test(l, r, true, &mut between);
                 between
             },
         );
@@ -155,24 +158,29 @@ impl Gather<'_> {
         out
     }
 
-    fn pair_test<O: Found>(&self, a: usize, b: usize, out: &mut Vec<O>) {
+    /// The pairs between nodes `a` and `b`; `siblings` when their union is
+    /// their parent, which already failed the curvature test.
+    fn pair_test<O: Found>(&self, a: usize, b: usize, siblings: bool, out: &mut Vec<O>) {
         let bounds = self.bounds;
         if !(bounds.active[a] && bounds.active[b]) {
             return;
         }
-        if relative_gap(&bounds.start[a], &bounds.motion[a], &bounds.start[b], &bounds.motion[b]) > self.reach {
+        if relative_gap(&bounds.span[a], &bounds.span[b]) > self.reach {
+            return;
+        }
+        if self.cull && !siblings && bounds.cannot_touch_each_other(self.tree, &self.motion, a, b) {
             return;
         }
         let (na, nb) = (self.tree.nodes[a], self.tree.nodes[b]);
         match (na.is_leaf(), nb.is_leaf()) {
             (true, true) => self.leaf_pair(a, b, out),
             (false, leaf_b) if leaf_b || na.count >= nb.count => {
-                self.pair_test(na.left as usize, b, out);
-                self.pair_test(na.left as usize + 1, b, out);
+                self.pair_test(na.left as usize, b, false, out);
+                self.pair_test(na.left as usize + 1, b, false, out);
             }
             _ => {
-                self.pair_test(a, nb.left as usize, out);
-                self.pair_test(a, nb.left as usize + 1, out);
+                self.pair_test(a, nb.left as usize, false, out);
+                self.pair_test(a, nb.left as usize + 1, false, out);
             }
         }
     }
@@ -180,23 +188,19 @@ impl Gather<'_> {
     /// The element pairs between two leaves (or within one, `a == b`).
     fn leaf_pair<O: Found>(&self, a: usize, b: usize, out: &mut Vec<O>) {
         let (ra, rb) = (self.tree.nodes[a].range(), self.tree.nodes[b].range());
-        let boxes = |p: usize| {
-            let t = self.tree.triangles[p];
-            (self.motion.start_box(&t), self.motion.motion_box(&t))
-        };
+        let span = |p: usize| self.motion.span(&self.tree.triangles[p]);
         let part = |p: usize| self.takes_part.is_none_or(|flags| flags[p]);
-        let b_boxes: Vec<(Bounds, Bounds)> = rb.clone().map(boxes).collect();
+        let b_spans: Vec<Span> = rb.clone().map(span).collect();
         for p in ra {
             if !part(p) {
                 continue;
             }
-            let (sp, mp) = boxes(p);
+            let sp = span(p);
             for (k, q) in rb.clone().enumerate() {
                 if (a == b && q <= p) || !part(q) {
                     continue;
                 }
-                let (sq, mq) = b_boxes[k];
-                if relative_gap(&sp, &mp, &sq, &mq) > self.reach {
+                if relative_gap(&sp, &b_spans[k]) > self.reach {
                     continue;
                 }
                 O::list(self, p, q, out);
@@ -212,8 +216,7 @@ impl Gather<'_> {
             if !(self.accept)(one, other) {
                 return;
             }
-            let gap = relative_gap(&self.motion.start_box(one), &self.motion.motion_box(one), &self.motion.start_box(other), &self.motion.motion_box(other));
-            if gap > self.reach {
+            if relative_gap(&self.motion.span(one), &self.motion.span(other)) > self.reach {
                 return;
             }
             let corners = if edge_edge { [one[0], one[1], other[0], other[1]] } else { [one[0], other[0], other[1], other[2]] };

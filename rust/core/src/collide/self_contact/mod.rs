@@ -35,7 +35,7 @@ pub mod settings;
 mod tree;
 
 pub use collision::SelfCollision;
-pub use resolve::{InLoop, Tangles, SELF_ROUNDS};
+pub use resolve::{Candidates, Tangles, SELF_ROUNDS};
 pub use settings::{SelfSettings, SelfStats, MAX_RINGS};
 
 #[cfg(test)]

@@ -3,26 +3,29 @@
 //! were gathered for, and the fail-safe that ends every pass free of new
 //! intersections.
 //!
+//! One gathering ([`Candidates`]) serves all the passes of a substep: it
+//! covers every vertex's straight path from the last output to the target
+//! (the first pass), and around the target, anywhere within a per-vertex
+//! margin (the first pass's corrections, and the in-loop passes, where the
+//! solver moves the skin about as far from its input as it did last frame).
+//!
 //! * **First pass** ([`SelfCollision::resolve_path`]): from the last output
-//!   towards the frame's target. Candidates are gathered for the straight
-//!   paths, with a margin per vertex for the corrections to come.
+//!   towards the frame's target.
 //! * **In-loop passes** ([`SelfCollision::resolve_in_loop`]): after every
-//!   solver iteration, from where it started to where it ended. The
-//!   candidates are gathered once around a reference state (the positions
-//!   before the pass that gathered them), each vertex with a margin of twice
-//!   that pass's move; later passes reuse them while every vertex stays
-//!   within its margin, and skip a pair outright while its two sides have
-//!   moved less, together, than its distance at the reference less the
-//!   separation. A vertex that strays gathers them again.
+//!   solver iteration, from where it started to where it ended. A pair is
+//!   skipped outright while its two sides have strayed from the target less,
+//!   together, than its distance there less the separation.
+//! * A vertex leaving its margin gathers the candidates again: around the
+//!   pass's start, each margin at least twice that pass's move.
 //! * **Fail-safe**: when the rounds end with contacts left, the vertices of
 //!   every pair whose paths still cross are put back where the pass started
 //!   (free of intersections), and the pairs around them checked again, until
 //!   none crosses: with every vertex at its start nothing can cross. They are
 //!   counted as `held`, like vertices pinched between colliders.
 //!
-//! Pairs both of whose sides lie in a [`Tangles`] region (intersecting at
-//! the start of the frame) are exempt: they may move through each other, so
-//! that an intersection the input already had can come apart.
+//! Pairs both of whose sides lie in a [`Tangles`] region (intersecting, or
+//! touching, at the start of the frame) are exempt: they may move through
+//! each other, so that an intersection the input already had can come apart.
 
 use std::collections::BTreeMap;
 
@@ -40,7 +43,8 @@ use crate::{Error, Result};
 /// Rounds of detection and projection before the fail-safe.
 pub const SELF_ROUNDS: usize = 8;
 
-/// The vertices of the triangles that intersected at the start of a frame.
+/// The vertices of the triangles that intersected (or touched) at the start
+/// of a frame.
 #[derive(Debug, Clone, Default)]
 pub struct Tangles {
     vertices: Vec<bool>,
@@ -92,15 +96,54 @@ impl Tangles {
     }
 }
 
-/// The candidates the in-loop passes of a frame share (see the module
-/// documentation). Start each frame (each substep) with `None`.
+/// The candidate pairs of a stretch of motion (see the module
+/// documentation), shared by the passes of a substep.
 #[derive(Debug, Clone)]
-pub struct InLoop {
+pub struct Candidates {
+    /// Where the straight paths start, and where they end: the state the
+    /// passes stay near.
+    start: Vec<Vec3>,
     reference: Vec<Vec3>,
+    /// How far from the paths (and from `reference`) each vertex may stray.
     margin: Vec<f32>,
     pairs: Vec<ElementPair>,
-    /// Each pair's distance at the reference.
+    /// Each pair's distance at `reference`.
     distance: Vec<f32>,
+}
+
+impl Candidates {
+    /// How many pairs were gathered.
+    pub fn len(&self) -> usize {
+        self.pairs.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.pairs.is_empty()
+    }
+
+    /// Whether every vertex of `positions` is within its margin of the reference.
+    fn holds(&self, positions: &[&[Vec3]]) -> bool {
+        (0..self.reference.len()).into_par_iter().with_min_len(4096).all(|v| {
+            let r = self.reference[v];
+            positions.iter().all(|x| (x[v] - r).length() <= self.margin[v])
+        })
+    }
+
+    /// Whether pair `k` provably stays farther apart than its separation
+    /// over `before → after`: its sides have strayed from the reference by
+    /// less, together, than its distance there less the separation.
+    fn proves_apart(&self, k: usize, before: &[Vec3], after: &[Vec3], pass: &Pass<'_>) -> bool {
+        let pair = &self.pairs[k];
+        let strayed = |corners: &[u32]| {
+            corners.iter().fold(0.0f32, |m, &v| {
+                let r = self.reference[v as usize];
+                m.max((before[v as usize] - r).length()).max((after[v as usize] - r).length())
+            })
+        };
+        let (a, b) = pair.sides();
+        let room = self.distance[k] - strayed(a) - strayed(b);
+        room as f64 > pass.collision.pair_separation(pair) + pass.params.tolerance + pass.collision.rounding as f64
+    }
 }
 
 /// What one pass works with.
@@ -139,44 +182,83 @@ impl SelfCollision {
         validate_positions(what, positions)
     }
 
+    /// The least margin a vertex gets: room for the f32 bounds. Margins
+    /// widen the normal cones and the contour's angles, so that a margin of a
+    /// few percent of an edge everywhere would leave nothing to cull: a
+    /// vertex gets one where the solve moves it (where skin folds, which is
+    /// examined pair by pair anyway), and almost none elsewhere.
+    pub fn margin_floor(&self, _settings: &SelfSettings) -> f32 {
+        8.0 * self.rounding
+    }
+
+    /// Gathers the candidates of the straight paths `start → end`, each
+    /// vertex free to stray `margin` from its path (at least
+    /// [`Self::margin_floor`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn candidates(
+        &self,
+        start: &[Vec3],
+        end: &[Vec3],
+        margin: &[f32],
+        settings: &SelfSettings,
+        tangles: &Tangles,
+        takes_part: Option<&[bool]>,
+    ) -> Result<Candidates> {
+        self.check("start positions", start)?;
+        self.check("end positions", end)?;
+        if margin.len() != self.vertex_count || margin.iter().any(|m| !(m.is_finite() && *m >= 0.0)) {
+            return Err(Error::invalid(format!("self-collision margins: {} given for {} vertices, each finite and ≥ 0", margin.len(), self.vertex_count)));
+        }
+        let floor = self.margin_floor(settings);
+        let margin: Vec<f32> = margin.par_iter().map(|m| m.max(floor)).collect();
+        Ok(self.pass(settings, tangles, takes_part)?.candidates(start, end, margin))
+    }
+
     /// Makes the motion `start → end` free of new self-intersections by
     /// changing `end` (first pass). `start` must be free of them, apart from
-    /// the `tangles`.
-    pub fn resolve_path(&self, start: &[Vec3], end: &mut [Vec3], settings: &SelfSettings, tangles: &Tangles, takes_part: Option<&[bool]>) -> Result<SelfStats> {
+    /// the `tangles`. `candidates` are those of this motion (gathered here if
+    /// None, and again where a correction strays beyond them).
+    #[allow(clippy::too_many_arguments)]
+    pub fn resolve_path(
+        &self,
+        candidates: &mut Option<Candidates>,
+        start: &[Vec3],
+        end: &mut [Vec3],
+        settings: &SelfSettings,
+        tangles: &Tangles,
+        takes_part: Option<&[bool]>,
+    ) -> Result<SelfStats> {
         self.check("start positions", start)?;
         self.check("end positions", end)?;
         let pass = self.pass(settings, tangles, takes_part)?;
         let requested = end.to_vec();
         let mut stats = SelfStats::default();
-        let margin_of = |end: &[Vec3]| -> Vec<f32> {
-            start.par_iter().zip(end).map(|(s, e)| settings.thickness + 0.25 * (*e - *s).length()).collect()
-        };
-        let mut gathered = end.to_vec();
-        let mut margin = margin_of(&gathered);
-        let mut pairs = pass.gather(&Motion { start, end: &gathered, margin: &margin }, true);
-        stats.gathers += 1;
+        let fits = |c: &Candidates, end: &[Vec3]| c.start.as_slice() == start && c.holds(&[end]);
+        if !candidates.as_ref().is_some_and(|c| fits(c, end)) {
+            let margin = candidates.take().map_or_else(|| vec![self.margin_floor(settings); self.vertex_count], |c| c.margin);
+            *candidates = Some(pass.candidates(start, end, margin));
+            stats.gathers += 1;
+        }
         let mut moved: Option<Vec<bool>> = None;
         let mut converged = false;
         for _ in 0..SELF_ROUNDS {
             stats.rounds += 1;
-            let (contacts, changes) = pass.round(&pairs, start, end, moved.as_deref(), |_, _| false);
+            let current = candidates.as_ref().expect("gathered");
+            let (contacts, changes) = pass.round(&current.pairs, start, end, moved.as_deref(), |_| false);
             stats.contacts += contacts;
             if changes.is_empty() {
                 converged = true;
                 break;
             }
             let mut flags = vec![false; self.vertex_count];
-            let mut strayed = false;
             for (v, p) in changes {
                 end[v as usize] = p;
                 flags[v as usize] = true;
-                strayed |= (p - gathered[v as usize]).length() > margin[v as usize];
             }
             moved = Some(flags);
-            if strayed {
-                gathered.copy_from_slice(end);
-                margin = margin_of(&gathered);
-                pairs = pass.gather(&Motion { start, end: &gathered, margin: &margin }, true);
+            if !fits(current, end) {
+                let margin = candidates.take().expect("gathered").margin;
+                *candidates = Some(pass.candidates(start, end, margin));
                 stats.gathers += 1;
                 moved = None;
             }
@@ -189,25 +271,25 @@ impl SelfCollision {
     }
 
     /// The vertices of pairs whose paths `start → end` may cross (no
-    /// separation), gathered afresh; those at their start on every corner
-    /// are left out (they did not move).
+    /// separation), gathered afresh; those that did not move are left out.
     pub fn crossings(&self, start: &[Vec3], end: &[Vec3], settings: &SelfSettings, tangles: &Tangles, takes_part: Option<&[bool]>) -> Result<Vec<u32>> {
         self.check("start positions", start)?;
         self.check("end positions", end)?;
         let pass = self.pass(settings, tangles, takes_part)?;
         let zero = vec![0.0; self.vertex_count];
-        let pairs = pass.gather(&Motion { start, end, margin: &zero }, true);
+        let pairs = pass.gather(&Motion { start, end, margin: &zero });
         Ok(pass.crossing_corners(&pairs, start, end, None))
     }
 
     /// Makes the in-loop motion `before → after` free of new
-    /// self-intersections by changing `after`, with the candidates of
-    /// `state` (see the module documentation). Runs the rounds only: the
-    /// caller ends with [`Self::hold_back_in_loop`] (alone, or together with
-    /// the colliders' check).
+    /// self-intersections by changing `after`, with `candidates` (gathered
+    /// again around `before` if a vertex strayed beyond them). Runs the
+    /// rounds only: the caller ends with [`Self::hold_back_in_loop`] (alone,
+    /// or together with the colliders' check).
+    #[allow(clippy::too_many_arguments)]
     pub fn resolve_in_loop(
         &self,
-        state: &mut Option<InLoop>,
+        candidates: &mut Option<Candidates>,
         before: &[Vec3],
         after: &mut [Vec3],
         settings: &SelfSettings,
@@ -219,12 +301,12 @@ impl SelfCollision {
         let pass = self.pass(settings, tangles, takes_part)?;
         let requested = after.to_vec();
         let mut stats = SelfStats::default();
-        stats.gathers += pass.ensure(state, before, after) as usize;
+        stats.gathers += pass.ensure(candidates, before, after) as usize;
         let mut moved: Option<Vec<bool>> = None;
         for _ in 0..SELF_ROUNDS {
             stats.rounds += 1;
-            let current = state.as_ref().expect("ensured");
-            let skip = |k: usize, pair: &ElementPair| current.proves_apart(k, pair, before, after, &pass);
+            let current = candidates.as_ref().expect("ensured");
+            let skip = |k: usize| current.proves_apart(k, before, after, &pass);
             let (contacts, changes) = pass.round(&current.pairs, before, after, moved.as_deref(), skip);
             stats.contacts += contacts;
             if changes.is_empty() {
@@ -236,7 +318,7 @@ impl SelfCollision {
                 flags[v as usize] = true;
             }
             moved = Some(flags);
-            if pass.ensure(state, before, after) {
+            if pass.ensure(candidates, before, after) {
                 stats.gathers += 1;
                 moved = None;
             }
@@ -245,12 +327,13 @@ impl SelfCollision {
         Ok(stats)
     }
 
-    /// The fail-safe of the in-loop passes: the vertices (among those
-    /// `touching` flags, or all) of pairs whose paths `before → after` may
-    /// cross. With `state`'s candidates (gathered again if a vertex strayed).
+    /// The fail-safe's check in the in-loop passes: the vertices (of pairs
+    /// touching `touching`, or all) of pairs whose paths `before → after`
+    /// may cross.
+    #[allow(clippy::too_many_arguments)]
     pub fn in_loop_crossings(
         &self,
-        state: &mut Option<InLoop>,
+        candidates: &mut Option<Candidates>,
         before: &[Vec3],
         after: &[Vec3],
         touching: Option<&[bool]>,
@@ -259,25 +342,24 @@ impl SelfCollision {
         takes_part: Option<&[bool]>,
     ) -> Result<Vec<u32>> {
         let pass = self.pass(settings, tangles, takes_part)?;
-        pass.ensure(state, before, after);
-        let current = state.as_ref().expect("ensured");
-        let candidates: Vec<ElementPair> = current
-            .pairs
-            .iter()
-            .enumerate()
-            .filter(|&(k, pair)| !current.proves_apart(k, pair, before, after, &pass))
-            .map(|(_, pair)| *pair)
+        pass.ensure(candidates, before, after);
+        let current = candidates.as_ref().expect("ensured");
+        let open: Vec<ElementPair> = (0..current.pairs.len())
+            .into_par_iter()
+            .with_min_len(256)
+            .filter(|&k| !current.proves_apart(k, before, after, &pass))
+            .map(|k| current.pairs[k])
             .collect();
-        Ok(pass.crossing_corners(&candidates, before, after, touching))
+        Ok(pass.crossing_corners(&open, before, after, touching))
     }
 
-    /// [`Self::in_loop_crossings`] until none is left, putting each
-    /// crossing pair's vertices back at `before`: the in-loop fail-safe
-    /// without colliders. Returns the vertices put back.
+    /// [`Self::in_loop_crossings`] until none is left, putting each crossing
+    /// pair's vertices back at `before`: the in-loop fail-safe without
+    /// colliders. Returns the vertices put back.
     #[allow(clippy::too_many_arguments)]
     pub fn hold_back_in_loop(
         &self,
-        state: &mut Option<InLoop>,
+        candidates: &mut Option<Candidates>,
         before: &[Vec3],
         after: &mut [Vec3],
         settings: &SelfSettings,
@@ -287,7 +369,7 @@ impl SelfCollision {
         let mut held = Vec::new();
         let mut touching: Option<Vec<bool>> = None;
         loop {
-            let bad = self.in_loop_crossings(state, before, after, touching.as_deref(), settings, tangles, takes_part)?;
+            let bad = self.in_loop_crossings(candidates, before, after, touching.as_deref(), settings, tangles, takes_part)?;
             if bad.is_empty() {
                 break;
             }
@@ -305,82 +387,60 @@ impl SelfCollision {
     }
 }
 
-impl InLoop {
-    /// Whether pair `k` provably stays farther apart than its separation:
-    /// its sides have strayed from the reference by less, together, than its
-    /// distance there less the separation.
-    fn proves_apart(&self, k: usize, pair: &ElementPair, before: &[Vec3], after: &[Vec3], pass: &Pass<'_>) -> bool {
-        let strayed = |corners: &[u32]| {
-            corners.iter().fold(0.0f32, |m, &v| {
-                let r = self.reference[v as usize];
-                m.max((before[v as usize] - r).length()).max((after[v as usize] - r).length())
-            })
-        };
-        let (a, b) = pair.sides();
-        let room = self.distance[k] - strayed(a) - strayed(b);
-        room as f64 > pass.collision.pair_separation(pair) + pass.params.tolerance + pass.collision.rounding as f64
-    }
-}
-
 impl Pass<'_> {
     fn accept(&self) -> impl Fn(&[u32], &[u32]) -> bool + Sync + '_ {
         move |a: &[u32], b: &[u32]| !self.collision.excluded(a, b) && !(self.tangles.holds(a) && self.tangles.holds(b))
     }
 
-    fn gather(&self, motion: &Motion<'_>, cull: bool) -> Vec<ElementPair> {
+    fn gather(&self, motion: &Motion<'_>) -> Vec<ElementPair> {
         let accept = self.accept();
-        self.collision.gather(motion, self.settings.thickness, cull, self.takes_part, &accept)
+        self.collision.gather(motion, self.settings.thickness, true, self.takes_part, &accept)
     }
 
-    /// Gathers the in-loop candidates again if there are none or a vertex
-    /// strayed beyond its margin; returns whether it did.
-    fn ensure(&self, state: &mut Option<InLoop>, before: &[Vec3], after: &[Vec3]) -> bool {
-        let stale = match state {
-            None => true,
-            Some(s) => (0..before.len()).into_par_iter().with_min_len(4096).any(|v| {
-                let r = s.reference[v];
-                (before[v] - r).length().max((after[v] - r).length()) > s.margin[v]
-            }),
-        };
-        if !stale {
+    /// The candidates of `start → end` with these margins; pairs that
+    /// cannot come within their separation near the end are dropped.
+    fn candidates(&self, start: &[Vec3], end: &[Vec3], margin: Vec<f32>) -> Candidates {
+        let pairs = self.gather(&Motion { start, end, margin: &margin });
+        let distance: Vec<f32> = pairs.par_iter().map(|pair| distance(pair, end)).collect();
+        Candidates { start: start.to_vec(), reference: end.to_vec(), margin, pairs, distance }
+    }
+
+    /// Gathers the in-loop candidates again, around `before`, if a vertex
+    /// strayed beyond them; returns whether it did.
+    fn ensure(&self, candidates: &mut Option<Candidates>, before: &[Vec3], after: &[Vec3]) -> bool {
+        if candidates.as_ref().is_some_and(|c| c.holds(&[before, after])) {
             return false;
         }
-        let thickness = self.settings.thickness;
-        let floor = 0.5 * thickness + 8.0 * self.collision.rounding;
-        let margin: Vec<f32> = before.par_iter().zip(after).map(|(b, a)| 2.0 * (*a - *b).length() + floor).collect();
-        let pairs = self.gather(&Motion { start: before, end: before, margin: &margin }, true);
-        // Pairs that cannot come within their separation while both stay within their margins go.
-        let kept: Vec<(ElementPair, f32)> = pairs
+        // Iterations shrink as a solve converges: four times this one's move
+        // (and at least the last margin) covers most of the ones to come.
+        let floor = self.collision.margin_floor(self.settings);
+        let old = candidates.take().map(|c| c.margin);
+        let margin: Vec<f32> = (0..before.len())
             .into_par_iter()
-            .filter_map(|pair| {
-                let d = distance(&pair, before);
-                let (a, b) = pair.sides();
-                let reach = |corners: &[u32]| corners.iter().map(|&v| margin[v as usize]).fold(0.0f32, f32::max);
-                (d <= thickness + reach(a) + reach(b) + self.collision.rounding).then_some((pair, d))
-            })
+            .with_min_len(4096)
+            .map(|v| (4.0 * (after[v] - before[v]).length()).max(old.as_ref().map_or(0.0, |m| m[v])).max(floor))
             .collect();
-        let (pairs, distance) = kept.into_iter().unzip();
-        *state = Some(InLoop { reference: before.to_vec(), margin, pairs, distance });
+        *candidates = Some(self.candidates(before, before, margin));
         true
     }
 
-    /// One round: the corrections of every pair `active` (touching a moved
-    /// vertex, or all) and not proven apart by `skip`, averaged per vertex.
+    /// One round: the corrections of every pair touching a moved vertex (or
+    /// all) and not proven apart by `skip`, averaged per vertex.
     fn round(
         &self,
         pairs: &[ElementPair],
         start: &[Vec3],
         end: &[Vec3],
         moved: Option<&[bool]>,
-        skip: impl Fn(usize, &ElementPair) -> bool + Sync,
+        skip: impl Fn(usize) -> bool + Sync,
     ) -> (usize, Vec<(u32, Vec3)>) {
-        let found: Vec<(usize, [DVec3; 4])> = pairs
-            .par_iter()
-            .enumerate()
+        let found: Vec<(usize, [DVec3; 4])> = (0..pairs.len())
+            .into_par_iter()
             .with_min_len(256)
-            .filter(|(_, pair)| moved.is_none_or(|m| pair.corners.iter().any(|&v| m[v as usize])))
-            .filter(|&(k, pair)| !skip(k, pair))
-            .filter_map(|(k, pair)| {
+            .filter(|&k| moved.is_none_or(|m| pairs[k].corners.iter().any(|&v| m[v as usize])))
+            .filter(|&k| !skip(k))
+            .filter_map(|k| {
+                let pair = &pairs[k];
                 let separation = self.collision.pair_separation(pair);
                 let hit = first_contact(pair, start, end, separation, self.params.tolerance)?;
                 correction(pair, start, end, &hit, separation, &self.params).map(|c| (k, c))
@@ -404,8 +464,8 @@ impl Pass<'_> {
         (found.len(), changes)
     }
 
-    /// The corners (those `touching`, or all) of `pairs` whose paths may
-    /// cross, leaving out pairs none of whose corners moved.
+    /// The corners (of pairs touching `touching`, or all) of `pairs` whose
+    /// paths may cross, leaving out pairs none of whose corners moved.
     fn crossing_corners(&self, pairs: &[ElementPair], start: &[Vec3], end: &[Vec3], touching: Option<&[bool]>) -> Vec<u32> {
         let moved = |v: u32| start[v as usize] != end[v as usize];
         let mut bad: Vec<u32> = pairs
@@ -427,7 +487,7 @@ impl Pass<'_> {
         let zero = vec![0.0; start.len()];
         let mut held = Vec::new();
         loop {
-            let pairs = self.gather(&Motion { start, end, margin: &zero }, true);
+            let pairs = self.gather(&Motion { start, end, margin: &zero });
             *gathers += 1;
             let bad = self.crossing_corners(&pairs, start, end, None);
             if bad.is_empty() {

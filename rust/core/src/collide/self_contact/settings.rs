@@ -66,6 +66,7 @@ pub struct SelfStats {
     pub max_correction: f32,
 }
 
+#[cfg(test)]
 impl SelfStats {
     pub(crate) fn add(&mut self, other: &SelfStats) {
         self.contacts += other.contacts;

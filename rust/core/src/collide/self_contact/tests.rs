@@ -53,7 +53,7 @@ fn a_sheet_pushed_through_another_stops_on_it_and_both_give_way() {
         p.z -= 0.3 * (1.0 - 2.0 * p.truncate().length()).max(0.0);
     }
     assert!(!audited(&mesh, &end).is_empty(), "the unresolved motion must cross");
-    let stats = collision.resolve_path(&mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None).unwrap();
+    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None).unwrap();
     assert!(stats.contacts > 0);
     assert!(audited(&mesh, &end).is_empty(), "{stats:?}");
     assert!(end.iter().all(|p| p.is_finite()));
@@ -69,7 +69,7 @@ fn pairs_closer_than_the_thickness_at_rest_stay_as_they_are() {
     let mesh = two_sheets(6, 0.004); // closer than the thickness of 0.01
     let collision = bound(&mesh, &SETTINGS);
     let mut end = mesh.positions.clone();
-    let stats = collision.resolve_path(&mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None).unwrap();
+    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None).unwrap();
     assert_eq!(stats.contacts, 0);
     assert_eq!(end, mesh.positions);
     // Moved towards each other they are still kept apart, at a fraction of their rest gap.
@@ -77,7 +77,7 @@ fn pairs_closer_than_the_thickness_at_rest_stay_as_they_are() {
     for p in &mut end[half..] {
         p.z -= 0.01;
     }
-    collision.resolve_path(&mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None).unwrap();
+    collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None).unwrap();
     assert!(audited(&mesh, &end).is_empty());
 }
 
@@ -117,7 +117,7 @@ fn tangled_input_is_left_to_come_apart_and_nothing_else_passes_through() {
             p.z -= 0.3;
         }
     }
-    let stats = collision.resolve_path(&start, &mut end, &SETTINGS, &tangles, None).unwrap();
+    let stats = collision.resolve_path(&mut None, &start, &mut end, &SETTINGS, &tangles, None).unwrap();
     assert!(end.iter().all(|p| p.is_finite()));
     assert!(stats.contacts > 0, "the third sheet must have been stopped");
     let after = audited(&mesh, &end);
@@ -161,7 +161,7 @@ fn the_weights_limit_where_it_applies() {
     let weights: Vec<f32> = (0..mesh.positions.len()).map(|v| if v < half { 1.0 } else { 0.0 }).collect();
     let part = collision.takes_part(Some(&weights)).unwrap();
     let mut free = end.clone();
-    let stats = collision.resolve_path(&mesh.positions, &mut free, &SETTINGS, &Tangles::default(), part.as_deref()).unwrap();
+    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut free, &SETTINGS, &Tangles::default(), part.as_deref()).unwrap();
     assert_eq!((stats.contacts, free == end), (0, true));
     assert!(collision.takes_part(Some(&weights[1..])).is_err());
     let mut bad = weights.clone();
@@ -174,7 +174,7 @@ fn the_in_loop_pass_reuses_its_candidates_and_holds_back_what_it_cannot_clear() 
     let mesh = two_sheets(8, 0.03);
     let collision = bound(&mesh, &SETTINGS);
     let half = mesh.positions.len() / 2;
-    let mut state = None;
+    let mut state: Option<Candidates> = None;
     let mut before = mesh.positions.clone();
     let mut total = SelfStats::default();
     // Ten small steps pressing the upper sheet down onto the lower one.
@@ -220,7 +220,7 @@ proptest! {
                 p.y += shear[25 + j];
             }
         }
-        let stats = collision.resolve_path(&mesh.positions, &mut end, &settings, &Tangles::default(), None).unwrap();
+        let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &settings, &Tangles::default(), None).unwrap();
         prop_assert!(end.iter().all(|p| p.is_finite()));
         prop_assert!(audited(&mesh, &end).is_empty(), "{:?}", stats);
         for (p, s) in end.iter().zip(&mesh.positions) {
