@@ -62,7 +62,9 @@ def run_rows() -> list[dict]:
              row("collide", CORE_SKIN, "bandwidth reference", 0.5), row("collide", CORE_SKIN, "in-loop pass / reference", 200.0, unit="x")]
     rows.append(row("flesh", FLESH, "collisions only", 800.0))
     for k, feature in enumerate(("dynamics", "strain limits (unified)", "strain limits (post)", "compliant collider", "all three")):
-        rows += [row("flesh", FLESH, f"+ {feature}", 810.0 + 10 * k), row("flesh", FLESH, f"added by {feature}", 10.0 + 10 * k)]
+        rows += [row("flesh", FLESH, f"+ {feature}", 810.0 + 10 * k), row("flesh", FLESH, f"added by {feature}", 10.0 + 10 * k),
+                 row("flesh", FLESH, f"+ {feature}: worst stretch (all frames)", 1.1 + 0.01 * k, unit="× rest"),
+                 row("flesh", FLESH, f"+ {feature}: penetrations (all frames, audit)", float(k), unit="")]
     for n in (1024, 2048, 4096):
         case = f"{n}x{n} cylinder 33k verts, 25% rigid"
         scale = (n // 1024) ** 2
@@ -113,7 +115,8 @@ def test_summary_puts_each_comparison_side_by_side():
     assert [line.times_bandwidth for line in warps[::2]] == [50.0, 50.0, 50.0]  # frame ÷ that size's reference
     flesh = [line for line in lines if line.comparison.startswith("flesh")]
     assert [line.ms_per_frame for line in flesh] == [800.0, 810.0, 820.0, 830.0, 840.0, 850.0]
-    assert flesh[4].method == "+ compliant collider" and flesh[4].note == "adds +40 ms"
+    assert flesh[4].method == "+ compliant collider"
+    assert flesh[4].note == "adds +40 ms; worst edge 1.130× rest, 3 penetrations"
     loops = [line for line in lines if line.comparison.startswith("hot loops")]
     assert len(loops) == 6 + 2 + 6
     assert loops[6].times_bandwidth == 200.0 and loops[7].times_bandwidth == 800.0  # in-loop and pass 1 ÷ 0.5 ms

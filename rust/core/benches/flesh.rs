@@ -5,6 +5,10 @@
 //! `Sequence::step` (pyramid solve, both collision passes, and the
 //! feature under test), 10 iterations, 2 threads.
 //!
+//! Every frame is audited (`collide::audit`, which shares no geometry with
+//! the passes) outside the timing; the rows say the worst stretch and the
+//! penetrations over all frames.
+//!
 //! `cargo bench -p tegument-core --bench flesh`; to measure some
 //! configurations only, `TEGUMENT_BENCH_FLESH=compliant,unified` (words of
 //! their names; collisions only, the baseline, always runs) with
@@ -16,8 +20,9 @@ mod common;
 use common::{machine, with_threads, Report};
 use glam::Vec3;
 use tegument_core::mesh::fan_triangles;
-use tegument_core::collide::{Collider, ColliderSettings};
-use tegument_core::mesh::shapes::{grid, quad_sphere};
+use tegument_core::collide::{audit, AuditParams, Collider, ColliderSettings};
+use tegument_core::mesh::MeshInput;
+use tegument_core::mesh::shapes::{grid, quad_sphere, PolyMesh};
 use tegument_core::pyramid::{Closeness, DeformerOptions};
 use tegument_core::sequence::{Dynamics, Sequence, StepOptions, StrainMode, StrainOptions};
 use tegument_core::strain::MaxStretch;
@@ -31,6 +36,22 @@ const RADIUS: f32 = 0.3;
 fn centre(k: usize) -> Vec3 {
     let k = k as f32;
     Vec3::new(-0.3 + 0.04 * (k - 6.0).max(0.0), 0.05, -RADIUS - 0.02 + 0.03 * k.min(6.0))
+}
+
+/// The largest length / rest length over the polygons' edges of `skin` at `x`.
+fn longest_edge(skin: &PolyMesh, x: &[Vec3]) -> f32 {
+    let mut worst = 0.0f32;
+    let mut start = 0;
+    for &size in &skin.polygon_sizes {
+        let corners = &skin.corner_verts[start..start + size as usize];
+        for (k, &a) in corners.iter().enumerate() {
+            let b = corners[(k + 1) % corners.len()];
+            let (a, b) = (a as usize, b as usize);
+            worst = worst.max((x[a] - x[b]).length() / (skin.positions[a] - skin.positions[b]).length());
+        }
+        start += size as usize;
+    }
+    worst
 }
 
 struct Config {
@@ -86,13 +107,28 @@ fn main() {
         }
         let mut times = Vec::new();
         let mut last = None;
+        // Over all frames: the worst stretch (measured here from the
+        // polygons, not by the strain limits' own code) and what the audit
+        // (its own geometry, not the passes') finds.
+        let (mut worst, mut penetrations) = (0.0f32, 0usize);
         with_threads(2, || {
             for k in 1..=FRAMES {
                 collider.update(&at(k)).unwrap();
                 let started = std::time::Instant::now();
-                let (_, step) = deformer.step(&skin.positions, &mut [&mut collider], &config.options).unwrap();
+                let (x, step) = deformer.step(&skin.positions, &mut [&mut collider], &config.options).unwrap();
                 let ms = started.elapsed().as_secs_f64() * 1e3;
-                println!("{:<28} frame {k}: {ms:.0} ms, {} pinched", config.name, step.pinched.len());
+                let found = audit(MeshInput { positions: &x, ..skin.input() }, &[&collider], &AuditParams::default()).unwrap();
+                println!(
+                    "{:<28} frame {k}: {ms:.0} ms, {} pinched, worst stretch {:.4}, audit {} inside {} crossing {} collider edges crossing",
+                    config.name,
+                    step.pinched.len(),
+                    step.worst_stretch,
+                    found.vertices_inside.len(),
+                    found.edges_crossing.len(),
+                    found.collider_edges_crossing.len()
+                );
+                worst = worst.max(longest_edge(&skin, &x));
+                penetrations += found.vertices_inside.len() + found.edges_crossing.len() + found.collider_edges_crossing.len();
                 if k > FRAMES - TIMED {
                     times.push(ms);
                 }
@@ -107,6 +143,8 @@ fn main() {
             step.worst_stretch, step.compliant_skin_vertices, step.max_recession
         );
         report.add(&case, config.name, median, "ms", 2, &note);
+        report.add(&case, &format!("{}: worst stretch (all frames)", config.name), worst as f64, "× rest", 2, "");
+        report.add(&case, &format!("{}: penetrations (all frames, audit)", config.name), penetrations as f64, "", 2, "vertices inside, skin and collider edges crossing");
         match baseline {
             None => baseline = Some(median),
             Some(base) => report.add(&case, &format!("added by {}", config.name.trim_start_matches("+ ")), median - base, "ms", 2, ""),

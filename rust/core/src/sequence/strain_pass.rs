@@ -26,16 +26,24 @@ pub(super) const STRAIN_SWEEPS: usize = 16;
 /// took 18 s per frame on the 100k-vertex benchmark scene).
 pub(super) const STRAIN_ROUNDS: usize = 16;
 pub(super) const STRAIN_ROUNDS_EARLY: usize = 2;
-/// Sweeps per level of the multilevel projection ([`Hierarchy`]) that opens
-/// the last iteration's rounds. Issue 29's 100k-vertex flesh benchmark (a
-/// sphere tenting a sheet at closeness 0.1: the cap on the sphere stretched
-/// 2.5× by the solve, the material it needs drawn from a ring some 20 edges
-/// wide) ends at 1.24× the rest length with it (limit 1.1; 1.35 without),
-/// for 18–42 % more time a frame (647 → 765 ms alone, 640 → 906 ms in
-/// `make bench`); 16 sweeps, 1.23. Running it in every round of every
-/// iteration reached 1.12 but cost 2.6 times as much: the contact passes
-/// after its large moves find many more contacts to resolve.
+/// The last iteration's rounds open with cycles of the multilevel
+/// projection ([`Hierarchy`]) and over-relaxed sweeps, at most this many a
+/// round. Issue 29's 100k-vertex flesh benchmark (a sphere tenting a sheet
+/// at closeness 0.1: the solve stretches the cap on the sphere 2.3–2.5×,
+/// and the material it needs is drawn from a band some 50 edges wide, every
+/// edge of it at its limit) ends its frames at 1.106–1.108 × the rest length
+/// (limit 1.1, promise 1.111) with 4 cycles in every round; with one cycle
+/// of rigid blocks in the first round only, as before, at 1.24; with 2
+/// cycles, 1.112–1.113; with 8 cycles and no over-relaxation, 1.106–1.108
+/// for more time.
+pub(super) const MULTILEVEL_CYCLES: usize = 4;
+/// Sweeps per level of a multilevel cycle.
 pub(super) const MULTILEVEL_SWEEPS: usize = 4;
+/// Over-relaxation of the sweeps after a multilevel cycle
+/// ([`EdgeLimits::project_relaxed`]): on the flesh benchmark 1.6 took the
+/// worst edge from 1.110–1.112 to 1.106–1.108 at 4 cycles for the same CPU
+/// time; 1.8 at 2 cycles diverged (1.27).
+pub(super) const OVER_RELAXATION: f32 = 1.6;
 /// Relative excess over an edge's limit that counts as holding.
 pub(super) const STRAIN_TOLERANCE: f32 = 1e-3;
 /// Sweeps of the post-collision strain pass (one long projection, as many
@@ -44,9 +52,10 @@ pub(super) const POST_STRAIN_SWEEPS: usize = 128;
 
 /// Unified strain limiting (seed 002 §2): edge shortening and contact
 /// resolution alternate until both hold or the rounds run out. Returns the
-/// vertices the last contact resolution left pinched. With `levels`, the
-/// first round's shortening starts with the multilevel projection, which
-/// draws material from far away in few sweeps.
+/// vertices the last contact resolution left pinched. With `levels`, every
+/// round's shortening runs cycles of the multilevel projection, which draws
+/// material from far away, each followed by over-relaxed sweeps, all of
+/// them keeping the contacts on their planes.
 ///
 /// Friction is capped by the limits (issue 29). The contact resolution of a
 /// round resolves the strain projection's moves **without friction**: where
@@ -86,15 +95,27 @@ pub(super) fn limit_strain_with_contacts(
     let mut pinched = Vec::new();
     // Per vertex, the plane of its last push out of a collider (zero normal: none).
     let mut above: Vec<(Vec3, f32)> = Vec::new();
-    for round in 0..rounds {
+    for _ in 0..rounds {
         if limits.worst_ratio(x) <= 1.0 + STRAIN_TOLERANCE {
             break;
         }
         let mut shortened = x.to_vec();
-        if let (Some(levels), 0) = (levels, round) {
-            levels.project(&mut shortened, inverse_mass, MULTILEVEL_SWEEPS);
+        match levels {
+            // Cycles of the levels and over-relaxed sweeps, until the limits
+            // hold or the cycles run out; the planes keep contacts sliding.
+            Some(levels) => {
+                for _ in 0..MULTILEVEL_CYCLES {
+                    levels.project(&mut shortened, inverse_mass, &above, MULTILEVEL_SWEEPS);
+                    limits.project_relaxed(&mut shortened, inverse_mass, &above, STRAIN_SWEEPS, STRAIN_TOLERANCE, OVER_RELAXATION);
+                    if limits.worst_ratio(&shortened) <= 1.0 + STRAIN_TOLERANCE {
+                        break;
+                    }
+                }
+            }
+            None => {
+                limits.project_above(&mut shortened, inverse_mass, &above, STRAIN_SWEEPS, STRAIN_TOLERANCE);
+            }
         }
-        limits.project_above(&mut shortened, inverse_mass, &above, STRAIN_SWEEPS, STRAIN_TOLERANCE);
         if !set.colliders().is_empty() {
             let projected = shortened.clone();
             let stats = set.resolve_path_with(x, &mut shortened, skin, &params, clearance)?;
