@@ -31,6 +31,7 @@ import scene
 
 FRAMES = 12
 BEND_DEGREES = 150.0
+SPIKE_ROUNDING = 1e-3  # in mean ring edge lengths (the spike measure's unit)
 
 
 def bent_tube(tmp_path, name: str = "Limb"):
@@ -98,7 +99,9 @@ def test_a_tube_bent_150_degrees_never_passes_through_itself(tmp_path):
     assert found == [0] * FRAMES, found
     for frame, (ours, given) in enumerate(zip(with_self, inputs), start=1):
         spike, input_spike = (float(np.nanmax(measures.spike_measure(x, rest, corners, sizes))) for x in (ours, given))
-        assert spike <= input_spike, f"frame {frame}: spike max {spike:.3f} above the skinning input's {input_spike:.3f}"
+        # Frame 1 is the rest pose, where both are float32 round-off (~1e-7 of a ring edge): a
+        # thousandth of a ring edge is round-off, far below any visible spike.
+        assert spike <= input_spike + SPIKE_ROUNDING, f"frame {frame}: spike max {spike:.3f} above the skinning input's {input_spike:.3f}"
     figures = limb.tegument.self_collision
     assert figures.contacts > 0 and figures.intersections == 0
     print(f"\n[tube 150°] self contacts {figures.contacts}, held {figures.held}; "
@@ -119,7 +122,7 @@ def test_the_settings_are_saved_and_a_headless_bake_carries_them(tmp_path):
     settings.frame_start, settings.frame_end = 1, FRAMES
     path = tmp_path / "saved.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(path))
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    limb.tegument.self_collision.enabled = False  # what the file holds must come back, not this session's
     bpy.ops.wm.open_mainfile(filepath=str(path))
     limb = bpy.data.objects["Limb"]
     saved = limb.tegument.self_collision

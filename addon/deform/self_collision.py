@@ -13,8 +13,6 @@ import bpy
 import tegument
 from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
 
-from .evaluate import DeformError, group_weights
-
 _DEFAULTS = tegument.DEFAULTS
 
 
@@ -56,8 +54,14 @@ class TEGUMENT_PG_self_collision(bpy.types.PropertyGroup):
     )
 
 
-def step_option(obj) -> tegument.SelfCollision | None:
+def step_option(obj) -> "tegument.SelfCollision | None":
     """The ``self_collision`` argument of ``PyramidDeformer.step`` for ``obj``, or None when off."""
+    # Imported here: evaluate imports properties, which imports this module; and the
+    # SelfCollision must come from the same tegument as the deformer (bake.py imports it lazily).
+    import tegument
+
+    from . import evaluate
+
     settings = obj.tegument.self_collision
     if not settings.enabled:
         return None
@@ -65,13 +69,13 @@ def step_option(obj) -> tegument.SelfCollision | None:
     if settings.group:
         group = obj.vertex_groups.get(settings.group)
         if group is None:
-            raise DeformError(f"{obj.name}: the self-collision vertex group \"{settings.group}\" does not exist")
-        weights = group_weights(obj, group)
+            raise evaluate.DeformError(f"{obj.name}: the self-collision vertex group \"{settings.group}\" does not exist")
+        weights = evaluate.group_weights(obj, group)
     try:
         return tegument.SelfCollision(thickness=settings.thickness, friction=settings.friction,
                                       kinetic_friction=0.75 * settings.friction, rings=settings.rings, weights=weights)
     except tegument.TegumentError as error:
-        raise DeformError(f"{obj.name}: {error}") from None
+        raise evaluate.DeformError(f"{obj.name}: {error}") from None
 
 
 class BakeFigures:
