@@ -292,26 +292,10 @@ def character(bpy, np, rows, threads, workdir) -> None:
         skinning = evaluate(last)
 
         def corrective_smooth():
-            """Corrective Smooth's frames and its shape at the pose's last frame, with any
-            Tegument modifier left out of the stack."""
-            # Bound at the rest frame rather than ORCO: ORCO is the mesh's own 13k vertices, which a
-            # Subdivision Surface above Corrective Smooth no longer has.
-            tegument_modifier = bake.evaluate.tegument_modifier(obj)
-            if tegument_modifier is not None:
-                tegument_modifier.show_viewport = False
-            scene.frame_set(character_demo.POSE_FRAMES[0])
-            smooth = obj.modifiers.new("CorrectiveSmooth", "CORRECTIVE_SMOOTH")
-            smooth.iterations = 10
-            smooth.rest_source = "BIND"
-            bpy.context.view_layer.objects.active = obj
-            with bpy.context.temp_override(object=obj, active_object=obj):
-                assert bpy.ops.object.correctivesmooth_bind(modifier=smooth.name) == {"FINISHED"}
-            times = frame_times(scene, frames, evaluate)
-            shape = evaluate(last)
-            obj.modifiers.remove(smooth)
-            if tegument_modifier is not None:
-                tegument_modifier.show_viewport = True
-            return times, shape
+            """Corrective Smooth's frames and its shape at the pose's last frame."""
+            with character_demo.corrective_smooth(obj):
+                times = frame_times(scene, frames, evaluate)
+                return times, evaluate(last)
 
         # Corrective Smooth before and after Tegument's bake, so that both are measured over the
         # same minutes (this host's second core comes and goes).
@@ -354,8 +338,8 @@ def character(bpy, np, rows, threads, workdir) -> None:
 def self_collision(bpy, np, rows, threads, workdir) -> None:
     """Issue 30 on the hard-posed MakeHuman character (OBJ, welded): the bake frame without and with
     Self Collision in the same run, and at every frame of the pose the self-intersecting face pairs
-    the rest pose does not have (demo/measures.py, Blender's BVHTree), for skinning and Pyramid Deform
-    without and with Self Collision; the whole-pose counts of the last frame beside them."""
+    the rest pose does not have (demo/measures.py, Blender's BVHTree), for skinning, Corrective
+    Smooth and Pyramid Deform without and with Self Collision."""
     import character as makehuman
     import character_demo
     import measures
@@ -374,30 +358,29 @@ def self_collision(bpy, np, rows, threads, workdir) -> None:
     case = f"MakeHuman character (OBJ, welded), {len(rest) / 1000:.1f}k vertices, Self Collision"
     at_rest = measures.self_intersection_pairs(rest, corners, sizes, groups)
     first, last = character_demo.POSE_FRAMES
-    caches, times = {}, {}
-    for label, on in (("without", False), ("with", True)):
-        bake = character_demo.add_and_bake(obj, f"//self-{label}.pc2", self_collision=on) if label == "without" else None
-        if on:
-            obj.tegument.self_collision.enabled = True
-            obj.tegument.cache_path = "//self-with.pc2"
-            started = time.perf_counter()
-            assert bpy.ops.tegument.bake() == {"FINISHED"}
-            times[label] = 1000 * (time.perf_counter() - started) / (last - first + 1)
-        else:
-            times[label] = bake["ms_per_frame_wall"]
-        caches[label] = character_demo.read_cache(obj)
+    pose = range(first, last + 1)
+    shapes = {"skinning": [character_demo.upstream_local(obj, frame) for frame in pose]}
+    with character_demo.corrective_smooth(obj):
+        shapes["Corrective Smooth"] = [character_demo.upstream_local(obj, frame) for frame in pose]
+    # Without, then with: the same object, bind and frames; the wall time of the Bake operator.
+    times = {}
+    bake = character_demo.add_and_bake(obj, "//self-without.pc2")
+    times["without"] = bake["ms_per_frame_wall"]
+    shapes["Pyramid Deform"] = list(character_demo.read_cache(obj))
+    obj.tegument.self_collision.enabled = True
+    obj.tegument.cache_path = "//self-with.pc2"
+    started = time.perf_counter()
+    assert bpy.ops.tegument.bake() == {"FINISHED"}
+    times["with"] = 1000 * (time.perf_counter() - started) / len(pose)
+    shapes["Pyramid Deform + Self Collision"] = list(character_demo.read_cache(obj))
     rows.add(case, "bake frame without Self Collision", times["without"], "ms", threads, "wall time of the Bake operator per frame")
     rows.add(case, "bake frame with Self Collision", times["with"], "ms", threads, "wall time of the Bake operator per frame")
     rows.add(case, "with / without", times["with"] / times["without"], "x", threads, "target <= 2")
     rows.add(case, "rest: self-intersecting pairs", len(at_rest), "", threads, "overlapping shells of the asset")
-    new = {"skinning": 0, "without": 0, "with": 0}
-    for frame in range(first, last + 1):
-        shapes = {"skinning": character_demo.upstream_local(obj, frame),
-                  "without": caches["without"][frame - first], "with": caches["with"][frame - first]}
-        for label, positions in shapes.items():
-            new[label] = max(new[label], len(measures.self_intersection_pairs(positions, corners, sizes, groups) - at_rest))
-    for label, name in (("skinning", "skinning"), ("without", "Pyramid Deform"), ("with", "Pyramid Deform + Self Collision")):
-        rows.add(case, f"{name}: pairs the rest pose does not have", new[label], "", threads, "worst frame of the pose")
+    for name, frames in shapes.items():
+        found = [measures.self_intersection_pairs(x, corners, sizes, groups) for x in frames]
+        rows.add(case, f"{name}: pairs the rest pose does not have", max(len(f - at_rest) for f in found), "", threads, "worst frame of the pose")
+        rows.add(case, f"{name}: self-intersecting pairs", len(found[-1]), "", threads, f"frame {last}, the rest pose's included")
     rows.add(case, "Self Collision: contacts (all frames)", obj.tegument.self_collision.contacts, "", threads)
     rows.add(case, "Self Collision: held (all frames)", obj.tegument.self_collision.held, "", threads)
 

@@ -18,6 +18,7 @@ disc with a hole. :func:`figures` measures skinning (the input) against Tegument
 
 from __future__ import annotations
 
+import contextlib
 import math
 import pathlib
 import time
@@ -177,6 +178,31 @@ def upstream_local(obj, frame: int) -> np.ndarray:
         if modifier:
             modifier.show_viewport = shown
     return positions.reshape(-1, 3)
+
+
+@contextlib.contextmanager
+def corrective_smooth(obj):
+    """Blender's Corrective Smooth (10 iterations) at the end of ``obj``'s stack, bound at the
+    pose's rest frame, with any Tegument modifier hidden meanwhile: the stack the comparisons
+    call "Corrective Smooth". Bound at the rest frame rather than ORCO: ORCO is the mesh's own
+    vertices, which a Subdivision Surface above Corrective Smooth no longer has."""
+    tegument_modifier = obj.modifiers.get("Tegument")
+    if tegument_modifier is not None:
+        tegument_modifier.show_viewport = False
+    bpy.context.scene.frame_set(POSE_FRAMES[0])
+    smooth = obj.modifiers.new("CorrectiveSmooth", "CORRECTIVE_SMOOTH")
+    try:
+        smooth.iterations = 10
+        smooth.rest_source = "BIND"
+        bpy.context.view_layer.objects.active = obj
+        with bpy.context.temp_override(object=obj, active_object=obj):
+            if bpy.ops.object.correctivesmooth_bind(modifier=smooth.name) != {"FINISHED"}:
+                raise RuntimeError(f"Corrective Smooth did not bind on {obj.name}")
+        yield smooth
+    finally:
+        obj.modifiers.remove(smooth)
+        if tegument_modifier is not None:
+            tegument_modifier.show_viewport = True
 
 
 def topology(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
