@@ -26,6 +26,7 @@ import pytest
 from conftest import shared_data
 from test_pyramid_deform import read_pc2
 
+import character_demo  # upstream_local: the stack above Tegument (the skinning input)
 import measures
 import scene
 
@@ -52,21 +53,6 @@ def topology(obj):
     return rest, corners, sizes
 
 
-def skinning(obj, frame: int) -> np.ndarray:
-    """The stack above Tegument at ``frame`` (the armature's output), read with Tegument hidden."""
-    modifier = obj.modifiers.get("Tegument")
-    shown = modifier.show_viewport if modifier else False
-    if modifier:
-        modifier.show_viewport = False
-    try:
-        bpy.context.scene.frame_set(frame)
-        evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
-        return np.array([v.co[:] for v in evaluated.data.vertices], dtype=np.float64)
-    finally:
-        if modifier:
-            modifier.show_viewport = shown
-
-
 def bake(obj, *, self_collision: bool, cache: str) -> np.ndarray:
     bpy.ops.object.select_all(action="DESELECT")
     obj.select_set(True)
@@ -86,7 +72,7 @@ def bake(obj, *, self_collision: bool, cache: str) -> np.ndarray:
 def test_a_tube_bent_150_degrees_never_passes_through_itself(tmp_path):
     limb = bent_tube(tmp_path)
     rest, corners, sizes = topology(limb)
-    inputs = [skinning(limb, frame) for frame in range(1, FRAMES + 1)]
+    inputs = [character_demo.upstream_local(limb, frame) for frame in range(1, FRAMES + 1)]
     assert measures.self_intersections(inputs[-1], corners, sizes) > 0, "the skinning input must fold through itself"
 
     without = bake(limb, self_collision=False, cache="//without.pc2")
@@ -171,8 +157,6 @@ def test_the_panel_is_a_sub_panel_of_tegument_on_the_modifier_tab():
 
 def test_the_hard_posed_character_gets_no_intersection_its_rest_pose_does_not_have(tmp_path):
     shared_data("makehuman")
-    import character_demo
-
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "character.blend"))
     obj, _ = character_demo.build("obj", tmp_path)
     bind = character_demo.add_and_bake(obj, "//self.pc2", self_collision=True)

@@ -34,14 +34,20 @@ pub(super) struct SelfPass {
     margin: Vec<f32>,
     /// The candidates of the current substep, for its first and in-loop passes.
     candidates: Option<Candidates>,
+    /// Where the last first pass ended: the in-loop passes' candidates are
+    /// gathered around it.
+    first_end: Option<Vec<Vec3>>,
 }
 
-/// The tangles of the last output, with what they were found under.
+/// The tangles of the last output, with what they were found under, and
+/// how far the last frame's solve moved the skin from where its first pass
+/// ended.
 #[derive(Debug, Clone)]
 pub(super) struct KeptTangles {
     rings: u32,
     takes_part: Option<Vec<bool>>,
     tangles: Tangles,
+    drift: Vec<f32>,
 }
 
 impl Sequence {
@@ -59,18 +65,24 @@ impl Sequence {
         let collision = self.self_collision.as_mut().expect("just made");
         collision.prepare(&options.settings)?;
         let takes_part = collision.takes_part(options.weights)?;
-        let kept = self.self_tangles.take().filter(|k| k.rings == options.settings.rings && k.takes_part == takes_part);
-        let tangles = match kept {
-            Some(k) => k.tangles,
-            None => Tangles::at(collision, start, &options.settings, takes_part.as_deref())?.0,
-        };
-        let margin = match (&self.history, &self.last_input) {
-            (Some(output), Some(input)) if output.len() == start.len() && input.len() == start.len() => {
+        let kept = self.self_tangles.take();
+        // The margins cover how far the solve takes the skin from where the
+        // first pass leaves it: twice last frame's. Not from the input: where
+        // the input folds through itself the output stays far from it, and
+        // margins that wide would pair up the whole fold.
+        let margin = match (&kept, &self.history, &self.last_input) {
+            (Some(k), _, _) if k.drift.len() == start.len() => k.drift.iter().map(|d| 2.0 * d).collect(),
+            (_, Some(output), Some(input)) if output.len() == start.len() && input.len() == start.len() => {
                 output.iter().zip(input).map(|(o, i)| 2.0 * (*o - *i).length()).collect()
             }
             _ => vec![0.0; start.len()],
         };
-        Ok(Some(SelfPass { settings: options.settings, takes_part, tangles, margin, candidates: None }))
+        let kept = kept.filter(|k| k.rings == options.settings.rings && k.takes_part == takes_part);
+        let tangles = match kept {
+            Some(k) => k.tangles,
+            None => Tangles::at(collision, start, &options.settings, takes_part.as_deref())?.0,
+        };
+        Ok(Some(SelfPass { settings: options.settings, takes_part, tangles, margin, candidates: None, first_end: None }))
     }
 
     /// Counts the output's intersections into the report and keeps them as
@@ -86,7 +98,11 @@ impl Sequence {
         report.self_tangled = pass.tangles.vertex_count();
         report.self_pinched.sort_unstable();
         report.self_pinched.dedup();
-        self.self_tangles = Some(KeptTangles { rings: pass.settings.rings, tangles, takes_part: pass.takes_part });
+        let drift = match &pass.first_end {
+            Some(end) if end.len() == output.len() => output.iter().zip(end).map(|(o, e)| (*o - *e).length()).collect(),
+            _ => Vec::new(),
+        };
+        self.self_tangles = Some(KeptTangles { rings: pass.settings.rings, tangles, takes_part: pass.takes_part, drift });
         Ok(())
     }
 }
@@ -106,6 +122,7 @@ pub(super) fn first_pass(
     let part = pass.takes_part.as_deref();
     pass.candidates = Some(collision.candidates(x_n, x, &pass.margin, &pass.settings, &pass.tangles, part)?);
     let stats = collision.resolve_path(&mut pass.candidates, x_n, x, &pass.settings, &pass.tangles, part)?;
+    pass.first_end = Some(x.to_vec());
     report.self_contacts += stats.contacts;
     report.self_held += stats.held.len();
     if colliders.is_empty() || (stats.contacts == 0 && stats.held.is_empty()) {
