@@ -159,6 +159,7 @@ fn triangle_cone(motion: &Motion<'_>, t: [u32; 3]) -> Cone {
     let Some(u) = (n0 + nm + n1).try_normalize() else { return Cone::WIDE };
     let h = n0.dot(u).min(nm.dot(u)).min(n1.dot(u));
     let scale = n0.length() + n1.length() + nm.length();
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // a NaN height must give the wide cone
     if !(h > 1e-5 * scale) {
         return Cone::WIDE;
     }
@@ -167,6 +168,7 @@ fn triangle_cone(motion: &Motion<'_>, t: [u32; 3]) -> Cone {
     if m > 0.0 {
         let lengths = e1s.length().max(e1e.length()) + e2s.length().max(e2e.length());
         let x = (2.0 * m * lengths + 4.0 * m * m) / h;
+        #[allow(clippy::neg_cmp_op_on_partial_ord)] // a NaN widening must give the wide cone
         if !(x < 0.99) {
             return Cone::WIDE;
         }

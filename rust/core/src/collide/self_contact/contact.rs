@@ -107,6 +107,7 @@ pub(super) fn correction(pair: &ElementPair, start: &[Vec3], end: &[Vec3], hit: 
     }
     let depth = separation + params.slack - distance;
     let norm: f64 = g.iter().map(|w| w * w).sum();
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // a NaN norm must give no correction
     if !(norm > 1e-12) {
         return None;
     }

@@ -389,7 +389,7 @@ impl SelfCollision {
 
 impl Pass<'_> {
     fn accept(&self) -> impl Fn(&[u32], &[u32]) -> bool + Sync + '_ {
-        move |a: &[u32], b: &[u32]| !self.collision.excluded(a, b) && !(self.tangles.holds(a) && self.tangles.holds(b))
+        move |a: &[u32], b: &[u32]| !self.collision.excluded(a, b) && (!self.tangles.holds(a) || !self.tangles.holds(b))
     }
 
     fn gather(&self, motion: &Motion<'_>) -> Vec<ElementPair> {
