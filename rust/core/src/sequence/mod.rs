@@ -45,18 +45,20 @@
 //!
 //! Files: [`seams`] (the public boundary, in the mesh's vertices), [`step`]
 //! (the frame and its substeps), [`options`] (what a step is asked and
-//! reports), [`dynamics`], [`compliance`], [`strain_pass`].
+//! reports), [`dynamics`], [`compliance`], [`strain_pass`], [`self_pass`]
+//! (the skin's contact with itself, with the colliders).
 
 pub mod compliance;
 pub mod dynamics;
 pub mod options;
 mod seams;
+mod self_pass;
 mod step;
 mod strain_pass;
 
 use glam::Vec3;
 
-use crate::collide::{Collider, Skin};
+use crate::collide::{Collider, SelfCollision, Skin};
 use crate::mesh::{polygon_edges, MeshInput, Weld, SLIVER_RATIO, WELD_TOLERANCE};
 use crate::pyramid::{DeformerOptions, PyramidDeformer};
 use crate::solve::ConstraintId;
@@ -64,8 +66,9 @@ use crate::strain::Hierarchy;
 use crate::Result;
 
 pub use dynamics::{Dynamics, MAX_SUBSTEPS, STIFFNESS_DENSITY};
-pub use options::{StepOptions, StepReport, StrainMode, StrainOptions};
+pub use options::{SelfOptions, StepOptions, StepReport, StrainMode, StrainOptions};
 
+use self_pass::KeptTangles;
 use step::CarriedPlanes;
 
 /// A bound mesh and the state of the sequence of frames being solved.
@@ -108,6 +111,10 @@ pub struct Sequence {
     /// The multilevel blocks of the unified strain pass, built on the first
     /// step that needs them and kept while the limits stay the same.
     strain_levels: Option<Hierarchy>,
+    /// Self-collision's bind, made on the first step that asks for it.
+    self_collision: Option<SelfCollision>,
+    /// The last output's self-intersections: the next frame's tangles.
+    self_tangles: Option<KeptTangles>,
 }
 
 impl Sequence {
@@ -157,6 +164,8 @@ impl Sequence {
             skin_collider: None,
             carried_planes: None,
             strain_levels: None,
+            self_collision: None,
+            self_tangles: None,
         }
     }
 
@@ -179,6 +188,7 @@ impl Sequence {
         self.history = None;
         self.velocity = None;
         self.last_input = None;
+        self.self_tangles = None;
     }
 }
 
@@ -207,3 +217,5 @@ mod tests;
 mod seam_tests;
 #[cfg(test)]
 mod irregular_tests;
+#[cfg(test)]
+mod self_tests;
