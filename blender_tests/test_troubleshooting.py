@@ -30,6 +30,10 @@ INTERNAL = {
     "lists vertex": "solver constraint rows are built by the core itself",
     "symbolic Cholesky analysis of the global matrix failed": "the linearised (Cholesky) formulation is not in the wheel",
     "the Cholesky factor of a": "the linearised (Cholesky) formulation is not in the wheel",
+    "rest positions given for a skin of": "self-collision is bound by the sequence from its own skin and rest",
+    "self-collision is not prepared for these settings": "the sequence prepares self-collision before every pass",
+    "the triangles taking part are of another skin": "the sequence takes the triangles taking part from its own skin",
+    "self-collision margins": "the sequence makes the margins for its own skin",
 }
 
 

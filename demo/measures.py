@@ -9,8 +9,9 @@ Pyramid Deform on the same frames. Plain numpy on the mesh's own arrays, plus Bl
   a spike or a tear shows as a large value.
 - :func:`coincident_groups` and :func:`seam_gap`: vertices that coincide at rest (split seams of
   glTF, FBX and USD imports) and how far apart they end up.
-- :func:`self_intersections`: pairs of faces that intersect although they share no vertex
-  (vertices coincident at rest count as shared, so a closed split seam is not an intersection).
+- :func:`self_intersection_pairs` (and their count, :func:`self_intersections`): pairs of faces
+  that intersect although they share no vertex (vertices coincident at rest count as shared, so a
+  closed split seam is not an intersection).
 - :func:`convergence_error` and :func:`worst_moving`: issue 28's convergence error of a solve
   against the same solve run to a standstill, and its worst over the frames of a pose that move.
 """
@@ -109,10 +110,11 @@ def seam_gap(positions: np.ndarray, groups: np.ndarray) -> float:
     return float(np.linalg.norm(positions[split] - positions[groups[split]], axis=1).max())
 
 
-def self_intersections(positions: np.ndarray, corner_verts: np.ndarray, polygon_sizes: np.ndarray,
-                       groups: np.ndarray | None = None) -> int:
-    """Pairs of polygons that intersect and share no vertex (``groups``, e.g. from
-    :func:`coincident_groups`, makes vertices coincident at rest count as shared).
+def self_intersection_pairs(positions: np.ndarray, corner_verts: np.ndarray, polygon_sizes: np.ndarray,
+                            groups: np.ndarray | None = None) -> set[tuple[int, int]]:
+    """Pairs ``(i, j)``, ``i < j``, of polygons that intersect and share no vertex (``groups``, e.g.
+    from :func:`coincident_groups`, makes vertices coincident at rest count as shared, so a closed
+    split seam is not an intersection).
 
     Blender's ``BVHTree.overlap`` of the mesh with itself decides intersection.
     """
@@ -125,7 +127,13 @@ def self_intersections(positions: np.ndarray, corner_verts: np.ndarray, polygon_
     tree = BVHTree.FromPolygons(np.asarray(positions, dtype=np.float64).tolist(), polygons, all_triangles=False, epsilon=0.0)
     shared_id = np.asarray(groups if groups is not None else np.arange(int(corner_verts.max(initial=-1)) + 1))
     sets = [frozenset(shared_id[p].tolist()) for p in polygons]
-    return sum(1 for i, j in tree.overlap(tree) if i < j and not (sets[i] & sets[j]))
+    return {(i, j) for i, j in tree.overlap(tree) if i < j and not (sets[i] & sets[j])}
+
+
+def self_intersections(positions: np.ndarray, corner_verts: np.ndarray, polygon_sizes: np.ndarray,
+                       groups: np.ndarray | None = None) -> int:
+    """How many :func:`self_intersection_pairs` there are."""
+    return len(self_intersection_pairs(positions, corner_verts, polygon_sizes, groups))
 
 
 # ------------------------------------------------------------------------- convergence (issue 28)

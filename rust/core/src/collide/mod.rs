@@ -24,10 +24,13 @@
 //!   shows the intended use in seed 000's Algorithm 2.
 //! * [`skin`]: the skin's vertices, edges and triangles as the passes test
 //!   them.
+//! * [`self_contact`]: the skin against itself, in the same two passes.
 //! * [`audit`]: penetration audit (vertices inside closed colliders, edges
-//!   crossing in both directions), independent of the solver.
+//!   crossing in both directions), independent of the solver;
+//!   [`audit_self`] its count of the skin's self-intersections.
 
 pub mod audit;
+pub mod audit_self;
 pub mod bvh;
 pub mod ccd;
 pub mod clearance;
@@ -37,16 +40,19 @@ pub mod inside;
 pub mod planes;
 pub mod proximity;
 pub mod response;
+pub mod self_contact;
 pub mod skin;
 mod slab;
 
 pub use audit::{audit, AuditParams, AuditReport};
+pub use audit_self::self_intersections;
 pub use bvh::{BoxTree, Bounds, UpdateReport};
 pub use ccd::{CcdHit, CcdParams};
 pub use clearance::{Clearance, Unproven};
 pub use collider::{Collider, ColliderSettings, Compliance, SurfacePoint};
 pub use inside::is_inside;
 pub use response::{ColliderMotion, ColliderSet, ContactStats, ResolveParams};
+pub use self_contact::{Candidates, SelfCollision, SelfSettings, SelfStats, Tangles};
 pub use skin::Skin;
 
 #[cfg(test)]

@@ -45,18 +45,20 @@
 //!
 //! Files: [`seams`] (the public boundary, in the mesh's vertices), [`step`]
 //! (the frame and its substeps), [`options`] (what a step is asked and
-//! reports), [`dynamics`], [`compliance`], [`strain_pass`].
+//! reports), [`dynamics`], [`compliance`], [`strain_pass`], [`self_pass`]
+//! (the skin's contact with itself, with the colliders).
 
 pub mod compliance;
 pub mod dynamics;
 pub mod options;
 mod seams;
+mod self_pass;
 mod step;
 mod strain_pass;
 
 use glam::Vec3;
 
-use crate::collide::{Collider, Skin};
+use crate::collide::{Collider, SelfCollision, Skin};
 use crate::mesh::{polygon_edges, MeshInput, Weld, SLIVER_RATIO, WELD_TOLERANCE};
 use crate::pyramid::{DeformerOptions, PyramidDeformer};
 use crate::solve::ConstraintId;
@@ -64,8 +66,9 @@ use crate::strain::{EdgeForces, Hierarchy};
 use crate::Result;
 
 pub use dynamics::{Dynamics, MAX_SUBSTEPS, STIFFNESS_DENSITY};
-pub use options::{StepOptions, StepReport, StrainMode, StrainOptions};
+pub use options::{SelfOptions, StepOptions, StepReport, StrainMode, StrainOptions};
 
+use self_pass::KeptTangles;
 use step::CarriedPlanes;
 
 /// A bound mesh and the state of the sequence of frames being solved.
@@ -111,6 +114,10 @@ pub struct Sequence {
     /// The strain limits' forces at the end of the last step (see
     /// [`EdgeForces`]), where the next one starts from.
     strain_forces: Option<EdgeForces>,
+    /// Self-collision's bind, made on the first step that asks for it.
+    self_collision: Option<SelfCollision>,
+    /// The last output's self-intersections: the next frame's tangles.
+    self_tangles: Option<KeptTangles>,
 }
 
 impl Sequence {
@@ -161,6 +168,8 @@ impl Sequence {
             carried_planes: None,
             strain_levels: None,
             strain_forces: None,
+            self_collision: None,
+            self_tangles: None,
         }
     }
 
@@ -184,6 +193,7 @@ impl Sequence {
         self.velocity = None;
         self.last_input = None;
         self.strain_forces = None;
+        self.self_tangles = None;
     }
 }
 
@@ -212,3 +222,5 @@ mod tests;
 mod seam_tests;
 #[cfg(test)]
 mod irregular_tests;
+#[cfg(test)]
+mod self_tests;

@@ -1,7 +1,7 @@
 //! What a step is asked to do, and what it reports.
 
 use super::dynamics::Dynamics;
-use crate::collide::ContactStats;
+use crate::collide::{ContactStats, SelfSettings};
 use crate::pyramid::Closeness;
 use crate::strain::MaxStretch;
 
@@ -34,6 +34,15 @@ pub struct StrainOptions<'a> {
     pub mode: StrainMode,
 }
 
+/// Self-collision of a step: its settings, and where it applies.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct SelfOptions<'a> {
+    pub settings: SelfSettings,
+    /// Per vertex: a triangle with a corner weighted above 0 takes part, and
+    /// a pair is tested when both its triangles do (None: everywhere).
+    pub weights: Option<&'a [f32]>,
+}
+
 /// Everything one [`super::Sequence::step`] is asked to do.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StepOptions<'a> {
@@ -45,11 +54,13 @@ pub struct StepOptions<'a> {
     pub substeps: usize,
     pub dynamics: Option<Dynamics>,
     pub strain: Option<StrainOptions<'a>>,
+    /// The skin's contact with itself ([`super::self_pass`]).
+    pub self_collision: Option<SelfOptions<'a>>,
 }
 
 impl Default for StepOptions<'_> {
     fn default() -> Self {
-        StepOptions { iterations: 10, closeness: Closeness::Default, substeps: 1, dynamics: None, strain: None }
+        StepOptions { iterations: 10, closeness: Closeness::Default, substeps: 1, dynamics: None, strain: None, self_collision: None }
     }
 }
 
@@ -88,6 +99,21 @@ pub struct StepReport {
     /// still back where the pass started (over all passes and iterations):
     /// contacts that held instead of pinching.
     pub held: usize,
+    /// Self-contacts projected by the first and in-loop passes.
+    pub self_contacts: usize,
+    /// Times the self-collision fail-safe put a vertex back where its pass
+    /// started (over all passes): paths the rounds could not clear.
+    pub self_held: usize,
+    /// Vertices left crossing other skin where a sweeping collider had the
+    /// last word (ascending; they are tangles of the next frame).
+    pub self_pinched: Vec<u32>,
+    /// Pairs of the skin's triangles intersecting in the output, neighbours
+    /// not counted: those the input brought (tangles still coming apart) and
+    /// those left by pinched vertices.
+    pub self_intersections: usize,
+    /// Vertices exempt at the start of the frame: their triangles
+    /// intersected there.
+    pub self_tangled: usize,
 }
 
 /// Adds a substep's first-pass figures to the frame's.

@@ -65,13 +65,15 @@
 //! points; `resolve.rs` runs the rounds, vertex–triangle
 //! contacts are in `vertex.rs`, edge–edge in `edge.rs`, collider vertex–skin
 //! triangle in `face.rs`, the side and entry-time helpers in `contact.rs`,
-//! and the per-thread candidate lists in `scratch.rs`.
+//! the per-thread candidate lists in `scratch.rs`, and `verify.rs` checks
+//! given vertices' steps again after a caller changed them.
 
 mod contact;
 mod edge;
 mod face;
 mod resolve;
 mod scratch;
+mod verify;
 mod vertex;
 
 use glam::{DVec3, Vec3};
