@@ -62,7 +62,7 @@ use crate::collide::{Collider, SelfCollision, Skin};
 use crate::mesh::{polygon_edges, MeshInput, Weld, SLIVER_RATIO, WELD_TOLERANCE};
 use crate::pyramid::{DeformerOptions, PyramidDeformer};
 use crate::solve::ConstraintId;
-use crate::strain::{EdgeForces, Hierarchy};
+use crate::strain::Hierarchy;
 use crate::Result;
 
 pub use dynamics::{Dynamics, MAX_SUBSTEPS, STIFFNESS_DENSITY};
@@ -111,9 +111,6 @@ pub struct Sequence {
     /// The multilevel blocks of the unified strain pass, built on the first
     /// step that needs them and kept while the limits stay the same.
     strain_levels: Option<Hierarchy>,
-    /// The strain limits' forces at the end of the last step (see
-    /// [`EdgeForces`]), where the next one starts from.
-    strain_forces: Option<EdgeForces>,
     /// Self-collision's bind, made on the first step that asks for it.
     self_collision: Option<SelfCollision>,
     /// The last output's self-intersections: the next frame's tangles.
@@ -167,7 +164,6 @@ impl Sequence {
             skin_collider: None,
             carried_planes: None,
             strain_levels: None,
-            strain_forces: None,
             self_collision: None,
             self_tangles: None,
         }
@@ -192,7 +188,6 @@ impl Sequence {
         self.history = None;
         self.velocity = None;
         self.last_input = None;
-        self.strain_forces = None;
         self.self_tangles = None;
     }
 }

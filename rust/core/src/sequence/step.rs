@@ -16,7 +16,7 @@ use crate::mesh::validate_positions;
 use crate::pyramid::MAX_ITERATIONS;
 use crate::pyramid::PyramidDeformer;
 use crate::solve::{ConstraintId, IterationHook, Targets};
-use crate::strain::{EdgeForces, EdgeLimits, Hierarchy};
+use crate::strain::{EdgeLimits, Hierarchy};
 use crate::{Error, Result};
 
 impl Sequence {
@@ -185,8 +185,7 @@ impl Sequence {
         // last output: with colliders or self-collision the first pass's path
         // from there to the input is where friction holds the skin, and with
         // dynamics the target is already the inertial prediction.
-        let unified_limits = limits.is_some_and(|(_, mode)| *mode == StrainMode::Unified);
-        let mut x = if (colliders.is_empty() || unified_limits) && options.dynamics.is_none() && self_pass.is_none() { self.warm_start(&target) } else { target };
+        let mut x = if colliders.is_empty() && options.dynamics.is_none() && self_pass.is_none() { self.warm_start(&target) } else { target };
         // A vertex one pass leaves pinched inside a collider starts the next
         // pass inside, where no contact is seen again: keep the suspects and
         // look at where they end.
@@ -247,13 +246,7 @@ impl Sequence {
         // Receding compliant colliders change every pass, so they get none.
         let mut clearance: Option<Clearance> = None;
         let measure_clearance = any_colliders && compliant.is_empty();
-        let forces = self.strain_forces.get_or_insert_with(EdgeForces::default);
         let mut in_loop = |iteration: usize, before: &[Vec3], after: &mut [Vec3]| -> Result<()> {
-            if let Some(limits) = unified {
-                // The limits' forces of the last projection, before the
-                // contacts see the iteration's moves.
-                forces.apply(limits, after, &inverse_mass);
-            }
             if any_colliders {
                 // Compliant colliders stand still here; they recede below.
                 let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
@@ -270,10 +263,8 @@ impl Sequence {
             if let Some(limits) = unified {
                 // The multilevel projection only where the rounds have room to
                 // settle its large moves against the contacts: the last iteration.
-                let use_levels = std::env::var("TEG_LEVELS").map_or(false, |v| v == "1");
-                let early = std::env::var("TEG_EARLY").ok().and_then(|v| v.parse().ok()).unwrap_or(STRAIN_ROUNDS_EARLY);
-                let (rounds, levels) = if iteration >= last_iteration { (STRAIN_ROUNDS, levels.filter(|_| use_levels)) } else { (early, None) };
-                let pinched = limit_strain_with_contacts(limits, forces, levels, colliders, after, skin, &inverse_mass, rounds, clearance.as_ref())?;
+                let (rounds, levels) = if iteration >= last_iteration { (STRAIN_ROUNDS, levels) } else { (STRAIN_ROUNDS_EARLY, None) };
+                let pinched = limit_strain_with_contacts(limits, levels, colliders, after, skin, &inverse_mass, rounds, clearance.as_ref())?;
                 suspects.extend_from_slice(&pinched);
                 last_pinched.extend(pinched);
             }

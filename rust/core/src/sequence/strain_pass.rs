@@ -4,7 +4,7 @@
 use glam::Vec3;
 
 use crate::collide::{Clearance, Collider, ColliderSet, ResolveParams, Skin};
-use crate::strain::{EdgeForces, EdgeLimits, Hierarchy};
+use crate::strain::{EdgeLimits, Hierarchy};
 use crate::Result;
 
 #[allow(unused_imports)] // named by the docs
@@ -81,7 +81,6 @@ pub(super) const POST_STRAIN_SWEEPS: usize = 128;
 #[allow(clippy::too_many_arguments)]
 pub(super) fn limit_strain_with_contacts(
     limits: &EdgeLimits,
-    forces: &mut EdgeForces,
     levels: Option<&Hierarchy>,
     colliders: &[&mut Collider],
     x: &mut [Vec3],
@@ -96,12 +95,8 @@ pub(super) fn limit_strain_with_contacts(
     let mut pinched = Vec::new();
     // Per vertex, the plane of its last push out of a collider (zero normal: none).
     let mut above: Vec<(Vec3, f32)> = Vec::new();
-    let knob = |name: &str, default: f32| std::env::var(name).ok().and_then(|v| v.parse::<f32>().ok()).unwrap_or(default);
-    let sweeps = knob("TEG_SWEEPS", STRAIN_SWEEPS as f32) as usize;
-    let relax = knob("TEG_RELAX", 1.0);
-    for round in 0..rounds {
-        // The first round always updates the forces (releasing those that pull too hard).
-        if round > 0 && limits.worst_ratio(x) <= 1.0 + STRAIN_TOLERANCE {
+    for _ in 0..rounds {
+        if limits.worst_ratio(x) <= 1.0 + STRAIN_TOLERANCE {
             break;
         }
         let mut shortened = x.to_vec();
@@ -118,7 +113,7 @@ pub(super) fn limit_strain_with_contacts(
                 }
             }
             None => {
-                limits.project_forces(&mut shortened, inverse_mass, &above, forces, sweeps, STRAIN_TOLERANCE, relax);
+                limits.project_above(&mut shortened, inverse_mass, &above, STRAIN_SWEEPS, STRAIN_TOLERANCE);
             }
         }
         if !set.colliders().is_empty() {

@@ -16,9 +16,7 @@
 
 use glam::Vec3;
 
-mod forces;
 mod multilevel;
-pub use forces::EdgeForces;
 pub use multilevel::Hierarchy;
 
 use crate::mesh::validate_positions;
@@ -184,44 +182,6 @@ impl EdgeLimits {
         tolerance: f32,
         relaxation: f32,
     ) -> usize {
-        self.sweep(x, inverse_mass, above, None, sweeps, tolerance, relaxation)
-    }
-
-    /// [`Self::project_relaxed`] that keeps what it does in `forces`, the
-    /// limits' multipliers (see [`EdgeForces`]): an over-long edge adds its
-    /// correction to its multiplier, and an edge that holds a multiplier
-    /// but is shorter than its limit gives back as much of it as brings the
-    /// edge to its limit (the multiplier never below 0). So a force that was
-    /// pulling too hard is released, and one no longer needed vanishes:
-    /// projected Gauss–Seidel on the limits' complementarity conditions
-    /// (`λ_e ≥ 0`, `l_e ≤ limit_e`, `λ_e·(limit_e − l_e) = 0`). The sweeps
-    /// stop once no edge changed by more than `tolerance` of its limit.
-    #[allow(clippy::too_many_arguments)]
-    pub fn project_forces(
-        &self,
-        x: &mut [Vec3],
-        inverse_mass: &[f32],
-        above: &[(Vec3, f32)],
-        forces: &mut EdgeForces,
-        sweeps: usize,
-        tolerance: f32,
-        relaxation: f32,
-    ) -> usize {
-        forces.fit(self);
-        self.sweep(x, inverse_mass, above, Some(&mut forces.lambda), sweeps, tolerance, relaxation)
-    }
-
-    #[allow(clippy::too_many_arguments)]
-    fn sweep(
-        &self,
-        x: &mut [Vec3],
-        inverse_mass: &[f32],
-        above: &[(Vec3, f32)],
-        mut forces: Option<&mut [f32]>,
-        sweeps: usize,
-        tolerance: f32,
-        relaxation: f32,
-    ) -> usize {
         let keep = |p: &mut Vec3, v: usize| {
             if let Some(&(n, level)) = above.get(v) {
                 let h = n.dot(*p);
@@ -254,30 +214,17 @@ impl EdgeLimits {
                 let (a, b) = (a as usize, b as usize);
                 let delta = x[a] - x[b];
                 let length = delta.length();
-                let held = forces.as_deref().map_or(0.0, |f| f[e]);
-                // A NaN length must not count as within; an edge holding a
-                // force is visited to release it where it pulls too hard.
-                #[allow(clippy::neg_cmp_op_on_partial_ord)]
-                if !(length > limit) && !(held > 0.0 && length > 0.0 && length.is_finite()) {
+                #[allow(clippy::neg_cmp_op_on_partial_ord)] // a NaN length must not count as within
+                if !(length > limit) {
                     continue;
                 }
+                worst = worst.max(length / limit - 1.0);
                 let (wa, wb) = (inverse_mass[a], inverse_mass[b]);
                 let w = wa + wb;
                 if w <= 0.0 {
                     continue;
                 }
-                // The change of the edge's multiplier, clamped so that it stays ≥ 0.
-                let mut step = (length - limit) * relaxation / w;
-                if let Some(f) = forces.as_deref_mut() {
-                    let now = (f[e] + step).max(0.0);
-                    step = now - f[e];
-                    f[e] = now;
-                }
-                if step == 0.0 {
-                    continue;
-                }
-                worst = worst.max(step.abs() * w / (relaxation * limit));
-                let correction = delta * (step / length);
+                let correction = delta * ((length - limit) * relaxation / (length * w));
                 if wa > 0.0 {
                     x[a] -= correction * wa;
                     keep(&mut x[a], a);
