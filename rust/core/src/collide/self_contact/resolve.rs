@@ -121,6 +121,11 @@ impl Candidates {
         self.pairs.is_empty()
     }
 
+    /// The pairs gathered.
+    pub(super) fn pairs(&self) -> &[ElementPair] {
+        &self.pairs
+    }
+
     /// Whether every vertex of `positions` is within its margin of the reference.
     fn holds(&self, positions: &[&[Vec3]]) -> bool {
         (0..self.reference.len()).into_par_iter().with_min_len(4096).all(|v| {
@@ -147,16 +152,16 @@ impl Candidates {
 }
 
 /// What one pass works with.
-struct Pass<'a> {
-    collision: &'a SelfCollision,
+pub(super) struct Pass<'a> {
+    pub collision: &'a SelfCollision,
     settings: &'a SelfSettings,
     tangles: &'a Tangles,
     takes_part: Option<&'a [bool]>,
-    params: ContactParams,
+    pub params: ContactParams,
 }
 
 impl SelfCollision {
-    fn pass<'a>(&'a self, settings: &'a SelfSettings, tangles: &'a Tangles, takes_part: Option<&'a [bool]>) -> Result<Pass<'a>> {
+    pub(super) fn pass<'a>(&'a self, settings: &'a SelfSettings, tangles: &'a Tangles, takes_part: Option<&'a [bool]>) -> Result<Pass<'a>> {
         let prepared = self.separations().len() == self.vertex_count;
         if !prepared {
             return Err(Error::invalid("self-collision is not prepared for these settings (call prepare first)"));
@@ -175,7 +180,7 @@ impl SelfCollision {
         Ok(Pass { collision: self, settings, tangles, takes_part, params })
     }
 
-    fn check(&self, what: &str, positions: &[Vec3]) -> Result<()> {
+    pub(super) fn check(&self, what: &str, positions: &[Vec3]) -> Result<()> {
         if positions.len() != self.vertex_count {
             return Err(Error::invalid(format!("{what}: {} positions given for a skin of {} vertices", positions.len(), self.vertex_count)));
         }
@@ -257,7 +262,14 @@ impl SelfCollision {
             }
             moved = Some(flags);
             if !fits(current, end) {
-                let margin = candidates.take().expect("gathered").margin;
+                // Around the corrected ends, each corrected vertex free to
+                // move on three times as far again as the rounds have moved
+                // it so far (the rounds' corrections shrink as they settle):
+                // one gathering, rarely more, instead of one a round.
+                let mut margin = candidates.take().expect("gathered").margin;
+                for (m, (e, r)) in margin.iter_mut().zip(end.iter().zip(&requested)) {
+                    *m = m.max(4.0 * (*e - *r).length());
+                }
                 *candidates = Some(pass.candidates(start, end, margin));
                 stats.gathers += 1;
                 moved = None;
@@ -446,22 +458,7 @@ impl Pass<'_> {
                 correction(pair, start, end, &hit, separation, &self.params).map(|c| (k, c))
             })
             .collect();
-        let mut sum: BTreeMap<u32, (DVec3, u32)> = BTreeMap::new();
-        for (k, deltas) in &found {
-            for (&v, delta) in pairs[*k].corners.iter().zip(deltas) {
-                let slot = sum.entry(v).or_insert((DVec3::ZERO, 0));
-                slot.0 += *delta;
-                slot.1 += 1;
-            }
-        }
-        let changes = sum
-            .into_iter()
-            .filter_map(|(v, (delta, count))| {
-                let p = (end[v as usize].as_dvec3() + delta / count as f64).as_vec3();
-                p.is_finite().then_some((v, p))
-            })
-            .collect();
-        (found.len(), changes)
+        (found.len(), averaged(pairs, &found, end))
     }
 
     /// The corners (of pairs touching `touching`, or all) of `pairs` whose
@@ -502,6 +499,26 @@ impl Pass<'_> {
         held.dedup();
         held
     }
+}
+
+/// The new positions of the corners of the pairs `found` corrected (pair
+/// index, corner changes): `end` plus each vertex's changes averaged (Jacobi),
+/// in ascending vertex order.
+pub(super) fn averaged(pairs: &[ElementPair], found: &[(usize, [DVec3; 4])], end: &[Vec3]) -> Vec<(u32, Vec3)> {
+    let mut sum: BTreeMap<u32, (DVec3, u32)> = BTreeMap::new();
+    for (k, deltas) in found {
+        for (&v, delta) in pairs[*k].corners.iter().zip(deltas) {
+            let slot = sum.entry(v).or_insert((DVec3::ZERO, 0));
+            slot.0 += *delta;
+            slot.1 += 1;
+        }
+    }
+    sum.into_iter()
+        .filter_map(|(v, (delta, count))| {
+            let p = (end[v as usize].as_dvec3() + delta / count as f64).as_vec3();
+            p.is_finite().then_some((v, p))
+        })
+        .collect()
 }
 
 fn max_correction(requested: &[Vec3], end: &[Vec3]) -> f32 {
