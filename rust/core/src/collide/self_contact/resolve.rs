@@ -246,13 +246,15 @@ impl SelfCollision {
         }
         let mut moved: Option<Vec<bool>> = None;
         let mut converged = false;
+        let mut stale = false;
         for _ in 0..SELF_ROUNDS {
             stats.rounds += 1;
             let current = candidates.as_ref().expect("gathered");
             let (contacts, changes) = pass.round(&current.pairs, start, end, moved.as_deref(), |_| false);
             stats.contacts += contacts;
             if changes.is_empty() {
-                converged = true;
+                // Settled on candidates that still cover the corrected paths.
+                converged = !stale;
                 break;
             }
             let mut flags = vec![false; self.vertex_count];
@@ -261,19 +263,11 @@ impl SelfCollision {
                 flags[v as usize] = true;
             }
             moved = Some(flags);
-            if !fits(current, end) {
-                // Around the corrected ends, each corrected vertex free to
-                // move on three times as far again as the rounds have moved
-                // it so far (the rounds' corrections shrink as they settle):
-                // one gathering, rarely more, instead of one a round.
-                let mut margin = candidates.take().expect("gathered").margin;
-                for (m, (e, r)) in margin.iter_mut().zip(end.iter().zip(&requested)) {
-                    *m = m.max(4.0 * (*e - *r).length());
-                }
-                *candidates = Some(pass.candidates(start, end, margin));
-                stats.gathers += 1;
-                moved = None;
-            }
+            // A correction that strays beyond the candidates does not gather
+            // them again (the whole tree, after every such round): the rounds
+            // go on with these, and the fail-safe's own gathering of the
+            // corrected paths ends the pass.
+            stale = stale || !fits(current, end);
         }
         if !converged {
             stats.held = pass.hold_back_path(start, end, &mut stats.gathers);
