@@ -52,7 +52,7 @@ pub use clearance::{Clearance, Unproven};
 pub use collider::{Collider, ColliderSettings, Compliance, SurfacePoint};
 pub use inside::is_inside;
 pub use response::{ColliderMotion, ColliderSet, ContactStats, ResolveParams};
-pub use self_contact::{Candidates, HeldContacts, SelfCollision, SelfSettings, SelfStats, Tangles};
+pub use self_contact::{Candidates, SelfCollision, SelfSettings, SelfStats, Tangles};
 pub use skin::Skin;
 
 #[cfg(test)]

@@ -114,11 +114,6 @@ pub struct StepReport {
     /// Vertices exempt at the start of the frame: their triangles
     /// intersected there.
     pub self_tangled: usize,
-    /// Candidate pairs of skin elements examined by self-collision's passes
-    /// (first and closing, summed over substeps): what its cost follows.
-    pub self_candidates: usize,
-    /// Contacts of the first pass held inside the solve (summed over substeps).
-    pub self_held_contacts: usize,
 }
 
 /// Adds a substep's first-pass figures to the frame's.

@@ -185,7 +185,7 @@ impl Sequence {
         // last output: with colliders or self-collision the first pass's path
         // from there to the input is where friction holds the skin, and with
         // dynamics the target is already the inertial prediction.
-        let mut x = if colliders.is_empty() && options.dynamics.is_none() { self.warm_start(&target) } else { target };
+        let mut x = if colliders.is_empty() && options.dynamics.is_none() && self_pass.is_none() { self.warm_start(&target) } else { target };
         // A vertex one pass leaves pinched inside a collider starts the next
         // pass inside, where no contact is seen again: keep the suspects and
         // look at where they end.
@@ -221,7 +221,7 @@ impl Sequence {
             self_pass::first_pass(collision, pass, x_n, &mut x, &refs, &self.skin, report)?;
         }
 
-        // 3. The solve, with the in-loop passes after every iteration (self-collision's held contacts).
+        // 3. The solve, with the in-loop passes after every iteration.
         // Strain projections move a vertex in proportion to how free it is.
         let inverse_mass: Vec<f32> = match limits {
             Some(_) => self.deformer.closeness_weights().iter().map(|&c| 1.0 - c.min(1.0)).collect(),
@@ -246,7 +246,6 @@ impl Sequence {
         // Receding compliant colliders change every pass, so they get none.
         let mut clearance: Option<Clearance> = None;
         let measure_clearance = any_colliders && compliant.is_empty();
-        let held = self_pass.as_deref();
         let mut in_loop = |iteration: usize, before: &[Vec3], after: &mut [Vec3]| -> Result<()> {
             if any_colliders {
                 // Compliant colliders stand still here; they recede below.
@@ -274,27 +273,22 @@ impl Sequence {
                 let moved = recede_from(skin_collider, skin, colliders[c], compliant_skins[c].as_ref().expect("compliant"), after, goal)?;
                 report.compliant_contacts += moved.vertex_contacts + moved.edge_contacts + moved.collider_vertex_contacts;
             }
-            if let (Some(pass), Some(collision)) = (held, self_collision) {
-                pass.hold(collision, after)?;
+            if let (Some(pass), Some(collision)) = (self_pass.as_deref_mut(), self_collision) {
+                let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
+                self_pass::in_loop(collision, pass, before, after, &refs, skin, clearance.as_ref(), report)?;
             }
             Ok(())
         };
         let hook: Option<&mut dyn IterationHook> =
             if any_colliders || unified.is_some() || self_collision.is_some() { Some(&mut in_loop) } else { None };
         self.deformer.solver_mut().solve(input, &mut x, options.iterations, hook)?;
-        if let Some((limits, StrainMode::Post)) = limits {
-            limits.project(&mut x, &inverse_mass, POST_STRAIN_SWEEPS, STRAIN_TOLERANCE);
-        }
-        // 4. Self-collision's closing pass, from where the first pass left the
-        // skin (free of both the colliders and itself) to the solve's output.
-        if let (Some(pass), Some(collision)) = (self_pass.as_deref_mut(), self_collision) {
-            let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
-            self_pass::closing_pass(collision, pass, &mut x, &refs, skin, clearance.as_ref(), report)?;
-        }
         self.carried_planes = clearance.and_then(Clearance::into_planes).map(|planes| CarriedPlanes {
             planes,
             colliders: colliders.iter().map(|c| (c.current().to_vec(), c.triangles().to_vec(), c.settings())).collect(),
         });
+        if let Some((limits, StrainMode::Post)) = limits {
+            limits.project(&mut x, &inverse_mass, POST_STRAIN_SWEEPS, STRAIN_TOLERANCE);
+        }
         let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
         report.pinched.extend(still_pinched(&x, &refs, suspects, last_pinched));
 

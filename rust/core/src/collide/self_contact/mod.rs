@@ -30,13 +30,11 @@ mod collision;
 mod contact;
 mod exclusion;
 mod gather;
-mod hold;
 mod resolve;
 pub mod settings;
 mod tree;
 
 pub use collision::SelfCollision;
-pub use hold::HeldContacts;
 pub use resolve::{Candidates, Tangles, SELF_ROUNDS};
 pub use settings::{SelfSettings, SelfStats, MAX_RINGS};
 

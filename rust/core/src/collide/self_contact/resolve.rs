@@ -121,11 +121,6 @@ impl Candidates {
         self.pairs.is_empty()
     }
 
-    /// The pairs gathered.
-    pub(super) fn pairs(&self) -> &[ElementPair] {
-        &self.pairs
-    }
-
     /// Whether every vertex of `positions` is within its margin of the reference.
     fn holds(&self, positions: &[&[Vec3]]) -> bool {
         (0..self.reference.len()).into_par_iter().with_min_len(4096).all(|v| {
@@ -152,16 +147,16 @@ impl Candidates {
 }
 
 /// What one pass works with.
-pub(super) struct Pass<'a> {
-    pub collision: &'a SelfCollision,
+struct Pass<'a> {
+    collision: &'a SelfCollision,
     settings: &'a SelfSettings,
     tangles: &'a Tangles,
     takes_part: Option<&'a [bool]>,
-    pub params: ContactParams,
+    params: ContactParams,
 }
 
 impl SelfCollision {
-    pub(super) fn pass<'a>(&'a self, settings: &'a SelfSettings, tangles: &'a Tangles, takes_part: Option<&'a [bool]>) -> Result<Pass<'a>> {
+    fn pass<'a>(&'a self, settings: &'a SelfSettings, tangles: &'a Tangles, takes_part: Option<&'a [bool]>) -> Result<Pass<'a>> {
         let prepared = self.separations().len() == self.vertex_count;
         if !prepared {
             return Err(Error::invalid("self-collision is not prepared for these settings (call prepare first)"));
@@ -180,7 +175,7 @@ impl SelfCollision {
         Ok(Pass { collision: self, settings, tangles, takes_part, params })
     }
 
-    pub(super) fn check(&self, what: &str, positions: &[Vec3]) -> Result<()> {
+    fn check(&self, what: &str, positions: &[Vec3]) -> Result<()> {
         if positions.len() != self.vertex_count {
             return Err(Error::invalid(format!("{what}: {} positions given for a skin of {} vertices", positions.len(), self.vertex_count)));
         }
@@ -246,15 +241,13 @@ impl SelfCollision {
         }
         let mut moved: Option<Vec<bool>> = None;
         let mut converged = false;
-        let mut stale = false;
         for _ in 0..SELF_ROUNDS {
             stats.rounds += 1;
             let current = candidates.as_ref().expect("gathered");
             let (contacts, changes) = pass.round(&current.pairs, start, end, moved.as_deref(), |_| false);
             stats.contacts += contacts;
             if changes.is_empty() {
-                // Settled on candidates that still cover the corrected paths.
-                converged = !stale;
+                converged = true;
                 break;
             }
             let mut flags = vec![false; self.vertex_count];
@@ -263,11 +256,12 @@ impl SelfCollision {
                 flags[v as usize] = true;
             }
             moved = Some(flags);
-            // A correction that strays beyond the candidates does not gather
-            // them again (the whole tree, after every such round): the rounds
-            // go on with these, and the fail-safe's own gathering of the
-            // corrected paths ends the pass.
-            stale = stale || !fits(current, end);
+            if !fits(current, end) {
+                let margin = candidates.take().expect("gathered").margin;
+                *candidates = Some(pass.candidates(start, end, margin));
+                stats.gathers += 1;
+                moved = None;
+            }
         }
         if !converged {
             stats.held = pass.hold_back_path(start, end, &mut stats.gathers);
@@ -452,7 +446,22 @@ impl Pass<'_> {
                 correction(pair, start, end, &hit, separation, &self.params).map(|c| (k, c))
             })
             .collect();
-        (found.len(), averaged(pairs, &found, end))
+        let mut sum: BTreeMap<u32, (DVec3, u32)> = BTreeMap::new();
+        for (k, deltas) in &found {
+            for (&v, delta) in pairs[*k].corners.iter().zip(deltas) {
+                let slot = sum.entry(v).or_insert((DVec3::ZERO, 0));
+                slot.0 += *delta;
+                slot.1 += 1;
+            }
+        }
+        let changes = sum
+            .into_iter()
+            .filter_map(|(v, (delta, count))| {
+                let p = (end[v as usize].as_dvec3() + delta / count as f64).as_vec3();
+                p.is_finite().then_some((v, p))
+            })
+            .collect();
+        (found.len(), changes)
     }
 
     /// The corners (of pairs touching `touching`, or all) of `pairs` whose
@@ -493,26 +502,6 @@ impl Pass<'_> {
         held.dedup();
         held
     }
-}
-
-/// The new positions of the corners of the pairs `found` corrected (pair
-/// index, corner changes): `end` plus each vertex's changes averaged (Jacobi),
-/// in ascending vertex order.
-pub(super) fn averaged(pairs: &[ElementPair], found: &[(usize, [DVec3; 4])], end: &[Vec3]) -> Vec<(u32, Vec3)> {
-    let mut sum: BTreeMap<u32, (DVec3, u32)> = BTreeMap::new();
-    for (k, deltas) in found {
-        for (&v, delta) in pairs[*k].corners.iter().zip(deltas) {
-            let slot = sum.entry(v).or_insert((DVec3::ZERO, 0));
-            slot.0 += *delta;
-            slot.1 += 1;
-        }
-    }
-    sum.into_iter()
-        .filter_map(|(v, (delta, count))| {
-            let p = (end[v as usize].as_dvec3() + delta / count as f64).as_vec3();
-            p.is_finite().then_some((v, p))
-        })
-        .collect()
 }
 
 fn max_correction(requested: &[Vec3], end: &[Vec3]) -> f32 {
