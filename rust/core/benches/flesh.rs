@@ -54,6 +54,19 @@ fn longest_edge(skin: &PolyMesh, x: &[Vec3]) -> f32 {
     worst
 }
 
+/// CPU time of this process so far (all threads, user and system), in ms,
+/// from `/proc/self/stat` (clock ticks of 10 ms); `None` where there is no
+/// such file. On a shared host the wall time of a frame also counts the time
+/// other processes had the cores; the CPU time counts only this one's work.
+fn process_cpu_ms() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // The fields after the command name (which is in parentheses and may hold spaces).
+    let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+    let ticks = |k: usize| fields.get(k)?.parse::<f64>().ok();
+    // utime and stime are fields 14 and 15 of the line, 12 and 13 after the name.
+    Some((ticks(11)? + ticks(12)?) * 10.0)
+}
+
 struct Config {
     name: &'static str,
     options: StepOptions<'static>,
@@ -106,6 +119,7 @@ fn main() {
             collider.set_compliance(Some(&vec![200.0; sphere.positions.len()])).unwrap();
         }
         let mut times = Vec::new();
+        let mut cpu_times = Vec::new();
         let mut last = None;
         // Over all frames: the worst stretch (measured here from the
         // polygons, not by the strain limits' own code) and what the audit
@@ -115,12 +129,15 @@ fn main() {
             for k in 1..=FRAMES {
                 collider.update(&at(k)).unwrap();
                 let started = std::time::Instant::now();
+                let cpu_started = process_cpu_ms();
                 let (x, step) = deformer.step(&skin.positions, &mut [&mut collider], &config.options).unwrap();
                 let ms = started.elapsed().as_secs_f64() * 1e3;
+                let cpu_ms = cpu_started.zip(process_cpu_ms()).map(|(a, b)| b - a);
                 let found = audit(MeshInput { positions: &x, ..skin.input() }, &[&collider], &AuditParams::default()).unwrap();
                 println!(
-                    "{:<28} frame {k}: {ms:.0} ms, {} pinched, worst stretch {:.4}, recession {:.4}, in-loop: {} clearances, {} vertices tested, {} skin refits; audit {} inside {} crossing {} collider edges crossing",
+                    "{:<28} frame {k}: {ms:.0} ms ({} ms CPU), {} pinched, worst stretch {:.4}, recession {:.4}, in-loop: {} clearances, {} vertices tested, {} skin refits; audit {} inside {} crossing {} collider edges crossing",
                     config.name,
+                    cpu_ms.map_or("?".to_string(), |c| format!("{c:.0}")),
                     step.pinched.len(),
                     step.worst_stretch,
                     step.max_recession,
@@ -135,6 +152,7 @@ fn main() {
                 penetrations += found.vertices_inside.len() + found.edges_crossing.len() + found.collider_edges_crossing.len();
                 if k > FRAMES - TIMED {
                     times.push(ms);
+                    cpu_times.extend(cpu_ms);
                 }
                 last = Some(step);
             }
@@ -147,6 +165,11 @@ fn main() {
             step.worst_stretch, step.compliant_skin_vertices, step.max_recession
         );
         report.add(&case, config.name, median, "ms", 2, &note);
+        if cpu_times.len() == times.len() {
+            cpu_times.sort_by(f64::total_cmp);
+            let cpu = cpu_times[cpu_times.len() / 2];
+            report.add(&case, &format!("{}: CPU time", config.name), cpu, "ms", 2, "median of the last frames' process CPU time (both threads), less sensitive to the host's load");
+        }
         report.add(&case, &format!("{}: worst stretch (all frames)", config.name), worst as f64, "× rest", 2, "");
         report.add(&case, &format!("{}: penetrations (all frames, audit)", config.name), penetrations as f64, "", 2, "vertices inside, skin and collider edges crossing");
         match baseline {
