@@ -173,7 +173,7 @@ impl Clearance {
             measured: colliders
                 .iter()
                 .zip(envelopes)
-                .map(|(c, e)| e.map_or(Measured::State(c.generation()), Measured::Envelope))
+                .map(|(c, e)| e.map_or(Measured::State(c.generation()), |e| Measured::Envelope(Box::new(e))))
                 .collect(),
         })
     }
@@ -320,7 +320,7 @@ enum Measured {
     /// Its state ([`Collider::generation`]).
     State(u64),
     /// Wherever it stands inside this envelope.
-    Envelope(Envelope),
+    Envelope(Box<Envelope>),
 }
 
 /// The elements [`Clearance::unproven`] leaves to the pairwise tests, by
