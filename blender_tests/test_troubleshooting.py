@@ -34,6 +34,12 @@ INTERNAL = {
     "self-collision is not prepared for these settings": "the sequence prepares self-collision before every pass",
     "the triangles taking part are of another skin": "the sequence takes the triangles taking part from its own skin",
     "self-collision margins": "the sequence makes the margins for its own skin",
+    "positions given for a collider of": "compliant colliders' envelopes are made by the sequence from their own goals",
+    "envelope margin is": "compliant colliders' envelopes are made by the sequence with the clearance's radius",
+    "envelopes given for": "the sequence gives one envelope slot per collider",
+    "a clearance measured against envelopes has no planes": "the sequence measures planes only without envelopes",
+    "collider slack is": "the skin's slack as a collider is a constant of the sequence",
+    "changed in a BVH over": "partial refits are made by the collider from its own triangles",
 }
 
 

@@ -135,11 +135,15 @@ fn main() {
                 let cpu_ms = cpu_started.zip(process_cpu_ms()).map(|(a, b)| b - a);
                 let found = audit(MeshInput { positions: &x, ..skin.input() }, &[&collider], &AuditParams::default()).unwrap();
                 println!(
-                    "{:<28} frame {k}: {ms:.0} ms ({} ms CPU), {} pinched, worst stretch {:.4}, audit {} inside {} crossing {} collider edges crossing",
+                    "{:<28} frame {k}: {ms:.0} ms ({} ms CPU), {} pinched, worst stretch {:.4}, recession {:.4}, in-loop: {} clearances, {} vertices tested, {} skin refits; audit {} inside {} crossing {} collider edges crossing",
                     config.name,
                     cpu_ms.map_or("?".to_string(), |c| format!("{c:.0}")),
                     step.pinched.len(),
                     step.worst_stretch,
+                    step.max_recession,
+                    step.clearance_measurements,
+                    step.in_loop_tested,
+                    step.in_loop_skin_refits,
                     found.vertices_inside.len(),
                     found.edges_crossing.len(),
                     found.collider_edges_crossing.len()
@@ -173,5 +177,59 @@ fn main() {
             Some(base) => report.add(&case, &format!("added by {}", config.name.trim_start_matches("+ ")), median - base, "ms", 2, ""),
         }
     }
+    if selected("scaling") {
+        contact_region_scaling(&mut report, &sphere, &tris, settings, base);
+    }
     report.save();
+}
+
+/// The same compliant collider against skins of 25k, 100k and 400k vertices
+/// at the benchmark's spacing: the contact region stays the same, so the
+/// cost the collider adds to a step should not grow with the skin.
+/// (`TEGUMENT_BENCH_FLESH=scaling` runs only this and the baseline above.)
+/// The sphere's path is moved 41 cells towards the middle, where the
+/// smallest skin covers all of it; the grids' vertices coincide there.
+fn contact_region_scaling(report: &mut Report, sphere: &PolyMesh, tris: &[[u32; 3]], settings: ColliderSettings, options: StepOptions<'static>) {
+    let shift = Vec3::X * (41.0 * 2.0 / 316.0);
+    for (cells, size) in [(158, 1.0), (316, 2.0), (632, 4.0)] {
+        let skin = grid(cells, cells, size);
+        let case = format!("compliant collider added to a step, skin {} v (spacing {:.4})", skin.positions.len(), size / cells as f32);
+        let mut medians = [0.0f64; 2];
+        for (slot, compliant) in [(0, false), (1, true)] {
+            let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
+            let at = |k: usize| sphere.positions.iter().map(|&p| p + centre(k) + shift).collect::<Vec<_>>();
+            let mut collider = Collider::new(&at(0), tris, settings).unwrap();
+            if compliant {
+                collider.set_compliance(Some(&vec![200.0; sphere.positions.len()])).unwrap();
+            }
+            let mut times = Vec::new();
+            let mut penetrations = 0;
+            with_threads(2, || {
+                for k in 1..=FRAMES {
+                    collider.update(&at(k)).unwrap();
+                    let started = std::time::Instant::now();
+                    let (x, step) = deformer.step(&skin.positions, &mut [&mut collider], &options).unwrap();
+                    let ms = started.elapsed().as_secs_f64() * 1e3;
+                    let found = audit(MeshInput { positions: &x, ..skin.input() }, &[&collider], &AuditParams::default()).unwrap();
+                    penetrations += found.vertices_inside.len() + found.edges_crossing.len() + found.collider_edges_crossing.len() + step.pinched.len();
+                    println!(
+                        "{case}, {}: frame {k}: {ms:.0} ms, recession {:.4}, in-loop: {} vertices tested, {} skin refits",
+                        if compliant { "compliant" } else { "kinematic" },
+                        step.max_recession,
+                        step.in_loop_tested,
+                        step.in_loop_skin_refits
+                    );
+                    if k > FRAMES - TIMED {
+                        times.push(ms);
+                    }
+                }
+            });
+            times.sort_by(f64::total_cmp);
+            medians[slot] = times[times.len() / 2];
+            assert_eq!(penetrations, 0, "{case}: penetrations or pinched vertices");
+        }
+        report.add(&case, "collisions only", medians[0], "ms", 2, "median of the last frames");
+        report.add(&case, "+ compliant collider", medians[1], "ms", 2, "0 penetrations by the audit in every frame");
+        report.add(&case, "added by the compliant collider", medians[1] - medians[0], "ms", 2, "");
+    }
 }

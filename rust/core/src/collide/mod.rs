@@ -7,6 +7,8 @@
 //!   refitting has degraded it (SAH cost ratio).
 //! * [`clearance`]: per-vertex distance bounds from the colliders, measured
 //!   once per frame, that let the in-loop passes skip the skin far from them.
+//! * [`envelope`]: where a collider that moves between passes (a compliant
+//!   one, receding) stays, so that a clearance can hold while it moves.
 //! * [`collider`]: a triangle mesh moving from last frame to this frame, with
 //!   thickness, friction and a BVH over its swept triangles.
 //! * [`geometry`]: f64 helpers (normals, distances, crossing tests).
@@ -35,6 +37,7 @@ pub mod bvh;
 pub mod ccd;
 pub mod clearance;
 pub mod collider;
+pub mod envelope;
 pub mod geometry;
 pub mod inside;
 pub mod planes;
@@ -50,6 +53,7 @@ pub use bvh::{BoxTree, Bounds, UpdateReport};
 pub use ccd::{CcdHit, CcdParams};
 pub use clearance::{Clearance, Unproven};
 pub use collider::{Collider, ColliderSettings, Compliance, SurfacePoint};
+pub use envelope::Envelope;
 pub use inside::is_inside;
 pub use response::{ColliderMotion, ColliderSet, ContactStats, ResolveParams};
 pub use self_contact::{Candidates, SelfCollision, SelfSettings, SelfStats, Tangles};

@@ -114,6 +114,16 @@ pub struct StepReport {
     /// Vertices exempt at the start of the frame: their triangles
     /// intersected there.
     pub self_tangled: usize,
+    /// Clearances measured for the in-loop passes: one per substep with
+    /// colliders, and again where a compliant collider left its envelope.
+    pub clearance_measurements: usize,
+    /// Skin vertices the in-loop collider passes tested against the
+    /// colliders, over all passes: those the clearance did not prove apart.
+    /// It follows the region near the colliders, not the skin's size.
+    pub in_loop_tested: usize,
+    /// Skin vertices whose boxes were made again for compliant colliders to
+    /// recede from, after the solver's iterations: those that moved since.
+    pub in_loop_skin_refits: usize,
 }
 
 /// Adds a substep's first-pass figures to the frame's.
@@ -122,6 +132,7 @@ pub(super) fn accumulate(total: &mut ContactStats, part: &ContactStats) {
     total.edge_contacts += part.edge_contacts;
     total.collider_vertex_contacts += part.collider_vertex_contacts;
     total.plane_lifts += part.plane_lifts;
+    total.tested += part.tested;
     total.rounds += part.rounds;
     total.max_correction = total.max_correction.max(part.max_correction);
     total.moved.extend_from_slice(&part.moved);

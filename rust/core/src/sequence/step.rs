@@ -3,7 +3,7 @@
 
 use glam::Vec3;
 
-use super::compliance::{compliant_skin, contact_targets, recede_from};
+use super::compliance::{compliant_skin, contact_targets, in_loop_clearance, recede_from};
 use super::dynamics::{kinetic_energy, Dynamics, MAX_SUBSTEPS};
 use super::options::{accumulate, StepOptions, StepReport, StrainMode};
 use super::self_pass::{self, SelfPass};
@@ -201,8 +201,8 @@ impl Sequence {
             for &c in &compliant {
                 let goal = goals[c].as_deref().expect("compliant colliders have goals");
                 let own = compliant_skins[c].as_ref().expect("compliant");
-                let moved = recede_from(&mut self.skin_collider, &self.skin, colliders[c], own, x_n, goal)?;
-                report.compliant_contacts += moved.vertex_contacts + moved.edge_contacts + moved.collider_vertex_contacts;
+                let moved = recede_from(&mut self.skin_collider, &self.skin, colliders[c], own, x_n, goal, true)?;
+                report.compliant_contacts += moved.contacts;
             }
             // 2. The skin towards its target while the colliders sweep.
             let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
@@ -243,18 +243,20 @@ impl Sequence {
         // Where the skin is, at the start of the in-loop passes, relative to
         // the colliders: the passes skip what cannot have reached them since,
         // and lift what the solve pulls back in along the colliders' planes.
-        // Receding compliant colliders change every pass, so they get none.
+        // Receding compliant colliders are measured by their envelopes, and
+        // again if one leaves its envelope (see `in_loop_clearance`).
         let mut clearance: Option<Clearance> = None;
-        let measure_clearance = any_colliders && compliant.is_empty();
         let mut in_loop = |iteration: usize, before: &[Vec3], after: &mut [Vec3]| -> Result<()> {
             if any_colliders {
                 // Compliant colliders stand still here; they recede below.
                 let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
-                if measure_clearance && clearance.is_none() {
-                    clearance = Some(Clearance::new(&refs, skin, before, Clearance::default_radius(&refs, skin, before))?.with_planes(&refs)?);
+                if !clearance.as_ref().is_some_and(|c| c.is_valid_for(&refs, before.len())) {
+                    clearance = Some(in_loop_clearance(&refs, goals, skin, before)?);
+                    report.clearance_measurements += 1;
                 }
                 let stats = ColliderSet::new(refs).resolve_path_with(before, after, skin, &ResolveParams::in_loop(), clearance.as_ref())?;
                 report.in_loop_contacts += stats.vertex_contacts + stats.edge_contacts + stats.collider_vertex_contacts;
+                report.in_loop_tested += stats.tested;
                 report.max_in_loop_correction = report.max_in_loop_correction.max(stats.max_correction);
                 report.held += stats.held.len();
                 suspects.extend_from_slice(&stats.pinched);
@@ -270,8 +272,9 @@ impl Sequence {
             }
             for &c in &compliant {
                 let goal = goals[c].as_deref().expect("compliant colliders have goals");
-                let moved = recede_from(skin_collider, skin, colliders[c], compliant_skins[c].as_ref().expect("compliant"), after, goal)?;
-                report.compliant_contacts += moved.vertex_contacts + moved.edge_contacts + moved.collider_vertex_contacts;
+                let moved = recede_from(skin_collider, skin, colliders[c], compliant_skins[c].as_ref().expect("compliant"), after, goal, false)?;
+                report.compliant_contacts += moved.contacts;
+                report.in_loop_skin_refits += moved.refitted;
             }
             if let (Some(pass), Some(collision)) = (self_pass.as_deref_mut(), self_collision) {
                 let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();

@@ -133,6 +133,9 @@ pub struct ContactStats {
     /// plane without a lookup: the clearance's ([`Clearance::with_planes`])
     /// or the sweeping colliders' ([`LocalPlanes::drifting`]).
     pub plane_lifts: usize,
+    /// Skin vertices tested against the colliders: those neither the
+    /// clearance nor the colliders' whole boxes ruled out.
+    pub tested: usize,
     /// Vertices whose end position changed, ascending.
     pub moved: Vec<u32>,
     /// Vertices still in violation after the last round, ascending.

@@ -237,6 +237,7 @@ impl<'a> ColliderSet<'a> {
         if skin.has_inverse_mass() {
             active.retain(|&i| skin.inverse_mass(i) > 0.0);
         }
+        stats.tested = active.len();
         // Supporting planes: the clearance's for still colliders; for sweeping
         // ones, planes around the active vertices in the frame drifting with
         // the colliders, if they translate together (carried along from the
