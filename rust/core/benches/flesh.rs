@@ -195,6 +195,7 @@ fn contact_region_scaling(report: &mut Report, sphere: &PolyMesh, tris: &[[u32; 
         let skin = grid(cells, cells, size);
         let case = format!("compliant collider added to a step, skin {} v (spacing {:.4})", skin.positions.len(), size / cells as f32);
         let mut medians = [0.0f64; 2];
+        let mut cpu_medians = [None; 2];
         for (slot, compliant) in [(0, false), (1, true)] {
             let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
             let at = |k: usize| sphere.positions.iter().map(|&p| p + centre(k) + shift).collect::<Vec<_>>();
@@ -203,33 +204,47 @@ fn contact_region_scaling(report: &mut Report, sphere: &PolyMesh, tris: &[[u32; 
                 collider.set_compliance(Some(&vec![200.0; sphere.positions.len()])).unwrap();
             }
             let mut times = Vec::new();
+            let mut cpu_times = Vec::new();
             let mut penetrations = 0;
             with_threads(2, || {
                 for k in 1..=FRAMES {
                     collider.update(&at(k)).unwrap();
                     let started = std::time::Instant::now();
+                    let cpu_started = process_cpu_ms();
                     let (x, step) = deformer.step(&skin.positions, &mut [&mut collider], &options).unwrap();
                     let ms = started.elapsed().as_secs_f64() * 1e3;
+                    let cpu_ms = cpu_started.zip(process_cpu_ms()).map(|(a, b)| b - a);
                     let found = audit(MeshInput { positions: &x, ..skin.input() }, &[&collider], &AuditParams::default()).unwrap();
                     penetrations += found.vertices_inside.len() + found.edges_crossing.len() + found.collider_edges_crossing.len() + step.pinched.len();
                     println!(
-                        "{case}, {}: frame {k}: {ms:.0} ms, recession {:.4}, in-loop: {} vertices tested, {} skin refits",
+                        "{case}, {}: frame {k}: {ms:.0} ms ({} ms CPU), recession {:.4}, in-loop: {} vertices tested, {} skin refits",
                         if compliant { "compliant" } else { "kinematic" },
+                        cpu_ms.map_or("?".to_string(), |c| format!("{c:.0}")),
                         step.max_recession,
                         step.in_loop_tested,
                         step.in_loop_skin_refits
                     );
                     if k > FRAMES - TIMED {
                         times.push(ms);
+                        cpu_times.extend(cpu_ms);
                     }
                 }
             });
             times.sort_by(f64::total_cmp);
             medians[slot] = times[times.len() / 2];
+            if cpu_times.len() == times.len() {
+                cpu_times.sort_by(f64::total_cmp);
+                cpu_medians[slot] = Some(cpu_times[cpu_times.len() / 2]);
+            }
             assert_eq!(penetrations, 0, "{case}: penetrations or pinched vertices");
         }
         report.add(&case, "collisions only", medians[0], "ms", 2, "median of the last frames");
         report.add(&case, "+ compliant collider", medians[1], "ms", 2, "0 penetrations by the audit in every frame");
         report.add(&case, "added by the compliant collider", medians[1] - medians[0], "ms", 2, "");
+        if let [Some(kinematic), Some(compliant)] = cpu_medians {
+            let note = "median of the last frames' process CPU time (both threads)";
+            report.add(&case, "added by the compliant collider: CPU time", compliant - kinematic, "ms", 2, note);
+            report.add(&case, "compliant collider / collisions only: CPU time", compliant / kinematic.max(1.0), "×", 2, note);
+        }
     }
 }

@@ -145,13 +145,17 @@ pub(super) fn recede_from(
             (c, refitted)
         }
     };
-    let params = ResolveParams { motion: ColliderMotion::AtCurrent, friction: false, ..ResolveParams::in_loop() };
+    // In the loop the skin's own pass has just cleared the skin of the
+    // collider where it stands: only what moves now needs testing. The first
+    // recession of a substep starts from last substep's state and tests all.
+    let params = ResolveParams { motion: ColliderMotion::AtCurrent, friction: false, moving_only: !fresh, ..ResolveParams::in_loop() };
     let set = ColliderSet::new([&*obstacle]);
     // Where a goal lies behind the skin (or within the thickness of it), the
     // vertex recedes along its own normal (the direction its region pushes
     // into the skin) to the skin's offset surface on the side it is on;
-    // elsewhere it heads for its goal. That depends on the goal and the skin
-    // only, not on the path, so the result does not depend on substeps or
+    // elsewhere it heads for its goal. Where it ends depends on the goal and
+    // the skin only, not on the path (the path only tells which side of the
+    // skin the vertex is on), so the result does not depend on substeps or
     // iterations. (The point of the skin nearest the goal would minimise the
     // spring exactly, but for a goal deep behind a curved skin it moves much
     // further than the skin does: 1 and 4 substeps then differ by 6% of the
@@ -174,38 +178,70 @@ pub(super) fn recede_from(
             if hit.is_none() && !obstacle.is_within(g, clearance) {
                 return g;
             }
-            // The skin is no farther from the goal than where the straight
-            // line met it, or than the clearance it is within: the search
-            // for the closest point need not look farther (slightly
-            // more, for the rounding of the fraction).
-            let within = match hit {
-                Some((t, _)) => (1.0 - t) * (g - start[v]).length(),
-                None => clearance,
-            };
-            let Some(near) = obstacle.closest_point_within(g, within as f64 * (1.0 + 1e-4) + 1e-6) else { return g };
             let face_normal = |t: u32| {
                 let [a, b, c] = obstacle.triangles()[t as usize].map(|k| x[k as usize]);
                 (b - a).cross(c - a).normalize_or_zero()
             };
-            let normal = face_normal(near.triangle);
-            let side = if normal.dot(start[v] - near.point) >= 0.0 { normal } else { -normal };
-            if side.dot(g - near.point) >= clearance {
-                return g;
-            }
-            let fallback = near.point + side * clearance;
+            // The point of the skin nearest the goal: no farther than where
+            // the straight line met the skin, or than the clearance the goal
+            // is within (the search need not look farther; slightly more, for
+            // the rounding of the fraction).
+            let within = match hit {
+                Some((t, _)) => (1.0 - t) * (g - start[v]).length(),
+                None => clearance,
+            };
+            let nearest = || obstacle.closest_point_within(g, within as f64 * (1.0 + 1e-4) + 1e-6);
+            let outward = |triangle: u32, at: Vec3| {
+                let normal = face_normal(triangle);
+                if normal.dot(start[v] - at) >= 0.0 { normal } else { -normal }
+            };
             let n = normals[v];
-            let dir = if n.dot(side) >= 0.0 { n } else { -n };
-            if dir.dot(side) < 0.3 {
-                return fallback; // the normal runs along the skin: no well-defined crossing
-            }
-            let reach = 4.0 * ((g - near.point).length() + clearance);
+            let Some((t, _)) = hit else {
+                // The goal is within the clearance of the skin, in reach.
+                let Some(near) = nearest() else { return g };
+                let side = outward(near.triangle, near.point);
+                if side.dot(g - near.point) >= clearance {
+                    return g;
+                }
+                let dir = if n.dot(side) >= 0.0 { n } else { -n };
+                if dir.dot(side) < 0.3 {
+                    return near.point + side * clearance; // the normal runs along the skin: no well-defined crossing
+                }
+                let reach = 4.0 * ((g - near.point).length() + clearance);
+                return match obstacle.first_hit(g, g + dir * reach) {
+                    Some((t, tri)) => {
+                        let m = face_normal(tri);
+                        let m = if m.dot(dir) >= 0.0 { m } else { -m };
+                        g + dir * (t * reach + clearance / m.dot(dir).max(0.3))
+                    }
+                    None => near.point + side * clearance,
+                };
+            };
+            // The goal is behind the skin as seen from the vertex (a resting
+            // vertex pressed into it, most of the work of a frame): the vertex
+            // heads for where its own normal through the goal comes out of the
+            // skin, offset by the clearance. That crossing's triangle says
+            // whether the normal runs along the skin, so the point nearest the
+            // goal (a search through all the skin within the goal's depth
+            // behind it) is needed only where it does, or where the normal
+            // finds no crossing: the offset surface over it then, which like
+            // the crossing depends on the goal and the skin only.
+            let fallback = || match nearest() {
+                Some(near) => near.point + outward(near.triangle, near.point) * clearance,
+                None => g,
+            };
+            let dir = if n.dot(start[v] - g) >= 0.0 { n } else { -n };
+            let reach = 4.0 * ((1.0 - t) * (g - start[v]).length() + clearance);
             match obstacle.first_hit(g, g + dir * reach) {
                 Some((t, tri)) => {
                     let m = face_normal(tri);
                     let m = if m.dot(dir) >= 0.0 { m } else { -m };
-                    g + dir * (t * reach + clearance / m.dot(dir).max(0.3))
+                    if m.dot(dir) < 0.3 {
+                        return fallback(); // the normal runs along the skin: no well-defined crossing
+                    }
+                    g + dir * (t * reach + clearance / m.dot(dir))
                 }
-                None => fallback,
+                None => fallback(),
             }
         })
         .collect();

@@ -273,6 +273,39 @@ mod compliance {
         assert!(large_refits < passes * large_n / 10, "most of the skin was refitted after each iteration: {large_refits} refits over {passes} passes, {large_n} vertices");
     }
 
+    /// A compliant ball pressed into a free skin rests on it; then the
+    /// skin's input rises into the ball and slides sideways under it while
+    /// the ball's animation holds still. Each iteration the ball's resting
+    /// vertices recede from where the skin has moved: the skin is never
+    /// passed through (by the audit, which shares no geometry with the
+    /// passes), the ball keeps receding as the skin comes up, and nothing
+    /// is pinched.
+    #[test]
+    fn a_skin_moving_under_a_resting_compliant_ball_is_never_passed_through() {
+        let skin = grid(30, 30, 1.6);
+        let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let (ball, tris) = sphere(0.3);
+        let at = |z: f32| moved(&ball.positions, Vec3::new(0.0, 0.0, z));
+        let mut arm = Collider::new(&at(0.5), &tris, ColliderSettings::new(0.01, 0.3)).unwrap();
+        arm.set_compliance(Some(&vec![100.0; ball.positions.len()])).unwrap();
+        let options = StepOptions::new(10, Closeness::Uniform(0.3));
+        let mut recessions = Vec::new();
+        for k in 0..=10usize {
+            arm.update(&at(0.5 - 0.06 * k.min(4) as f32)).unwrap();
+            // From frame 5 the skin's input rises by up to 0.1 and slides by up to 0.15.
+            let lift = 0.02 * k.saturating_sub(4).min(5) as f32;
+            let slide = 0.03 * k.saturating_sub(5) as f32;
+            let input = moved(&skin.positions, Vec3::new(slide, 0.0, lift));
+            let (x, report) = deformer.step(&input, &mut [&mut arm], &options).unwrap();
+            assert!(x.iter().all(|p| p.is_finite()), "frame {k}");
+            assert_eq!(penetrations(&skin, &x, &[&arm]), (0, 0, 0), "frame {k}");
+            assert!(report.pinched.is_empty(), "frame {k}: {} pinched", report.pinched.len());
+            recessions.push(report.max_recession);
+        }
+        assert!(recessions[4] > 0.01, "the ball rests in the skin: recession {}", recessions[4]);
+        assert!(recessions[9] > recessions[4] + 0.02, "the skin came up 0.1 into the ball, which should recede: {recessions:?}");
+    }
+
     #[test]
     fn bad_stiffness_is_named() {
         let (ball, tris) = sphere(0.3);
