@@ -16,7 +16,9 @@
 
 use glam::Vec3;
 
+mod fast_projection;
 mod multilevel;
+pub use fast_projection::FastProjection;
 pub use multilevel::Hierarchy;
 
 use crate::mesh::validate_positions;
