@@ -37,8 +37,6 @@ pub(super) const STRAIN_ROUNDS_EARLY: usize = 2;
 /// cycles, 1.112–1.113; with 8 cycles and no over-relaxation, 1.106–1.108
 /// for more time.
 pub(super) const MULTILEVEL_CYCLES: usize = 4;
-/// Newton steps of the fast projection per round, at most.
-pub(super) const FAST_STEPS: usize = 6;
 /// Sweeps per level of a multilevel cycle.
 pub(super) const MULTILEVEL_SWEEPS: usize = 4;
 /// Over-relaxation of the sweeps after a multilevel cycle
@@ -106,10 +104,7 @@ pub(super) fn limit_strain_with_contacts(
             // Cycles of the levels and over-relaxed sweeps, until the limits
             // hold or the cycles run out; the planes keep contacts sliding.
             Some(levels) => {
-                // The active band and the contact planes solved together
-                // (Goldenthal et al. 2007) once the first round has set the planes.
-                let converged = !above.is_empty() && limits.project_fast(&mut shortened, inverse_mass, &above, 0.5 * STRAIN_TOLERANCE, FAST_STEPS).converged;
-                for _ in 0..if converged { 0 } else { MULTILEVEL_CYCLES } {
+                for _ in 0..MULTILEVEL_CYCLES {
                     levels.project(&mut shortened, inverse_mass, &above, MULTILEVEL_SWEEPS);
                     limits.project_relaxed(&mut shortened, inverse_mass, &above, STRAIN_SWEEPS, STRAIN_TOLERANCE, OVER_RELAXATION);
                     if limits.worst_ratio(&shortened) <= 1.0 + STRAIN_TOLERANCE {

@@ -16,9 +16,7 @@
 
 use glam::Vec3;
 
-mod fast_projection;
 mod multilevel;
-pub use fast_projection::FastProjection;
 pub use multilevel::Hierarchy;
 
 use crate::mesh::validate_positions;
