@@ -50,8 +50,6 @@ pub(super) struct PatchTree {
     pub triangles: Vec<[u32; 3]>,
     /// Tree position → the skin's triangle index.
     pub order: Vec<u32>,
-    /// The skin's triangle index → tree position.
-    pub position: Vec<u32>,
     /// The leaves' node indices, ascending.
     pub leaves: Vec<u32>,
     /// Per node: whether it is a disk ([`Self::boundary`] then holds its loop).
@@ -101,10 +99,6 @@ impl PatchTree {
             stack.push(left + 1);
         }
         let tree_triangles: Vec<[u32; 3]> = order.iter().map(|&t| triangles[t as usize]).collect();
-        let mut position = vec![0u32; order.len()];
-        for (p, &t) in order.iter().enumerate() {
-            position[t as usize] = p as u32;
-        }
         let leaves: Vec<u32> = (0..nodes.len() as u32).filter(|&i| nodes[i as usize].is_leaf()).collect();
 
         // Bottom-up: a node's shape from its children's (children follow their parent).
@@ -135,7 +129,7 @@ impl PatchTree {
             loop_vertices.extend_from_slice(&l);
             loop_offsets.push(loop_vertices.len() as u32);
         }
-        PatchTree { nodes, triangles: tree_triangles, order, position, leaves, disk, loop_offsets, loop_vertices }
+        PatchTree { nodes, triangles: tree_triangles, order, leaves, disk, loop_offsets, loop_vertices }
     }
 
     /// The boundary loop of disk node `i` (vertices in order), empty otherwise.
