@@ -55,6 +55,9 @@ pub fn fan_triangles(corner_verts: &[i32], offsets: &[u32]) -> Vec<[u32; 3]> {
     tris
 }
 
+/// A triangle and the polygon it comes from.
+pub type PolygonTriangle = ([u32; 3], u32);
+
 /// The triangles of every way a renderer may split each polygon, each with
 /// its polygon: a quad with four distinct corners `a b c d` gives both
 /// splits' four triangles (`abc`, `acd` and `abd`, `bcd`: the faces of the
@@ -63,7 +66,7 @@ pub fn fan_triangles(corner_verts: &[i32], offsets: &[u32]) -> Vec<[u32; 3]> {
 /// Self-collision and its audit use these: Blender's BVHTree, a Subdivision
 /// Surface or an exporter may draw either diagonal of a quad, and a creased
 /// quad is not planar, so a guarantee given for one split only is not one.
-pub fn either_split_triangles(corner_verts: &[i32], offsets: &[u32]) -> (Vec<([u32; 3], u32)>, Vec<[u32; 4]>) {
+pub fn either_split_triangles(corner_verts: &[i32], offsets: &[u32]) -> (Vec<PolygonTriangle>, Vec<[u32; 4]>) {
     let mut triangles = Vec::with_capacity(corner_verts.len() * 2);
     let mut quads = Vec::new();
     for (polygon, w) in offsets.windows(2).enumerate() {

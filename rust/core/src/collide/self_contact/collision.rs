@@ -50,7 +50,21 @@ impl SelfCollision {
         let (triangles, quads) = either_split_triangles(mesh.corner_verts, &offsets);
         let (triangles, polygon_of): (Vec<[u32; 3]>, Vec<u32>) = triangles.into_iter().unzip();
         let edges = triangle_edges(&triangles);
-        let tree = PatchTree::build(&triangles, rest);
+        // A polygon's triangles stay together; a quad's first split (its
+        // first two triangles) is the surface whose topology decides disks.
+        let mut unit_offsets = vec![0u32];
+        let mut surface = Vec::with_capacity(triangles.len());
+        for (t, &p) in polygon_of.iter().enumerate() {
+            if t > 0 && polygon_of[t - 1] != p {
+                unit_offsets.push(t as u32);
+            }
+            let first_of_polygon = *unit_offsets.last().expect("starts with 0") as usize;
+            surface.push(t - first_of_polygon < 2 || !split_both_ways(&triangles, &polygon_of, first_of_polygon));
+        }
+        if !triangles.is_empty() {
+            unit_offsets.push(triangles.len() as u32);
+        }
+        let tree = PatchTree::build_in_units(&triangles, &unit_offsets, &surface, rest);
         let polygon = tree.order.iter().map(|&t| polygon_of[t as usize]).collect();
         let owns = ownership(&tree, rest.len());
         Ok(SelfCollision {
@@ -210,6 +224,13 @@ impl SelfCollision {
         found.sort_unstable();
         Ok(found)
     }
+}
+
+/// Whether the polygon whose triangles start at `first` is a quad split both
+/// ways (`abc acd abd bcd`, [`either_split_triangles`]), not a fan.
+fn split_both_ways(triangles: &[[u32; 3]], polygon_of: &[u32], first: usize) -> bool {
+    let count = polygon_of[first..].iter().take(5).take_while(|&&p| p == polygon_of[first]).count();
+    count == 4 && triangles[first + 2] == [triangles[first][0], triangles[first][1], triangles[first + 1][2]]
 }
 
 /// Whether triangles `a` and `b` (not crossing) come within `reach`: the
