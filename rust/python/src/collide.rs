@@ -253,8 +253,10 @@ impl Collider {
 /// :meth:`Collider.edges`), and ``open_colliders`` (colliders skipped by the
 /// inside test because they are not closed). With ``self_intersections`` it
 /// also counts the mesh's own intersections, with its own geometry (nothing of
-/// the solver's): pairs of polygons sharing no vertex where a side or fan
-/// diagonal of one properly crosses the other, as ``self_intersections``
+/// the solver's): pairs of polygons sharing no vertex that intersect under
+/// some split of their quads (a side or diagonal of one, a quad's two, an
+/// ngon's fan diagonals, properly crosses a triangle of the other, a quad's
+/// four of both splits, an ngon's fan), as ``self_intersections``
 /// and ``self_intersection_indices`` ``(K, 2)`` (polygon pairs, ascending);
 /// both are 0 and empty without it.
 #[pyfunction]

@@ -412,9 +412,9 @@ impl PyramidDeformer {
     /// skin projected), ``self_held`` (times the fail-safe put a vertex back
     /// where its pass started), ``self_pinched`` (int32 array of vertices left
     /// crossing skin where a sweeping collider had the last word),
-    /// ``self_intersections`` (pairs of the skin's triangles intersecting in
-    /// the output, neighbours not counted: what the input brought in that has
-    /// not come apart yet) and ``self_tangled`` (vertices exempt at the start
+    /// ``self_intersections`` (pairs of the skin's polygons intersecting in
+    /// the output under some split of their quads, neighbours not counted:
+    /// what the input brought in that has not come apart yet) and ``self_tangled`` (vertices exempt at the start
     /// of the frame because their triangles intersected there).
     #[getter]
     fn last_step<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {

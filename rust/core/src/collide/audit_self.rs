@@ -1,11 +1,14 @@
 //! The audit's count of a mesh's self-intersections, independent of the
-//! self-collision passes: its own fan triangulation per polygon, its own box
+//! self-collision passes: its own triangulation per polygon, its own box
 //! tree, and the audit's Plücker crossing test
 //! ([`super::audit`]), nothing of [`super::self_contact`].
 //!
-//! Two polygons intersect when a side or fan diagonal of one properly
-//! crosses a fan triangle of the other; polygons sharing a vertex are not
-//! counted (they touch by construction), as in Blender's own check
+//! Two polygons intersect when they do under *some* split of their quads
+//! (a renderer, Blender's BVHTree or an exporter may draw either
+//! diagonal): a side or diagonal of one (a quad's two, an ngon's fan
+//! diagonals) properly crosses a triangle of the other (a quad's four, of
+//! both splits; an ngon's fan). Polygons sharing a vertex are not counted
+//! (they touch by construction), as in Blender's own check
 //! (`BVHTree.overlap` of a mesh with itself, pairs sharing no vertex).
 
 use glam::Vec3;
@@ -21,12 +24,18 @@ pub fn self_intersections(mesh: MeshInput<'_>) -> Result<Vec<[u32; 2]>> {
     let offsets = mesh.validate()?;
     let positions = mesh.positions;
     let polygon = |p: usize| &mesh.corner_verts[offsets[p] as usize..offsets[p + 1] as usize];
-    // Fan triangles, each with its polygon.
-    let mut triangles: Vec<([u32; 3], u32)> = Vec::with_capacity(mesh.corner_verts.len());
+    // Each quad's triangles of both splits, other polygons' fans, each with its polygon.
+    let mut triangles: Vec<([u32; 3], u32)> = Vec::with_capacity(2 * mesh.corner_verts.len());
     for p in 0..offsets.len() - 1 {
-        let corners = polygon(p);
-        for k in 1..corners.len().saturating_sub(1) {
-            triangles.push(([corners[0] as u32, corners[k] as u32, corners[k + 1] as u32], p as u32));
+        let c: Vec<u32> = polygon(p).iter().map(|&v| v as u32).collect();
+        if c.len() == 4 {
+            for t in [[c[0], c[1], c[2]], [c[0], c[2], c[3]], [c[0], c[1], c[3]], [c[1], c[2], c[3]]] {
+                triangles.push((t, p as u32));
+            }
+            continue;
+        }
+        for k in 1..c.len().saturating_sub(1) {
+            triangles.push(([c[0], c[k], c[k + 1]], p as u32));
         }
     }
     let boxes: Vec<Bounds> = triangles.par_iter().map(|(t, _)| Bounds::of_points(&t.map(|v| positions[v as usize]))).collect();
@@ -37,8 +46,13 @@ pub fn self_intersections(mesh: MeshInput<'_>) -> Result<Vec<[u32; 2]>> {
         .flat_map_iter(|p| {
             let corners = polygon(p);
             let k = corners.len();
-            // The sides, and the fan diagonals from the first corner.
-            let segments = (0..k).map(move |i| (corners[i], corners[(i + 1) % k])).chain((2..k.saturating_sub(1)).map(move |i| (corners[0], corners[i])));
+            // The sides, and the fan diagonals from the first corner (a
+            // quad's both diagonals).
+            let other_diagonal = (k == 4).then(|| (corners[1], corners[3]));
+            let segments = (0..k)
+                .map(move |i| (corners[i], corners[(i + 1) % k]))
+                .chain((2..k.saturating_sub(1)).map(move |i| (corners[0], corners[i])))
+                .chain(other_diagonal);
             let mut found: Vec<[u32; 2]> = Vec::new();
             for (a, b) in segments {
                 let (pa, pb): (Vec3, Vec3) = (positions[a as usize], positions[b as usize]);
@@ -84,5 +98,11 @@ mod tests {
         assert!(found.iter().all(|&[a, b]| a < b && b == 16), "{found:?}");
         let empty = PolyMesh::default();
         assert!(self_intersections(empty.input()).unwrap().is_empty());
+    }
+
+    #[test]
+    fn a_pair_crossing_under_either_split_of_a_quad_counts() {
+        let mesh = crate::mesh::fixtures::creased_quad_and_a_needle(0.4, 0.0);
+        assert_eq!(self_intersections(mesh.input()).unwrap(), vec![[0, 1]]);
     }
 }

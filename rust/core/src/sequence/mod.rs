@@ -88,6 +88,9 @@ pub struct Sequence {
     /// The mesh's own edges, which strain limits hold (the collision skin's
     /// edges also include the diagonals of triangulated polygons).
     mesh_edges: Vec<[u32; 2]>,
+    /// The welded mesh's polygons (corners, sizes): self-collision splits
+    /// them on its own, each quad both ways.
+    polygons: (Vec<i32>, Vec<i32>),
     /// Area around each vertex at rest (a third of its triangles'): masses.
     vertex_area: Vec<f32>,
     // Per-bake state.
@@ -139,6 +142,7 @@ impl Sequence {
         let mut sequence = Self::new(deformer);
         sequence.rest = welded.positions.to_vec();
         sequence.mesh_edges = polygon_edges(welded.corner_verts, &welded.validate()?);
+        sequence.polygons = (welded.corner_verts.to_vec(), welded.polygon_sizes.to_vec());
         sequence.vertex_area = vertex_areas(welded.positions, skin.triangles());
         sequence.skin = skin;
         sequence.weld = weld;
@@ -155,6 +159,7 @@ impl Sequence {
             skin: Skin::vertices_only(n),
             rest: Vec::new(),
             mesh_edges: Vec::new(),
+            polygons: (Vec::new(), Vec::new()),
             vertex_area: vec![1.0; n],
             history: None,
             velocity: None,

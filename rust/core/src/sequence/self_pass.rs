@@ -22,6 +22,7 @@ use glam::Vec3;
 use super::options::{SelfOptions, StepReport};
 use super::Sequence;
 use crate::collide::{Candidates, Clearance, Collider, ColliderSet, ResolveParams, SelfCollision, SelfSettings, Skin, Tangles};
+use crate::mesh::MeshInput;
 use crate::{Error, Result};
 
 /// What self-collision carries through one step.
@@ -60,7 +61,8 @@ impl Sequence {
             return Err(Error::invalid("self-collision needs a deformer bound to a mesh (its triangles)"));
         }
         if self.self_collision.is_none() {
-            self.self_collision = Some(SelfCollision::new(&self.skin, &self.rest)?);
+            let (corner_verts, polygon_sizes) = (&self.polygons.0, &self.polygons.1);
+            self.self_collision = Some(SelfCollision::new(MeshInput { positions: &self.rest, corner_verts, polygon_sizes })?);
         }
         let collision = self.self_collision.as_mut().expect("just made");
         collision.prepare(&options.settings)?;

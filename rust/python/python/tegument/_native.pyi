@@ -217,9 +217,9 @@ class PyramidDeformer:
         skin projected), ``self_held`` (times the fail-safe put a vertex back
         where its pass started), ``self_pinched`` (int32 array of vertices left
         crossing skin where a sweeping collider had the last word),
-        ``self_intersections`` (pairs of the skin's triangles intersecting in
-        the output, neighbours not counted: what the input brought in that has
-        not come apart yet) and ``self_tangled`` (vertices exempt at the start
+        ``self_intersections`` (pairs of the skin's polygons intersecting in
+        the output under some split of their quads, neighbours not counted:
+        what the input brought in that has not come apart yet) and ``self_tangled`` (vertices exempt at the start
         of the frame because their triangles intersected there).
         """
     @property
@@ -467,8 +467,10 @@ def audit(positions: Floats, corner_verts: Indices, polygon_sizes: Indices, coll
     :meth:`Collider.edges`), and ``open_colliders`` (colliders skipped by the
     inside test because they are not closed). With ``self_intersections`` it
     also counts the mesh's own intersections, with its own geometry (nothing of
-    the solver's): pairs of polygons sharing no vertex where a side or fan
-    diagonal of one properly crosses the other, as ``self_intersections``
+    the solver's): pairs of polygons sharing no vertex that intersect under
+    some split of their quads (a side or diagonal of one, a quad's two, an
+    ngon's fan diagonals, properly crosses a triangle of the other, a quad's
+    four of both splits, an ngon's fan), as ``self_intersections``
     and ``self_intersection_indices`` ``(K, 2)`` (polygon pairs, ascending);
     both are 0 and empty without it.
     """

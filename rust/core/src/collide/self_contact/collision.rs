@@ -1,6 +1,11 @@
 //! [`SelfCollision`]: what self-collision keeps of a bind (the patch tree,
 //! element ownership, rest positions) and what it derives from the
 //! settings (neighbour exclusion, the per-vertex separations at rest).
+//!
+//! It triangulates the mesh on its own, each quad both ways
+//! ([`either_split_triangles`]): its triangles are the four of the two
+//! splits and its edges the sides with both diagonals, so that a contact
+//! either split would have is a contact between two of its elements.
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -11,8 +16,7 @@ use super::gather::{ownership, scale_of, ElementPair, Gather};
 use super::settings::SelfSettings;
 use super::tree::PatchTree;
 use crate::collide::geometry::{point_triangle_distance_squared, segment_crosses_triangle, segment_segment_distance_squared};
-use crate::collide::skin::Skin;
-use crate::mesh::validate_positions;
+use crate::mesh::{either_split_triangles, triangle_edges, validate_positions, MeshInput};
 use crate::{Error, Result};
 
 /// The skin's contact with itself, bound to one skin.
@@ -20,8 +24,13 @@ use crate::{Error, Result};
 pub struct SelfCollision {
     pub(super) vertex_count: usize,
     pub(super) tree: PatchTree,
+    /// Per tree position, the polygon its triangle comes from.
+    pub(super) polygon: Vec<u32>,
     pub(super) owns: Vec<u8>,
+    /// Its edges: the polygons' sides, fan diagonals and both diagonals of quads.
     edges: Vec<[u32; 2]>,
+    /// The quads split both ways (their two diagonals cross: not a contact).
+    quads: Vec<[u32; 4]>,
     rest: Vec<Vec3>,
     /// Rounding allowance of the f32 boxes (relative to the rest's size).
     pub(super) rounding: f32,
@@ -33,22 +42,41 @@ pub struct SelfCollision {
 }
 
 impl SelfCollision {
-    /// Binds self-collision to `skin` (its triangles and edges) at rest.
-    pub fn new(skin: &Skin, rest: &[Vec3]) -> Result<Self> {
-        if rest.len() != skin.vertex_count() {
-            return Err(Error::invalid(format!("{} rest positions given for a skin of {} vertices", rest.len(), skin.vertex_count())));
+    /// Binds self-collision to a polygon mesh at rest (`mesh.positions`):
+    /// each quad split both ways, other polygons by their fan.
+    pub fn new(mesh: MeshInput<'_>) -> Result<Self> {
+        let offsets = mesh.validate()?;
+        let rest = mesh.positions;
+        let (triangles, quads) = either_split_triangles(mesh.corner_verts, &offsets);
+        let (triangles, polygon_of): (Vec<[u32; 3]>, Vec<u32>) = triangles.into_iter().unzip();
+        let edges = triangle_edges(&triangles);
+        // A polygon's triangles stay together; a quad's first split (its
+        // first two triangles) is the surface whose topology decides disks.
+        let mut unit_offsets = vec![0u32];
+        let mut surface = Vec::with_capacity(triangles.len());
+        for (t, &p) in polygon_of.iter().enumerate() {
+            if t > 0 && polygon_of[t - 1] != p {
+                unit_offsets.push(t as u32);
+            }
+            let first_of_polygon = *unit_offsets.last().expect("starts with 0") as usize;
+            surface.push(t - first_of_polygon < 2 || !split_both_ways(&triangles, &polygon_of, first_of_polygon));
         }
-        validate_positions("rest positions", rest)?;
-        let tree = PatchTree::build(skin.triangles(), rest);
+        if !triangles.is_empty() {
+            unit_offsets.push(triangles.len() as u32);
+        }
+        let tree = PatchTree::build_in_units(&triangles, &unit_offsets, &surface, rest);
+        let polygon = tree.order.iter().map(|&t| polygon_of[t as usize]).collect();
         let owns = ownership(&tree, rest.len());
         Ok(SelfCollision {
             vertex_count: rest.len(),
             owns,
             tree,
-            edges: skin.edges().to_vec(),
+            polygon,
             rounding: 4e-6 * scale_of(rest),
             rest: rest.to_vec(),
-            exclusion: Exclusion::new(rest.len(), skin.edges(), 0),
+            exclusion: Exclusion::new(rest.len(), &edges, 0, &quads),
+            edges,
+            quads,
             separation: None,
         })
     }
@@ -62,7 +90,7 @@ impl SelfCollision {
     pub fn prepare(&mut self, settings: &SelfSettings) -> Result<()> {
         settings.validate()?;
         if self.exclusion.rings() != settings.rings {
-            self.exclusion = Exclusion::new(self.vertex_count, &self.edges, settings.rings);
+            self.exclusion = Exclusion::new(self.vertex_count, &self.edges, settings.rings, &self.quads);
             self.separation = None;
         }
         if self.separation.as_ref().is_some_and(|(t, r, _)| *t == settings.thickness && *r == settings.rings) {
@@ -144,12 +172,29 @@ impl SelfCollision {
         Gather { tree: &self.tree, owns: &self.owns, bounds: &bounds, motion: *motion, reach: reach + self.rounding, cull, takes_part, accept }.run()
     }
 
-    /// The pairs of triangles (the skin's indices, ascending within a pair,
-    /// pairs ascending) that intersect at `positions`: an edge of one
-    /// properly crosses the other. Triangles that are neighbours (sharing a
-    /// vertex, or within the rings) are not counted; only those taking part.
+    /// The pairs of polygons (the mesh's indices, ascending within a pair,
+    /// pairs ascending) that intersect at `positions` under some split of
+    /// their quads: an edge (side or either diagonal) of one properly
+    /// crosses a triangle (of either split) of the other. Polygons that are
+    /// neighbours (sharing a vertex, or within the rings) are not counted;
+    /// only those taking part.
     pub fn intersections(&self, positions: &[Vec3], takes_part: Option<&[bool]>) -> Result<Vec<[u32; 2]>> {
-        Ok(self.meeting(positions, takes_part, 0.0)?.into_iter().filter(|&(_, crossing)| crossing).map(|(pair, _)| pair).collect())
+        let crossing: Vec<[u32; 2]> = self.meeting(positions, takes_part, 0.0)?.into_iter().filter(|&(_, crossing)| crossing).map(|(pair, _)| pair).collect();
+        Ok(self.polygon_pairs(&crossing))
+    }
+
+    /// The polygon pairs (ascending, each once) of tree-position pairs.
+    pub(super) fn polygon_pairs(&self, pairs: &[[u32; 2]]) -> Vec<[u32; 2]> {
+        let mut polygons: Vec<[u32; 2]> = pairs
+            .iter()
+            .map(|&[p, q]| {
+                let (a, b) = (self.polygon[p as usize], self.polygon[q as usize]);
+                [a.min(b), a.max(b)]
+            })
+            .collect();
+        polygons.sort_unstable();
+        polygons.dedup();
+        polygons
     }
 
     /// The pairs of triangles (tree positions) that intersect or come
@@ -173,15 +218,19 @@ impl SelfCollision {
             .filter_map(|[p, q]| {
                 let (tp, tq) = (self.tree.triangles[p as usize], self.tree.triangles[q as usize]);
                 let crossing = crosses(positions, tp, tq) || crosses(positions, tq, tp);
-                (crossing || (touching > 0.0 && triangles_within(positions, tp, tq, touching))).then(|| {
-                    let (a, b) = (self.tree.order[p as usize], self.tree.order[q as usize]);
-                    ([a.min(b), a.max(b)], crossing)
-                })
+                (crossing || (touching > 0.0 && triangles_within(positions, tp, tq, touching))).then_some(([p, q], crossing))
             })
             .collect();
         found.sort_unstable();
         Ok(found)
     }
+}
+
+/// Whether the polygon whose triangles start at `first` is a quad split both
+/// ways (`abc acd abd bcd`, [`either_split_triangles`]), not a fan.
+fn split_both_ways(triangles: &[[u32; 3]], polygon_of: &[u32], first: usize) -> bool {
+    let count = polygon_of[first..].iter().take(5).take_while(|&&p| p == polygon_of[first]).count();
+    count == 4 && triangles[first + 2] == [triangles[first][0], triangles[first][1], triangles[first + 1][2]]
 }
 
 /// Whether triangles `a` and `b` (not crossing) come within `reach`: the

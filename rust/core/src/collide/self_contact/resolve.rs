@@ -53,26 +53,27 @@ pub struct Tangles {
 
 impl Tangles {
     /// The tangles of a frame starting at `positions`: the corners of the
-    /// triangles that intersect there, or touch (closer than a tenth of the
-    /// thickness, where a contact has no side to be put back on). Returns
-    /// them with the intersecting pairs ([`SelfCollision::intersections`]).
+    /// triangles (of either split of a quad) that intersect there, or touch
+    /// (closer than a tenth of the thickness, where a contact has no side to
+    /// be put back on). Returns them with the intersecting polygon pairs
+    /// ([`SelfCollision::intersections`]).
     pub fn at(collision: &SelfCollision, positions: &[Vec3], settings: &SelfSettings, takes_part: Option<&[bool]>) -> Result<(Self, Vec<[u32; 2]>)> {
         let touching = 0.1 * settings.thickness + 2.5 * collision.rounding;
         let meeting = collision.meeting(positions, takes_part, touching)?;
         let pairs: Vec<[u32; 2]> = meeting.iter().map(|&(pair, _)| pair).collect();
-        let crossing = meeting.iter().filter(|&&(_, crossing)| crossing).map(|&(pair, _)| pair).collect();
-        Ok((Tangles::new(collision, &pairs), crossing))
+        let crossing: Vec<[u32; 2]> = meeting.iter().filter(|&&(_, crossing)| crossing).map(|&(pair, _)| pair).collect();
+        Ok((Tangles::new(collision, &pairs), collision.polygon_pairs(&crossing)))
     }
 
-    /// The tangles of the triangle pairs `pairs` (the skin's indices).
-    pub fn new(collision: &SelfCollision, pairs: &[[u32; 2]]) -> Self {
+    /// The tangles of the triangle pairs `pairs` (tree positions).
+    fn new(collision: &SelfCollision, pairs: &[[u32; 2]]) -> Self {
         if pairs.is_empty() {
             return Tangles::default();
         }
         let mut vertices = vec![false; collision.vertex_count];
         for pair in pairs {
             for &t in pair {
-                for v in collision.tree.triangles[collision.tree.position[t as usize] as usize] {
+                for v in collision.tree.triangles[t as usize] {
                     vertices[v as usize] = true;
                 }
             }

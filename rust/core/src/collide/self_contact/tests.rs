@@ -6,7 +6,6 @@ use proptest::prelude::*;
 
 use super::*;
 use crate::collide::audit_self::self_intersections;
-use crate::collide::skin::Skin;
 use crate::mesh::shapes::{grid, PolyMesh};
 use crate::mesh::MeshInput;
 
@@ -30,8 +29,7 @@ fn two_sheets(n: usize, gap: f32) -> PolyMesh {
 }
 
 fn bound(mesh: &PolyMesh, settings: &SelfSettings) -> SelfCollision {
-    let skin = Skin::from_mesh(mesh.input()).unwrap();
-    let mut collision = SelfCollision::new(&skin, &mesh.positions).unwrap();
+    let mut collision = SelfCollision::new(mesh.input()).unwrap();
     collision.prepare(settings).unwrap();
     collision
 }
@@ -140,12 +138,50 @@ fn intersections_of_a_state_match_the_audits() {
     }
     let ours = collision.intersections(&x, None).unwrap();
     assert!(!ours.is_empty());
-    // Triangle pairs against polygon pairs: every polygon pair the audit
-    // finds holds a crossing triangle pair (quads: triangles 2p and 2p + 1).
-    let mut polygons: Vec<[u32; 2]> = ours.iter().map(|&[a, b]| [a / 2, b / 2]).collect();
-    polygons.sort_unstable();
-    polygons.dedup();
-    assert_eq!(polygons, audited(&mesh, &x));
+    assert_eq!(ours, audited(&mesh, &x));
+}
+
+/// The mesh with each quad replaced by the two triangles of one split
+/// (`diagonal` 0: along its corners 0–2, the fan; 1: along 1–3).
+fn split(mesh: &PolyMesh, diagonal: usize) -> PolyMesh {
+    let mut out = PolyMesh { positions: mesh.positions.clone(), ..PolyMesh::default() };
+    for q in mesh.corner_verts.chunks(4) {
+        let c: Vec<usize> = q.iter().map(|&v| v as usize).collect();
+        let (one, other) = if diagonal == 0 { ([c[0], c[1], c[2]], [c[0], c[2], c[3]]) } else { ([c[0], c[1], c[3]], [c[1], c[2], c[3]]) };
+        out.push_polygon(&one);
+        out.push_polygon(&other);
+    }
+    out
+}
+
+#[test]
+fn a_quad_crossed_only_under_its_other_diagonal_is_kept_apart() {
+    // The needle rises by 0.5 from under a creased quad into where only the
+    // split the solver does not draw (along 1–3) has its surface.
+    let lift = 0.4;
+    let mesh = crate::mesh::fixtures::creased_quad_and_a_needle(lift, -0.5);
+    let target = crate::mesh::fixtures::creased_quad_and_a_needle(lift, 0.0).positions;
+    let count = |diagonal: usize, x: &[Vec3]| audited(&split(&mesh, diagonal), x).len();
+    assert_eq!((count(0, &mesh.positions), count(1, &mesh.positions)), (0, 0), "the start is free under both splits");
+    assert_eq!((count(0, &target), count(1, &target) > 0), (0, true), "unresolved, the motion crosses under the other split only");
+    let collision = bound(&mesh, &SETTINGS);
+    let mut end = target.clone();
+    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None).unwrap();
+    assert!(stats.contacts > 0, "{stats:?}");
+    assert!(end.iter().all(|p| p.is_finite()));
+    assert_eq!((count(0, &end), count(1, &end)), (0, 0), "{stats:?}");
+    // Stopped on the lower crease, not merely held at the start: the needle rose.
+    assert!(end[6].z > mesh.positions[6].z + 0.2, "{:?} -> {:?}", mesh.positions[6], end[6]);
+    // And in the in-loop pass.
+    let mut after = target.clone();
+    let mut candidates = None;
+    collision.resolve_in_loop(&mut candidates, &mesh.positions, &mut after, &SETTINGS, &Tangles::default(), None).unwrap();
+    collision.hold_back_in_loop(&mut candidates, &mesh.positions, &mut after, &SETTINGS, &Tangles::default(), None).unwrap();
+    assert_eq!((count(0, &after), count(1, &after)), (0, 0));
+    // A state crossing under either split is an intersection of its own count and of the tangles.
+    assert_eq!(collision.intersections(&target, None).unwrap(), vec![[0, 1]]);
+    let (tangles, crossing) = Tangles::at(&collision, &target, &SETTINGS, None).unwrap();
+    assert_eq!((crossing, tangles.vertex_count() > 0), (vec![[0, 1]], true));
 }
 
 #[test]

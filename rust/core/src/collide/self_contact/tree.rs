@@ -1,7 +1,8 @@
 //! The patch tree: the skin's triangles split at rest, by median cuts of
 //! their centroids along the longest axis, into a binary tree of spatially
-//! compact patches (leaves of at most [`LEAF`] triangles, each a contiguous
-//! range of the tree's triangle order). Built once per bind; every pass
+//! compact patches (leaves of at most [`LEAF`] triangles, or one polygon's,
+//! each a contiguous range of the tree's triangle order; a polygon's
+//! triangles never part). Built once per bind; every pass
 //! refits its boxes and normal cones ([`super::bounds`]).
 //!
 //! Volino and Magnenat-Thalmann's curvature criterion needs to know which
@@ -50,8 +51,6 @@ pub(super) struct PatchTree {
     pub triangles: Vec<[u32; 3]>,
     /// Tree position → the skin's triangle index.
     pub order: Vec<u32>,
-    /// The skin's triangle index → tree position.
-    pub position: Vec<u32>,
     /// The leaves' node indices, ascending.
     pub leaves: Vec<u32>,
     /// Per node: whether it is a disk ([`Self::boundary`] then holds its loop).
@@ -72,19 +71,43 @@ struct Shape {
 }
 
 impl PatchTree {
+    /// The tree of single triangles (every triangle is surface).
+    #[cfg(test)]
     pub(super) fn build(triangles: &[[u32; 3]], rest: &[Vec3]) -> Self {
-        let centroid: Vec<Vec3> = triangles.iter().map(|t| (rest[t[0] as usize] + rest[t[1] as usize] + rest[t[2] as usize]) / 3.0).collect();
-        let mut order: Vec<u32> = (0..triangles.len() as u32).collect();
-        let mut nodes = vec![Node { first: 0, count: triangles.len() as u32, left: NONE }];
+        let units: Vec<u32> = (0..=triangles.len() as u32).collect();
+        Self::build_in_units(triangles, &units, &vec![true; triangles.len()], rest)
+    }
+
+    /// The tree of `triangles` cut between *units*, runs of triangles
+    /// (`unit_offsets`, compressed rows) that stay in one leaf: a polygon's.
+    /// Only the triangles flagged in `surface` (one split of each polygon)
+    /// decide which nodes are disks: a quad split both ways is four
+    /// triangles over one surface, and with whole quads in a node every
+    /// choice of their splits has the same boundary, so what is proven for
+    /// one split of the node ([`super::bounds`], its cones covering all
+    /// four triangles) holds for every split.
+    pub(super) fn build_in_units(triangles: &[[u32; 3]], unit_offsets: &[u32], surface: &[bool], rest: &[Vec3]) -> Self {
+        let unit_count = unit_offsets.len().saturating_sub(1);
+        let size = |u: u32| unit_offsets[u as usize + 1] - unit_offsets[u as usize];
+        let centroid: Vec<Vec3> = (0..unit_count)
+            .map(|u| {
+                let range = unit_offsets[u] as usize..unit_offsets[u + 1] as usize;
+                let sum = triangles[range.clone()].iter().fold(Vec3::ZERO, |acc, t| acc + rest[t[0] as usize] + rest[t[1] as usize] + rest[t[2] as usize]);
+                sum / (3 * range.len().max(1)) as f32
+            })
+            .collect();
+        let mut units: Vec<u32> = (0..unit_count as u32).collect();
+        // Built over units (first unit, count of units, triangles); turned into triangle ranges below.
+        let mut built: Vec<(u32, u32, u32, u32)> = vec![(0, unit_count as u32, triangles.len() as u32, NONE)];
         let mut stack = vec![0usize];
         while let Some(i) = stack.pop() {
-            let Node { first, count, .. } = nodes[i];
-            if count as usize <= LEAF {
+            let (first, count, triangle_count, _) = built[i];
+            if triangle_count as usize <= LEAF || count < 2 {
                 continue;
             }
-            let slice = &mut order[first as usize..(first + count) as usize];
-            let (lo, hi) = slice.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), &t| {
-                let c = centroid[t as usize];
+            let slice = &mut units[first as usize..(first + count) as usize];
+            let (lo, hi) = slice.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), &u| {
+                let c = centroid[u as usize];
                 (lo.min(c), hi.max(c))
             });
             let extent = hi - lo;
@@ -93,18 +116,24 @@ impl PatchTree {
             slice.select_nth_unstable_by(mid as usize, |&a, &b| {
                 centroid[a as usize][axis].total_cmp(&centroid[b as usize][axis]).then(a.cmp(&b))
             });
-            let left = nodes.len();
-            nodes[i].left = left as u32;
-            nodes.push(Node { first, count: mid, left: NONE });
-            nodes.push(Node { first: first + mid, count: count - mid, left: NONE });
+            let left_triangles: u32 = slice[..mid as usize].iter().map(|&u| size(u)).sum();
+            let left = built.len();
+            built[i].3 = left as u32;
+            built.push((first, mid, left_triangles, NONE));
+            built.push((first + mid, count - mid, triangle_count - left_triangles, NONE));
             stack.push(left);
             stack.push(left + 1);
         }
-        let tree_triangles: Vec<[u32; 3]> = order.iter().map(|&t| triangles[t as usize]).collect();
-        let mut position = vec![0u32; order.len()];
-        for (p, &t) in order.iter().enumerate() {
-            position[t as usize] = p as u32;
+        let mut unit_start = Vec::with_capacity(unit_count + 1);
+        let mut order: Vec<u32> = Vec::with_capacity(triangles.len());
+        for &u in &units {
+            unit_start.push(order.len() as u32);
+            order.extend(unit_offsets[u as usize]..unit_offsets[u as usize + 1]);
         }
+        unit_start.push(order.len() as u32);
+        let nodes: Vec<Node> = built.iter().map(|&(first, _, count, left)| Node { first: unit_start[first as usize], count, left }).collect();
+        let tree_triangles: Vec<[u32; 3]> = order.iter().map(|&t| triangles[t as usize]).collect();
+        let tree_surface: Vec<bool> = order.iter().map(|&t| surface[t as usize]).collect();
         let leaves: Vec<u32> = (0..nodes.len() as u32).filter(|&i| nodes[i as usize].is_leaf()).collect();
 
         // Bottom-up: a node's shape from its children's (children follow their parent).
@@ -114,7 +143,9 @@ impl PatchTree {
         for i in (0..nodes.len()).rev() {
             let node = nodes[i];
             let shape = if node.is_leaf() {
-                leaf_shape(&tree_triangles[node.range()])
+                let range = node.range();
+                let on_surface: Vec<[u32; 3]> = tree_triangles[range.clone()].iter().zip(&tree_surface[range]).filter(|(_, &s)| s).map(|(t, _)| *t).collect();
+                leaf_shape(&on_surface)
             } else {
                 let l = shapes[node.left as usize].take().expect("children come after their parent");
                 let r = shapes[node.left as usize + 1].take().expect("children come after their parent");
@@ -135,7 +166,7 @@ impl PatchTree {
             loop_vertices.extend_from_slice(&l);
             loop_offsets.push(loop_vertices.len() as u32);
         }
-        PatchTree { nodes, triangles: tree_triangles, order, position, leaves, disk, loop_offsets, loop_vertices }
+        PatchTree { nodes, triangles: tree_triangles, order, leaves, disk, loop_offsets, loop_vertices }
     }
 
     /// The boundary loop of disk node `i` (vertices in order), empty otherwise.
@@ -255,6 +286,23 @@ mod tests {
         }
         assert!(seen.iter().all(|&k| k == 1));
         assert_eq!(tree.boundary(0).len(), 4 * 12);
+    }
+
+    #[test]
+    fn a_grid_of_quads_split_both_ways_is_still_a_disk_and_no_quad_parts() {
+        let g = grid(12, 12, 1.0);
+        let offsets = g.input().validate().unwrap();
+        let (tris, _) = crate::mesh::either_split_triangles(g.corner_verts.as_slice(), &offsets);
+        let units: Vec<u32> = (0..=tris.len() as u32 / 4).map(|u| 4 * u).collect();
+        let surface: Vec<bool> = (0..tris.len()).map(|t| t % 4 < 2).collect();
+        let triangles: Vec<[u32; 3]> = tris.iter().map(|(t, _)| *t).collect();
+        let tree = PatchTree::build_in_units(&triangles, &units, &surface, &g.positions);
+        assert!(tree.disk[0], "the whole grid is a disk under one split, so under both");
+        assert_eq!(tree.boundary(0).len(), 4 * 12);
+        for &leaf in &tree.leaves {
+            let node = tree.nodes[leaf as usize];
+            assert_eq!((node.first % 4, node.count % 4), (0, 0), "a quad's four triangles share a leaf");
+        }
     }
 
     #[test]
