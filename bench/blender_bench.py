@@ -76,7 +76,8 @@ def main() -> int:
     parser.add_argument("--zip", type=pathlib.Path, default=os.environ.get("TEGUMENT_EXTENSION_ZIP"))
     parser.add_argument("--collide-grid", type=int, default=316, help="skin grid subdivisions of the collision case (316: ~100k vertices)")
     parser.add_argument("--collide-frames", type=int, default=8)
-    parser.add_argument("--cases", default="collisions,character", help="comma-separated, of collisions, character")
+    parser.add_argument("--cases", default="collisions,character,self_collision",
+                        help="comma-separated, of collisions, character, self_collision")
     args = parser.parse_args()
     user = tempfile.mkdtemp(prefix="tegument-bench-user-")
     os.environ["BLENDER_USER_RESOURCES"] = user
@@ -100,6 +101,8 @@ def main() -> int:
         collisions(bpy, np, rows, threads, workdir, args.collide_grid, args.collide_frames)
     if "character" in cases:
         character(bpy, np, rows, threads, workdir)
+    if "self_collision" in cases:
+        self_collision(bpy, np, rows, threads, workdir)
 
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "blender.json").write_text(json.dumps(rows.rows, indent=1))
@@ -289,26 +292,10 @@ def character(bpy, np, rows, threads, workdir) -> None:
         skinning = evaluate(last)
 
         def corrective_smooth():
-            """Corrective Smooth's frames and its shape at the pose's last frame, with any
-            Tegument modifier left out of the stack."""
-            # Bound at the rest frame rather than ORCO: ORCO is the mesh's own 13k vertices, which a
-            # Subdivision Surface above Corrective Smooth no longer has.
-            tegument_modifier = bake.evaluate.tegument_modifier(obj)
-            if tegument_modifier is not None:
-                tegument_modifier.show_viewport = False
-            scene.frame_set(character_demo.POSE_FRAMES[0])
-            smooth = obj.modifiers.new("CorrectiveSmooth", "CORRECTIVE_SMOOTH")
-            smooth.iterations = 10
-            smooth.rest_source = "BIND"
-            bpy.context.view_layer.objects.active = obj
-            with bpy.context.temp_override(object=obj, active_object=obj):
-                assert bpy.ops.object.correctivesmooth_bind(modifier=smooth.name) == {"FINISHED"}
-            times = frame_times(scene, frames, evaluate)
-            shape = evaluate(last)
-            obj.modifiers.remove(smooth)
-            if tegument_modifier is not None:
-                tegument_modifier.show_viewport = True
-            return times, shape
+            """Corrective Smooth's frames and its shape at the pose's last frame."""
+            with character_demo.corrective_smooth(obj):
+                times = frame_times(scene, frames, evaluate)
+                return times, evaluate(last)
 
         # Corrective Smooth before and after Tegument's bake, so that both are measured over the
         # same minutes (this host's second core comes and goes).
@@ -346,6 +333,56 @@ def character(bpy, np, rows, threads, workdir) -> None:
             rows.add(case, f"{method}: spike max", figures["spike_max"], "", threads, f"frame {last}")
             rows.add(case, f"{method}: self-intersecting pairs", figures["self_intersections"], "", threads, f"frame {last}")
             rows.add(case, f"{method}: seam gap", 1000 * figures["seam_gap"], "mm", threads, f"frame {last}")
+
+
+def self_collision(bpy, np, rows, threads, workdir) -> None:
+    """Issue 30 on the hard-posed MakeHuman character (OBJ, welded): the bake frame without and with
+    Self Collision in the same run, and at every frame of the pose the self-intersecting face pairs
+    the rest pose does not have (demo/measures.py, Blender's BVHTree), for skinning, Corrective
+    Smooth and Pyramid Deform without and with Self Collision."""
+    import character as makehuman
+    import character_demo
+    import measures
+
+    try:
+        makehuman.data_folder()
+    except makehuman.CharacterDataMissing as error:
+        print(f"self-collision rows skipped: {error}")
+        return
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.preferences.addon_enable(module="bl_ext.user_default.tegument")
+    bpy.ops.wm.save_as_mainfile(filepath=str(workdir / "self-collision.blend"))
+    obj, _ = character_demo.build("obj", workdir)
+    rest, corners, sizes = character_demo.rest_topology(obj)
+    groups = measures.coincident_groups(rest)
+    case = f"MakeHuman character (OBJ, welded), {len(rest) / 1000:.1f}k vertices, Self Collision"
+    at_rest = measures.self_intersection_pairs(rest, corners, sizes, groups)
+    first, last = character_demo.POSE_FRAMES
+    pose = range(first, last + 1)
+    shapes = {"skinning": [character_demo.upstream_local(obj, frame) for frame in pose]}
+    with character_demo.corrective_smooth(obj):
+        shapes["Corrective Smooth"] = [character_demo.upstream_local(obj, frame) for frame in pose]
+    # Without, then with: the same object, bind and frames; the wall time of the Bake operator.
+    times = {}
+    bake = character_demo.add_and_bake(obj, "//self-without.pc2")
+    times["without"] = bake["ms_per_frame_wall"]
+    shapes["Pyramid Deform"] = list(character_demo.read_cache(obj))
+    obj.tegument.self_collision.enabled = True
+    obj.tegument.cache_path = "//self-with.pc2"
+    started = time.perf_counter()
+    assert bpy.ops.tegument.bake() == {"FINISHED"}
+    times["with"] = 1000 * (time.perf_counter() - started) / len(pose)
+    shapes["Pyramid Deform + Self Collision"] = list(character_demo.read_cache(obj))
+    rows.add(case, "bake frame without Self Collision", times["without"], "ms", threads, "wall time of the Bake operator per frame")
+    rows.add(case, "bake frame with Self Collision", times["with"], "ms", threads, "wall time of the Bake operator per frame")
+    rows.add(case, "with / without", times["with"] / times["without"], "x", threads, "target <= 2")
+    rows.add(case, "rest: self-intersecting pairs", len(at_rest), "", threads, "overlapping shells of the asset")
+    for name, frames in shapes.items():
+        found = [measures.self_intersection_pairs(x, corners, sizes, groups) for x in frames]
+        rows.add(case, f"{name}: pairs the rest pose does not have", max(len(f - at_rest) for f in found), "", threads, "worst frame of the pose")
+        rows.add(case, f"{name}: self-intersecting pairs", len(found[-1]), "", threads, f"frame {last}, the rest pose's included")
+    rows.add(case, "Self Collision: contacts (all frames)", obj.tegument.self_collision.contacts, "", threads)
+    rows.add(case, "Self Collision: held (all frames)", obj.tegument.self_collision.held, "", threads)
 
 
 # Iterations of the reference solve (x_inf): the accelerated solver's change per iteration is below

@@ -311,7 +311,7 @@ def main() -> None:
     parser.add_argument("--plot", help="path of the plot relative to the Markdown file, to show under the table")
     args = parser.parse_args()
     rows = []
-    for name in ("pyramid", "collide", "flesh", "warp", "warp_convergence", "blender", "scaling"):
+    for name in ("pyramid", "collide", "flesh", "self_collision", "warp", "warp_convergence", "blender", "scaling"):
         path = args.results / f"{name}.json"
         if not path.exists():
             raise SystemExit(f"error: {path} is missing: the {name} benchmark did not run")

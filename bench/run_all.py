@@ -88,11 +88,12 @@ def main() -> int:
     steps = [
         # Compiled first, so no benchmark is timed while its successors compile.
         ("build", cargo + ["--no-run", "--bench", "pyramid", "--bench", "convergence", "--bench", "collide", "--bench", "flesh",
-                           "--bench", "warp", "--bench", "warp_convergence"], {}),
+                           "--bench", "warp", "--bench", "warp_convergence", "--bench", "self_collision"], {}),
         ("pyramid", cargo + ["--bench", "pyramid"], results_env),
         ("convergence", cargo + ["--bench", "convergence"], results_env),
         ("collide", cargo + ["--bench", "collide"], results_env),
         ("flesh", cargo + ["--bench", "flesh"], results_env),
+        ("self_collision", cargo + ["--bench", "self_collision"], results_env),
         ("warp", cargo + ["--bench", "warp"], {**results_env, "TEGUMENT_WARP_SIZES": "1024,2048,4096"}),
         # Issue 28: the old and the new UV warp solver, cold and warm, in one run (long: the
         # fold sweep solves 4096² from the identity 64 times).

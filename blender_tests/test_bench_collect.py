@@ -158,7 +158,7 @@ def test_a_missing_figure_is_named():
 
 def test_command_writes_the_json_and_the_table_with_the_load_of_each_step(tmp_path):
     rows = run_rows()
-    for name in ("pyramid", "collide", "flesh", "warp", "warp_convergence", "blender", "scaling"):
+    for name in ("pyramid", "collide", "flesh", "self_collision", "warp", "warp_convergence", "blender", "scaling"):
         (tmp_path / f"{name}.json").write_text(json.dumps([r for r in rows if r["benchmark"] == name]))
     (tmp_path / "machine.txt").write_text("Test CPU, 2 cores\nBlender 5.0.1\n")
     run = {"started": "2026-11-23T15:00:00+00:00", "seconds": 600.0, "steps": [

@@ -30,6 +30,16 @@ INTERNAL = {
     "lists vertex": "solver constraint rows are built by the core itself",
     "symbolic Cholesky analysis of the global matrix failed": "the linearised (Cholesky) formulation is not in the wheel",
     "the Cholesky factor of a": "the linearised (Cholesky) formulation is not in the wheel",
+    "rest positions given for a skin of": "self-collision is bound by the sequence from its own skin and rest",
+    "self-collision is not prepared for these settings": "the sequence prepares self-collision before every pass",
+    "the triangles taking part are of another skin": "the sequence takes the triangles taking part from its own skin",
+    "self-collision margins": "the sequence makes the margins for its own skin",
+    "positions given for a collider of": "compliant colliders' envelopes are made by the sequence from their own goals",
+    "envelope margin is": "compliant colliders' envelopes are made by the sequence with the clearance's radius",
+    "envelopes given for": "the sequence gives one envelope slot per collider",
+    "a clearance measured against envelopes has no planes": "the sequence measures planes only without envelopes",
+    "collider slack is": "the skin's slack as a collider is a constant of the sequence",
+    "changed in a BVH over": "partial refits are made by the collider from its own triangles",
 }
 
 

@@ -18,6 +18,7 @@ disc with a hole. :func:`figures` measures skinning (the input) against Tegument
 
 from __future__ import annotations
 
+import contextlib
 import math
 import pathlib
 import time
@@ -179,6 +180,31 @@ def upstream_local(obj, frame: int) -> np.ndarray:
     return positions.reshape(-1, 3)
 
 
+@contextlib.contextmanager
+def corrective_smooth(obj):
+    """Blender's Corrective Smooth (10 iterations) at the end of ``obj``'s stack, bound at the
+    pose's rest frame, with any Tegument modifier hidden meanwhile: the stack the comparisons
+    call "Corrective Smooth". Bound at the rest frame rather than ORCO: ORCO is the mesh's own
+    vertices, which a Subdivision Surface above Corrective Smooth no longer has."""
+    tegument_modifier = obj.modifiers.get("Tegument")
+    if tegument_modifier is not None:
+        tegument_modifier.show_viewport = False
+    bpy.context.scene.frame_set(POSE_FRAMES[0])
+    smooth = obj.modifiers.new("CorrectiveSmooth", "CORRECTIVE_SMOOTH")
+    try:
+        smooth.iterations = 10
+        smooth.rest_source = "BIND"
+        bpy.context.view_layer.objects.active = obj
+        with bpy.context.temp_override(object=obj, active_object=obj):
+            if bpy.ops.object.correctivesmooth_bind(modifier=smooth.name) != {"FINISHED"}:
+                raise RuntimeError(f"Corrective Smooth did not bind on {obj.name}")
+        yield smooth
+    finally:
+        obj.modifiers.remove(smooth)
+        if tegument_modifier is not None:
+            tegument_modifier.show_viewport = True
+
+
 def topology(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(rest positions, corner vertices, polygon sizes)`` of a mesh datablock."""
     rest = np.empty(len(mesh.vertices) * 3, np.float32)
@@ -234,10 +260,11 @@ def frame_figures(positions: np.ndarray, rest: np.ndarray, corners: np.ndarray, 
     return figures
 
 
-def add_and_bake(obj, cache_path: str, frames=POSE_FRAMES, converge: bool = False) -> dict:
+def add_and_bake(obj, cache_path: str, frames=POSE_FRAMES, converge: bool = False, self_collision: bool = False) -> dict:
     """Add Pyramid Deform to ``obj`` and bake ``frames`` through the add-on's operators, as a user
     would (default iterations and closeness; with ``converge``, Converge on with its iteration
-    limit); returns the bind's figures and the bake's time."""
+    limit; with ``self_collision``, Self Collision on at its defaults); returns the bind's figures
+    and the bake's time."""
     _select_only(obj)
     if bpy.ops.tegument.deform_add() != {"FINISHED"}:
         raise RuntimeError(f"Add Pyramid Deform failed on {obj.name}: {obj.tegument.warnings}")
@@ -246,6 +273,7 @@ def add_and_bake(obj, cache_path: str, frames=POSE_FRAMES, converge: bool = Fals
         import tegument
 
         settings.converge, settings.iterations = True, tegument.DEFAULTS.accelerated_iterations
+    settings.self_collision.enabled = self_collision
     pinned, warnings = pinned_count(obj), settings.bind_warnings
     settings.cache_path = cache_path
     settings.frame_start, settings.frame_end = frames

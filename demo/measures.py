@@ -9,8 +9,11 @@ Pyramid Deform on the same frames. Plain numpy on the mesh's own arrays, plus Bl
   a spike or a tear shows as a large value.
 - :func:`coincident_groups` and :func:`seam_gap`: vertices that coincide at rest (split seams of
   glTF, FBX and USD imports) and how far apart they end up.
-- :func:`self_intersections`: pairs of faces that intersect although they share no vertex
-  (vertices coincident at rest count as shared, so a closed split seam is not an intersection).
+- :func:`self_intersection_pairs` (and their count, :func:`self_intersections`): pairs of faces
+  that intersect although they share no vertex (vertices coincident at rest count as shared, so a
+  closed split seam is not an intersection). BVHTree splits each quad along one diagonal of its
+  choosing; :func:`split_self_intersection_pairs` counts under each of Blender's own quad methods
+  and :func:`any_split_self_intersection_pairs` under every split of every quad at once.
 - :func:`convergence_error` and :func:`worst_moving`: issue 28's convergence error of a solve
   against the same solve run to a standstill, and its worst over the frames of a pose that move.
 """
@@ -109,10 +112,11 @@ def seam_gap(positions: np.ndarray, groups: np.ndarray) -> float:
     return float(np.linalg.norm(positions[split] - positions[groups[split]], axis=1).max())
 
 
-def self_intersections(positions: np.ndarray, corner_verts: np.ndarray, polygon_sizes: np.ndarray,
-                       groups: np.ndarray | None = None) -> int:
-    """Pairs of polygons that intersect and share no vertex (``groups``, e.g. from
-    :func:`coincident_groups`, makes vertices coincident at rest count as shared).
+def self_intersection_pairs(positions: np.ndarray, corner_verts: np.ndarray, polygon_sizes: np.ndarray,
+                            groups: np.ndarray | None = None) -> set[tuple[int, int]]:
+    """Pairs ``(i, j)``, ``i < j``, of polygons that intersect and share no vertex (``groups``, e.g.
+    from :func:`coincident_groups`, makes vertices coincident at rest count as shared, so a closed
+    split seam is not an intersection).
 
     Blender's ``BVHTree.overlap`` of the mesh with itself decides intersection.
     """
@@ -125,7 +129,80 @@ def self_intersections(positions: np.ndarray, corner_verts: np.ndarray, polygon_
     tree = BVHTree.FromPolygons(np.asarray(positions, dtype=np.float64).tolist(), polygons, all_triangles=False, epsilon=0.0)
     shared_id = np.asarray(groups if groups is not None else np.arange(int(corner_verts.max(initial=-1)) + 1))
     sets = [frozenset(shared_id[p].tolist()) for p in polygons]
-    return sum(1 for i, j in tree.overlap(tree) if i < j and not (sets[i] & sets[j]))
+    return {(i, j) for i, j in tree.overlap(tree) if i < j and not (sets[i] & sets[j])}
+
+
+#: The ways Blender's own triangulation (``bmesh.ops.triangulate``, the Triangulate modifier) may
+#: split a quad; FIXED and ALTERNATE are its two diagonals.
+QUAD_METHODS = ("BEAUTY", "FIXED", "ALTERNATE", "SHORT_EDGE", "LONG_EDGE")
+
+
+def _overlapping_polygons(positions, triangles, polygon_of, polygons, groups) -> set[tuple[int, int]]:
+    """Pairs of source polygons (sharing no vertex) two of whose ``triangles`` overlap by Blender's BVHTree."""
+    from mathutils.bvhtree import BVHTree
+
+    tree = BVHTree.FromPolygons(np.asarray(positions, dtype=np.float64).tolist(), triangles, all_triangles=True, epsilon=0.0)
+    shared_id = np.asarray(groups if groups is not None else np.arange(len(positions)))
+    sets = [frozenset(shared_id[p].tolist()) for p in polygons]
+    found = set()
+    for i, j in tree.overlap(tree):
+        a, b = sorted((polygon_of[i], polygon_of[j]))
+        if a != b and not (sets[a] & sets[b]):
+            found.add((a, b))
+    return found
+
+
+def _polygons(corner_verts, polygon_sizes):
+    corner_verts = np.asarray(corner_verts, dtype=np.int64)
+    sizes = np.asarray(polygon_sizes, dtype=np.int64)
+    starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+    return [corner_verts[s:s + k].tolist() for s, k in zip(starts, sizes)]
+
+
+def split_self_intersection_pairs(positions: np.ndarray, corner_verts: np.ndarray, polygon_sizes: np.ndarray,
+                                  quad_method: str, groups: np.ndarray | None = None) -> set[tuple[int, int]]:
+    """:func:`self_intersection_pairs` of the mesh as Blender's ``bmesh.ops.triangulate`` splits it
+    with ``quad_method`` (one of :data:`QUAD_METHODS`; ngons by BEAUTY), pairs of source polygons."""
+    import bmesh
+
+    polygons = _polygons(corner_verts, polygon_sizes)
+    bm = bmesh.new()
+    verts = [bm.verts.new(p) for p in np.asarray(positions, dtype=np.float64).tolist()]
+    source = bm.faces.layers.int.new("tegument_polygon")
+    for i, p in enumerate(polygons):
+        face = bm.faces.new([verts[v] for v in p])
+        face[source] = i
+    bmesh.ops.triangulate(bm, faces=bm.faces[:], quad_method=quad_method, ngon_method="BEAUTY")
+    bm.verts.index_update()
+    triangles = [[v.index for v in f.verts] for f in bm.faces]
+    polygon_of = [f[source] for f in bm.faces]
+    bm.free()
+    return _overlapping_polygons(positions, triangles, polygon_of, polygons, groups)
+
+
+def any_split_self_intersection_pairs(positions: np.ndarray, corner_verts: np.ndarray, polygon_sizes: np.ndarray,
+                                      groups: np.ndarray | None = None) -> set[tuple[int, int]]:
+    """Pairs of polygons that intersect under *some* split of their quads, each quad split its own
+    way: every quad stands for the four triangles of its two splits (``abc acd abd bcd``), other
+    polygons for their fan, and Blender's BVHTree decides. A superset of
+    :func:`split_self_intersection_pairs` for every quad method, and of what any renderer draws."""
+    polygons = _polygons(corner_verts, polygon_sizes)
+    triangles, polygon_of = [], []
+    for i, p in enumerate(polygons):
+        if len(p) == 4:
+            a, b, c, d = p
+            split = [[a, b, c], [a, c, d], [a, b, d], [b, c, d]]
+        else:
+            split = [[p[0], p[k], p[k + 1]] for k in range(1, len(p) - 1)]
+        triangles.extend(split)
+        polygon_of.extend([i] * len(split))
+    return _overlapping_polygons(positions, triangles, polygon_of, polygons, groups)
+
+
+def self_intersections(positions: np.ndarray, corner_verts: np.ndarray, polygon_sizes: np.ndarray,
+                       groups: np.ndarray | None = None) -> int:
+    """How many :func:`self_intersection_pairs` there are."""
+    return len(self_intersection_pairs(positions, corner_verts, polygon_sizes, groups))
 
 
 # ------------------------------------------------------------------------- convergence (issue 28)

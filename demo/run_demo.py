@@ -14,6 +14,8 @@ scales. The demo then, through the installed extension:
 6. shows the flesh features of Pyramid Deform (``demo/flesh.py``), each in a small scene of its
    own: dynamics (lag, overshoot, settling; 1 vs 4 substeps), a compliant collider that gives way
    where a kinematic one pinches, and strain limits (unified with collisions, or after them).
+7. bends a tube 150° and bakes it without and with Self Collision (``demo/self_collision_demo.py``):
+   the cut-open fold of skinning, Pyramid Deform and Pyramid Deform with Self Collision.
 
 Writes into ``--out``: the PNG pictures, the PC2 cache, the EXR sequence, ``demo.blend``, the flesh
 scenes and their caches in ``flesh/`` and ``report.json`` (time per frame of each stage, audit
@@ -413,6 +415,9 @@ def run(args, out: pathlib.Path, user: str) -> int:
     import character_demo  # the MakeHuman character; also replaces the open file
 
     report.data["character"] = character_demo.run(out, stage)
+    import self_collision_demo  # the bent tube without and with Self Collision; its own file too
+
+    report.data["self_collision"] = self_collision_demo.run(out, stage)
     data = report.data
     data["outputs"] = {
         "blend": str(out / "demo.blend"),

@@ -29,6 +29,8 @@ PICTURES = {
     # The MakeHuman character (demo/character_demo.py): renders in matplotlib frames, and the heat map.
     "character_before_after.png": ("character_before_after.png", 128),
     "character_spike_heat_map.png": ("character_spike_heat_map.png", 128),
+    # The tube bent 150°, cut open: skinning, Pyramid Deform without and with Self Collision.
+    "self_collision_before_after.png": ("self_collision_before_after.png", 128),
 }
 
 

@@ -17,7 +17,7 @@ import bpy
 import numpy as np
 
 from .. import jobs, mesh_arrays, pc2
-from . import colliders, evaluate
+from . import colliders, evaluate, self_collision
 from .evaluate import DeformError
 
 # Deformers are cheap to rebuild but not free (topology + encoding of every
@@ -109,6 +109,7 @@ class BakeJob:
             self.most_pinched = 0
             self.worst_stretch = 0.0
             self.max_recession = 0.0
+            self.self_figures = self_collision.BakeFigures(obj)
             self._stack.enter_context(self.rig.animated_only())
             self._open_collider_caches(context, keep_existing)
             if self.uses_step:
@@ -208,7 +209,7 @@ class BakeJob:
         if step is not None and self.uses_step:
             self.worst_stretch = max(self.worst_stretch, step.worst_stretch)
             self.max_recession = max(self.max_recession, step.max_recession)
-        if self.rig:
+        if self.rig or self.self_figures.enabled:
             self._audit(frame)
         self.done += 1
         return frame
@@ -227,10 +228,13 @@ class BakeJob:
         step = self.deformer.last_step
         self.most_pinched = max(self.most_pinched, len(step.pinched) if step else 0)
         if not self.settings.audit:
+            self.self_figures.add(step, None)
             return
-        found = tegument.audit(self._world, self.corners, self.sizes, self.rig.colliders)
+        found = tegument.audit(self._world, self.corners, self.sizes, self.rig.colliders,
+                               self_intersections=self.self_figures.enabled)
         for key in self.audit_totals:
             self.audit_totals[key] += getattr(found, key)
+        self.self_figures.add(step, found.self_intersections)
 
     def eta_seconds(self) -> float:
         if not self.times:
@@ -302,6 +306,7 @@ class BakeJob:
         notes += self.rig.warnings
         if self.most_pinched:
             notes.append(f"{self.most_pinched} vertices pinched between colliders")
+        notes += self.self_figures.store(self.obj)
         settings.warnings = "; ".join(notes)
 
     def abort(self) -> None:

@@ -327,4 +327,9 @@ def step_options(obj, scene) -> dict:
     if stretch is not None:
         options["max_stretch"] = stretch
         options["strain_mode"] = settings.strain_mode.lower()
+    from .self_collision import step_option
+
+    skin = step_option(obj)
+    if skin is not None:
+        options["self_collision"] = skin
     return options

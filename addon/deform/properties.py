@@ -10,6 +10,8 @@ import bpy
 import tegument
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
+from . import self_collision
+
 # Defaults come from the core (one source for each); min/max here are UI limits.
 _DEFAULTS = tegument.DEFAULTS
 
@@ -128,6 +130,8 @@ class TEGUMENT_PG_deform(bpy.types.PropertyGroup):
         default=_DEFAULTS.strain_mode.upper(),
     )
 
+    self_collision: PointerProperty(type=self_collision.TEGUMENT_PG_self_collision)
+
     audit: BoolProperty(
         name="Audit", default=True,
         description="After each baked frame, count skin vertices inside colliders and edges crossing "
@@ -176,6 +180,7 @@ class TEGUMENT_PG_deform(bpy.types.PropertyGroup):
 
 
 def register() -> None:
+    self_collision.register()
     bpy.utils.register_class(TEGUMENT_PG_deform)
     bpy.types.Object.tegument = PointerProperty(type=TEGUMENT_PG_deform)
 
@@ -183,3 +188,4 @@ def register() -> None:
 def unregister() -> None:
     del bpy.types.Object.tegument
     bpy.utils.unregister_class(TEGUMENT_PG_deform)
+    self_collision.unregister()

@@ -3,9 +3,9 @@
 
 import bpy
 
-from . import collider_panel, modifier_panel
+from . import collider_panel, modifier_panel, self_collision_panel
 
-_classes = (modifier_panel.TEGUMENT_PT_modifier, collider_panel.TEGUMENT_PT_collider)
+_classes = (modifier_panel.TEGUMENT_PT_modifier, self_collision_panel.TEGUMENT_PT_self_collision, collider_panel.TEGUMENT_PT_collider)
 
 
 def register() -> None:

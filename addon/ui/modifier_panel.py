@@ -40,7 +40,7 @@ class TEGUMENT_PT_modifier(MeshPropertiesPanel, bpy.types.Panel):
             column.prop(settings, "scale_safe")
             column.prop(settings, "bind_source")
             column.prop(settings, "collider_collection")
-            if settings.collider_collection is not None:
+            if settings.collider_collection is not None or settings.self_collision.enabled:
                 column.prop(settings, "audit")
             column.prop(settings, "substeps")
             dynamics = toggled(column, settings, "dynamic")

@@ -54,6 +54,19 @@ fn longest_edge(skin: &PolyMesh, x: &[Vec3]) -> f32 {
     worst
 }
 
+/// CPU time of this process so far (all threads, user and system), in ms,
+/// from `/proc/self/stat` (clock ticks of 10 ms); `None` where there is no
+/// such file. On a shared host the wall time of a frame also counts the time
+/// other processes had the cores; the CPU time counts only this one's work.
+fn process_cpu_ms() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // The fields after the command name (which is in parentheses and may hold spaces).
+    let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+    let ticks = |k: usize| fields.get(k)?.parse::<f64>().ok();
+    // utime and stime are fields 14 and 15 of the line, 12 and 13 after the name.
+    Some((ticks(11)? + ticks(12)?) * 10.0)
+}
+
 struct Config {
     name: &'static str,
     options: StepOptions<'static>,
@@ -106,6 +119,7 @@ fn main() {
             collider.set_compliance(Some(&vec![200.0; sphere.positions.len()])).unwrap();
         }
         let mut times = Vec::new();
+        let mut cpu_times = Vec::new();
         let mut last = None;
         // Over all frames: the worst stretch (measured here from the
         // polygons, not by the strain limits' own code) and what the audit
@@ -115,14 +129,21 @@ fn main() {
             for k in 1..=FRAMES {
                 collider.update(&at(k)).unwrap();
                 let started = std::time::Instant::now();
+                let cpu_started = process_cpu_ms();
                 let (x, step) = deformer.step(&skin.positions, &mut [&mut collider], &config.options).unwrap();
                 let ms = started.elapsed().as_secs_f64() * 1e3;
+                let cpu_ms = cpu_started.zip(process_cpu_ms()).map(|(a, b)| b - a);
                 let found = audit(MeshInput { positions: &x, ..skin.input() }, &[&collider], &AuditParams::default()).unwrap();
                 println!(
-                    "{:<28} frame {k}: {ms:.0} ms, {} pinched, worst stretch {:.4}, audit {} inside {} crossing {} collider edges crossing",
+                    "{:<28} frame {k}: {ms:.0} ms ({} ms CPU), {} pinched, worst stretch {:.4}, recession {:.4}, in-loop: {} clearances, {} vertices tested, {} skin refits; audit {} inside {} crossing {} collider edges crossing",
                     config.name,
+                    cpu_ms.map_or("?".to_string(), |c| format!("{c:.0}")),
                     step.pinched.len(),
                     step.worst_stretch,
+                    step.max_recession,
+                    step.clearance_measurements,
+                    step.in_loop_tested,
+                    step.in_loop_skin_refits,
                     found.vertices_inside.len(),
                     found.edges_crossing.len(),
                     found.collider_edges_crossing.len()
@@ -131,6 +152,7 @@ fn main() {
                 penetrations += found.vertices_inside.len() + found.edges_crossing.len() + found.collider_edges_crossing.len();
                 if k > FRAMES - TIMED {
                     times.push(ms);
+                    cpu_times.extend(cpu_ms);
                 }
                 last = Some(step);
             }
@@ -143,6 +165,11 @@ fn main() {
             step.worst_stretch, step.compliant_skin_vertices, step.max_recession
         );
         report.add(&case, config.name, median, "ms", 2, &note);
+        if cpu_times.len() == times.len() {
+            cpu_times.sort_by(f64::total_cmp);
+            let cpu = cpu_times[cpu_times.len() / 2];
+            report.add(&case, &format!("{}: CPU time", config.name), cpu, "ms", 2, "median of the last frames' process CPU time (both threads), less sensitive to the host's load");
+        }
         report.add(&case, &format!("{}: worst stretch (all frames)", config.name), worst as f64, "× rest", 2, "");
         report.add(&case, &format!("{}: penetrations (all frames, audit)", config.name), penetrations as f64, "", 2, "vertices inside, skin and collider edges crossing");
         match baseline {
@@ -150,5 +177,74 @@ fn main() {
             Some(base) => report.add(&case, &format!("added by {}", config.name.trim_start_matches("+ ")), median - base, "ms", 2, ""),
         }
     }
+    if selected("scaling") {
+        contact_region_scaling(&mut report, &sphere, &tris, settings, base);
+    }
     report.save();
+}
+
+/// The same compliant collider against skins of 25k, 100k and 400k vertices
+/// at the benchmark's spacing: the contact region stays the same, so the
+/// cost the collider adds to a step should not grow with the skin.
+/// (`TEGUMENT_BENCH_FLESH=scaling` runs only this and the baseline above.)
+/// The sphere's path is moved 41 cells towards the middle, where the
+/// smallest skin covers all of it; the grids' vertices coincide there.
+fn contact_region_scaling(report: &mut Report, sphere: &PolyMesh, tris: &[[u32; 3]], settings: ColliderSettings, options: StepOptions<'static>) {
+    let shift = Vec3::X * (41.0 * 2.0 / 316.0);
+    for (cells, size) in [(158, 1.0), (316, 2.0), (632, 4.0)] {
+        let skin = grid(cells, cells, size);
+        let case = format!("compliant collider added to a step, skin {} v (spacing {:.4})", skin.positions.len(), size / cells as f32);
+        let mut medians = [0.0f64; 2];
+        let mut cpu_medians = [None; 2];
+        for (slot, compliant) in [(0, false), (1, true)] {
+            let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
+            let at = |k: usize| sphere.positions.iter().map(|&p| p + centre(k) + shift).collect::<Vec<_>>();
+            let mut collider = Collider::new(&at(0), tris, settings).unwrap();
+            if compliant {
+                collider.set_compliance(Some(&vec![200.0; sphere.positions.len()])).unwrap();
+            }
+            let mut times = Vec::new();
+            let mut cpu_times = Vec::new();
+            let mut penetrations = 0;
+            with_threads(2, || {
+                for k in 1..=FRAMES {
+                    collider.update(&at(k)).unwrap();
+                    let started = std::time::Instant::now();
+                    let cpu_started = process_cpu_ms();
+                    let (x, step) = deformer.step(&skin.positions, &mut [&mut collider], &options).unwrap();
+                    let ms = started.elapsed().as_secs_f64() * 1e3;
+                    let cpu_ms = cpu_started.zip(process_cpu_ms()).map(|(a, b)| b - a);
+                    let found = audit(MeshInput { positions: &x, ..skin.input() }, &[&collider], &AuditParams::default()).unwrap();
+                    penetrations += found.vertices_inside.len() + found.edges_crossing.len() + found.collider_edges_crossing.len() + step.pinched.len();
+                    println!(
+                        "{case}, {}: frame {k}: {ms:.0} ms ({} ms CPU), recession {:.4}, in-loop: {} vertices tested, {} skin refits",
+                        if compliant { "compliant" } else { "kinematic" },
+                        cpu_ms.map_or("?".to_string(), |c| format!("{c:.0}")),
+                        step.max_recession,
+                        step.in_loop_tested,
+                        step.in_loop_skin_refits
+                    );
+                    if k > FRAMES - TIMED {
+                        times.push(ms);
+                        cpu_times.extend(cpu_ms);
+                    }
+                }
+            });
+            times.sort_by(f64::total_cmp);
+            medians[slot] = times[times.len() / 2];
+            if cpu_times.len() == times.len() {
+                cpu_times.sort_by(f64::total_cmp);
+                cpu_medians[slot] = Some(cpu_times[cpu_times.len() / 2]);
+            }
+            assert_eq!(penetrations, 0, "{case}: penetrations or pinched vertices");
+        }
+        report.add(&case, "collisions only", medians[0], "ms", 2, "median of the last frames");
+        report.add(&case, "+ compliant collider", medians[1], "ms", 2, "0 penetrations by the audit in every frame");
+        report.add(&case, "added by the compliant collider", medians[1] - medians[0], "ms", 2, "");
+        if let [Some(kinematic), Some(compliant)] = cpu_medians {
+            let note = "median of the last frames' process CPU time (both threads)";
+            report.add(&case, "added by the compliant collider: CPU time", compliant - kinematic, "ms", 2, note);
+            report.add(&case, "compliant collider / collisions only: CPU time", compliant / kinematic.max(1.0), "×", 2, note);
+        }
+    }
 }

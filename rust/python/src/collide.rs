@@ -8,7 +8,7 @@ use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PySequence};
-use tegument_core::collide::{audit as core_audit, AuditParams, Collider as CoreCollider, ColliderSettings};
+use tegument_core::collide::{audit as core_audit, self_intersections as core_self_intersections, AuditParams, Collider as CoreCollider, ColliderSettings};
 use tegument_core::mesh::MeshInput;
 
 use crate::convert::{indices_to_py, int_array_arg, positions_arg, positions_to_py, rows_to_py, run_detached, TegumentError};
@@ -251,9 +251,16 @@ impl Collider {
 /// ``(K,)``, ``edges_crossing_indices`` ``(K, 2)`` (vertex pairs),
 /// ``collider_edges_crossing_indices`` ``(K, 2)`` (collider, edge row of
 /// :meth:`Collider.edges`), and ``open_colliders`` (colliders skipped by the
-/// inside test because they are not closed).
+/// inside test because they are not closed). With ``self_intersections`` it
+/// also counts the mesh's own intersections, with its own geometry (nothing of
+/// the solver's): pairs of polygons sharing no vertex that intersect under
+/// some split of their quads (a side or diagonal of one, a quad's two, an
+/// ngon's fan diagonals, properly crosses a triangle of the other, a quad's
+/// four of both splits, an ngon's fan), as ``self_intersections``
+/// and ``self_intersection_indices`` ``(K, 2)`` (polygon pairs, ascending);
+/// both are 0 and empty without it.
 #[pyfunction]
-#[pyo3(signature = (positions, corner_verts, polygon_sizes, colliders, depth_tolerance=AuditParams::default().depth_tolerance))]
+#[pyo3(signature = (positions, corner_verts, polygon_sizes, colliders, depth_tolerance=AuditParams::default().depth_tolerance, *, self_intersections=false))]
 pub fn audit<'py>(
     py: Python<'py>,
     positions: &Bound<'py, PyAny>,
@@ -261,6 +268,7 @@ pub fn audit<'py>(
     polygon_sizes: &Bound<'py, PyAny>,
     colliders: &Bound<'py, PyAny>,
     depth_tolerance: f32,
+    self_intersections: bool,
 ) -> PyResult<Bound<'py, PyAny>> {
     let positions = positions_arg("positions", positions, None)?;
     let corner_verts = int_array_arg("corner_verts", corner_verts, None)?;
@@ -268,10 +276,13 @@ pub fn audit<'py>(
     let refs = collider_refs(colliders)?;
     let holders: Vec<&Collider> = refs.iter().map(|r| &**r).collect();
     let params = AuditParams { depth_tolerance };
-    let report = run_detached(py, || {
+    let (report, crossing) = run_detached(py, || {
         let guards: Vec<_> = holders.iter().map(|c| c.read()).collect();
         let cols: Vec<&CoreCollider> = guards.iter().map(|g| &**g).collect();
-        core_audit(MeshInput { positions: &positions, corner_verts: &corner_verts, polygon_sizes: &polygon_sizes }, &cols, &params)
+        let mesh = MeshInput { positions: &positions, corner_verts: &corner_verts, polygon_sizes: &polygon_sizes };
+        let report = core_audit(mesh, &cols, &params)?;
+        let crossing = if self_intersections { core_self_intersections(mesh)? } else { Vec::new() };
+        Ok((report, crossing))
     })?;
     let dict = PyDict::new(py);
     dict.set_item("vertices_inside", report.vertices_inside.len())?;
@@ -284,6 +295,8 @@ pub fn audit<'py>(
         .map_err(|e| TegumentError::new_err(format!("internal error: {e}")))?;
     dict.set_item("collider_edges_crossing_indices", pairs.into_pyarray(py))?;
     dict.set_item("open_colliders", report.open_colliders.iter().map(|&c| c as usize).collect::<Vec<_>>())?;
+    dict.set_item("self_intersections", crossing.len())?;
+    dict.set_item("self_intersection_indices", rows_to_py(py, &crossing))?;
     crate::convert::report(py, "AuditReport", &dict)
 }
 

@@ -6,12 +6,12 @@ use numpy::{PyArray1, PyArray2, PyArrayMethods, PyUntypedArray};
 use pyo3::prelude::*;
 use tegument_core::mesh::MeshInput;
 use pyo3::types::PyDict;
-use tegument_core::collide::{AuditParams, ColliderSettings};
+use tegument_core::collide::{AuditParams, ColliderSettings, SelfSettings};
 use tegument_core::warp::WarpSettings;
 use tegument_core::collide::Collider as CoreCollider;
 use tegument_core::pyramid::{Closeness, DeformerOptions, PinReason};
 use tegument_core::sequence::{
-    Dynamics as CoreDynamics, Sequence as Core, StepOptions, StepReport, StrainMode, StrainOptions,
+    Dynamics as CoreDynamics, SelfOptions, Sequence as Core, StepOptions, StepReport, StrainMode, StrainOptions,
 };
 use tegument_core::strain::MaxStretch;
 
@@ -294,8 +294,12 @@ impl PyramidDeformer {
     /// after the collision passes; can leave penetrations). Colliders with
     /// compliance (:meth:`Collider.set_compliance`) are solved too: their
     /// :attr:`Collider.positions` become where they receded.
-    /// ``out`` as in :meth:`solve`.
-    #[pyo3(signature = (positions, colliders = None, iterations = StepOptions::default().iterations as i64, closeness = None, substeps = StepOptions::default().substeps as i64, dynamics = None, max_stretch = None, strain_mode = StrainMode::default().name(), *, out = None))]
+    /// ``self_collision`` (a :class:`SelfCollision`) keeps the skin from
+    /// passing through itself, in the same two passes and together with the
+    /// colliders: the output has no self-intersection its history did not
+    /// have; what the input brings in intersecting is left to come apart and
+    /// counted in :attr:`last_step`. ``out`` as in :meth:`solve`.
+    #[pyo3(signature = (positions, colliders = None, iterations = StepOptions::default().iterations as i64, closeness = None, substeps = StepOptions::default().substeps as i64, dynamics = None, max_stretch = None, strain_mode = StrainMode::default().name(), *, out = None, self_collision = None))]
     #[allow(clippy::too_many_arguments)]
     fn step<'py>(
         &self,
@@ -309,8 +313,20 @@ impl PyramidDeformer {
         max_stretch: Option<&Bound<'py, PyAny>>,
         strain_mode: &str,
         out: Option<&Bound<'py, PyAny>>,
+        self_collision: Option<PyRef<'py, SelfCollision>>,
     ) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let (input, iterations, weights) = self.frame_args(positions, iterations, closeness)?;
+        let self_settings = self_collision.as_ref().map(|s| s.inner);
+        let self_weights = match self_collision.as_ref().and_then(|s| s.weights.as_ref()) {
+            Some(w) if w.len() != self.vertex_count => {
+                return Err(TegumentError::new_err(format!(
+                    "self_collision: its weights have {} values, the deformer has {} vertices",
+                    w.len(),
+                    self.vertex_count
+                )))
+            }
+            other => other.cloned(),
+        };
         let output = out_or_new(py, out, self.vertex_count)?;
         if substeps < 1 {
             return Err(TegumentError::new_err(format!("substeps is {substeps}; it must be between 1 and {}", tegument_core::sequence::MAX_SUBSTEPS)));
@@ -342,6 +358,7 @@ impl PyramidDeformer {
                 substeps: substeps as usize,
                 dynamics,
                 strain: stretch.as_ref().map(|s| StrainOptions { max_stretch: s.as_max_stretch(), mode }),
+                self_collision: self_settings.map(|settings| SelfOptions { settings, weights: self_weights.as_deref() }),
                 ..StepOptions::new(iterations, weights.as_closeness())
             };
             core.step(input_ref, &mut cols, &options)
@@ -388,9 +405,17 @@ impl PyramidDeformer {
     /// ``compliant_contacts`` (contacts that stopped compliant collider
     /// vertices), ``compliant_skin_vertices`` (skin vertices giving way to
     /// compliant colliders) and ``max_recession`` (largest distance of a
-    /// compliant collider vertex from its animated position) and ``held``
+    /// compliant collider vertex from its animated position), ``held``
     /// (times a pass put a vertex it could not clear of colliders standing
-    /// still back where the pass started: a contact that holds, not a pinch).
+    /// still back where the pass started: a contact that holds, not a pinch),
+    /// and with self-collision ``self_contacts`` (contacts between skin and
+    /// skin projected), ``self_held`` (times the fail-safe put a vertex back
+    /// where its pass started), ``self_pinched`` (int32 array of vertices left
+    /// crossing skin where a sweeping collider had the last word),
+    /// ``self_intersections`` (pairs of the skin's polygons intersecting in
+    /// the output under some split of their quads, neighbours not counted:
+    /// what the input brought in that has not come apart yet) and ``self_tangled`` (vertices exempt at the start
+    /// of the frame because their triangles intersected there).
     #[getter]
     fn last_step<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
         let guard = self.last_step.lock().unwrap_or_else(|e| e.into_inner());
@@ -408,6 +433,11 @@ impl PyramidDeformer {
         dict.set_item("compliant_skin_vertices", report.compliant_skin_vertices)?;
         dict.set_item("max_recession", report.max_recession)?;
         dict.set_item("held", report.held)?;
+        dict.set_item("self_contacts", report.self_contacts)?;
+        dict.set_item("self_held", report.self_held)?;
+        dict.set_item("self_pinched", indices_to_py(py, &report.self_pinched))?;
+        dict.set_item("self_intersections", report.self_intersections)?;
+        dict.set_item("self_tangled", report.self_tangled)?;
         Ok(Some(crate::convert::report(py, "StepReport", &dict)?))
     }
 
@@ -549,6 +579,89 @@ impl Dynamics {
     }
 }
 
+/// Self-collision settings for :meth:`PyramidDeformer.step`.
+///
+/// ``thickness`` is the distance kept between skin that folds onto itself
+/// (scene units; pairs already closer at rest keep their rest distance);
+/// ``friction`` the static friction between the two sides (and the kinetic
+/// one unless ``kinetic_friction`` is given); ``rings`` the neighbours left
+/// out besides elements sharing a vertex (0: none; ``k``: elements within
+/// ``k`` edges, which hides folds sharper than that); ``weights`` None
+/// (everywhere) or float32 ``(N,)`` per vertex: only triangles with a corner
+/// weighted above 0 take part (e.g. a group over the armpits and elbows).
+/// Defaults in ``tegument.DEFAULTS`` (``self_thickness``, ...).
+#[pyclass(module = "tegument", name = "SelfCollision", frozen)]
+pub struct SelfCollision {
+    inner: SelfSettings,
+    weights: Option<Vec<f32>>,
+}
+
+#[pymethods]
+impl SelfCollision {
+    #[new]
+    #[pyo3(signature = (thickness = SelfSettings::default().thickness, friction = None, kinetic_friction = None, rings = SelfSettings::default().rings as i64, weights = None))]
+    fn new(thickness: f32, friction: Option<f32>, kinetic_friction: Option<f32>, rings: i64, weights: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+        let default = SelfSettings::default();
+        let static_friction = friction.unwrap_or(default.static_friction);
+        let kinetic_friction = match (friction, kinetic_friction) {
+            (_, Some(kinetic)) => kinetic,
+            (Some(given), None) => given,
+            (None, None) => default.kinetic_friction,
+        };
+        if rings < 0 {
+            return Err(TegumentError::new_err(format!("self-collision rings is {rings}; it must be 0 or more")));
+        }
+        let inner = SelfSettings { thickness, static_friction, kinetic_friction, rings: rings.min(u32::MAX as i64) as u32 };
+        py_result(inner.validate())?;
+        let weights = weights.map(|w| float_array_arg("weights", w, None)).transpose()?;
+        if let Some(w) = &weights {
+            if let Some(v) = w.iter().position(|x| !(x.is_finite() && *x >= 0.0)) {
+                return Err(TegumentError::new_err(format!("weights: vertex {v} has {}; weights must be finite and ≥ 0", w[v])));
+            }
+        }
+        Ok(SelfCollision { inner, weights })
+    }
+
+    /// Distance kept between skin that folds onto itself.
+    #[getter]
+    fn thickness(&self) -> f32 {
+        self.inner.thickness
+    }
+
+    /// Static friction coefficient.
+    #[getter]
+    fn friction(&self) -> f32 {
+        self.inner.static_friction
+    }
+
+    /// Kinetic friction coefficient.
+    #[getter]
+    fn kinetic_friction(&self) -> f32 {
+        self.inner.kinetic_friction
+    }
+
+    /// Rings of neighbours left out besides elements sharing a vertex.
+    #[getter]
+    fn rings(&self) -> u32 {
+        self.inner.rings
+    }
+
+    /// The per-vertex weights (float32 ``(N,)``), or None.
+    #[getter]
+    fn weights<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f32>>> {
+        self.weights.as_ref().map(|w| PyArray1::from_slice(py, w))
+    }
+
+    fn __repr__(&self) -> String {
+        let s = &self.inner;
+        let weights = self.weights.as_ref().map_or("None".to_string(), |w| format!("<{} values>", w.len()));
+        format!(
+            "tegument.SelfCollision(thickness={}, friction={}, kinetic_friction={}, rings={}, weights={weights})",
+            s.thickness, s.static_friction, s.kinetic_friction, s.rings
+        )
+    }
+}
+
 /// The default of every setting, from the core's `Default` impls: the
 /// fields of `tegument.results.Defaults` (the package exposes them as
 /// `tegument.DEFAULTS`). The keyword defaults of the bindings and the
@@ -559,6 +672,7 @@ fn _defaults<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
     let step = StepOptions::default();
     let dynamics = CoreDynamics::default();
     let collider = ColliderSettings::default();
+    let self_settings = SelfSettings::default();
     let warp = WarpSettings::default();
     d.set_item("iterations", step.iterations)?;
     d.set_item("accelerated_iterations", tegument_core::pyramid::ACCELERATED_ITERATIONS)?;
@@ -575,6 +689,10 @@ fn _defaults<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
     d.set_item("friction", decimal(collider.static_friction))?;
     d.set_item("kinetic_friction", decimal(collider.kinetic_friction))?;
     d.set_item("depth_tolerance", decimal(AuditParams::default().depth_tolerance))?;
+    d.set_item("self_thickness", decimal(self_settings.thickness))?;
+    d.set_item("self_friction", decimal(self_settings.static_friction))?;
+    d.set_item("self_kinetic_friction", decimal(self_settings.kinetic_friction))?;
+    d.set_item("self_rings", self_settings.rings)?;
     d.set_item("warp_iterations", warp.iterations)?;
     d.set_item("orientation", decimal(warp.orientation))?;
     d.set_item("smoothing", decimal(warp.smoothing))?;
@@ -593,5 +711,6 @@ fn decimal(x: f32) -> f64 {
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(_defaults, m)?)?;
     m.add_class::<PyramidDeformer>()?;
-    m.add_class::<Dynamics>()
+    m.add_class::<Dynamics>()?;
+    m.add_class::<SelfCollision>()
 }

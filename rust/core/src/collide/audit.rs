@@ -268,7 +268,7 @@ fn distance_to_segment(p: DVec3, u: DVec3, v: DVec3) -> f64 {
 /// strictly on opposite sides of its plane, and the line through them
 /// strictly inside its three sides (signs of the Plücker products of the line
 /// with each side all equal and non-zero). Touching does not count.
-fn segment_through_triangle(p: DVec3, q: DVec3, a: DVec3, b: DVec3, c: DVec3) -> bool {
+pub(super) fn segment_through_triangle(p: DVec3, q: DVec3, a: DVec3, b: DVec3, c: DVec3) -> bool {
     let n = (b - a).cross(c - a);
     let (hp, hq) = (n.dot(p - a), n.dot(q - a));
     if !(hp > 0.0 && hq < 0.0 || hp < 0.0 && hq > 0.0) {

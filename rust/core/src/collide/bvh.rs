@@ -297,6 +297,42 @@ impl BoxTree {
         Ok(UpdateReport { cost_ratio, rebuilt })
     }
 
+    /// Replaces the boxes of some primitives (`changed`: index and new box)
+    /// and refits only their leaves and the leaves' ancestors, with no
+    /// rebuild: work in proportion to what changed, for a tree whose boxes
+    /// mostly stay (see [`super::Collider::rest_at`]). The tree's quality is
+    /// not measured; a later [`Self::update`] rebuilds it if it degraded.
+    pub fn update_some(&mut self, changed: &[(u32, Bounds)]) -> Result<()> {
+        if let Some(&(i, _)) = changed.iter().find(|(i, _)| *i as usize >= self.count) {
+            return Err(Error::Topology(format!("box {i} changed in a BVH over {} boxes", self.count)));
+        }
+        if let Some((i, b)) = changed.iter().find(|(_, b)| !b.is_valid()) {
+            return Err(Error::invalid(format!("bounding box {i} is not finite or has min > max ({:?} .. {:?})", b.min.to_array(), b.max.to_array())));
+        }
+        for &(i, b) in changed {
+            self.boxes[i as usize] = b;
+        }
+        let Some(bvh) = &mut self.bvh else { return Ok(()) };
+        bvh.init_parents_if_uninit();
+        bvh.init_primitives_to_nodes_if_uninit();
+        let mut leaves: Vec<u32> = changed.iter().map(|&(i, _)| bvh.primitives_to_nodes[i as usize]).collect();
+        leaves.sort_unstable();
+        leaves.dedup();
+        for &leaf in &leaves {
+            let node = bvh.nodes[leaf as usize];
+            let b = (node.first_index..node.first_index + node.prim_count)
+                .fold(Bounds::EMPTY, |b, k| b.union(self.boxes[bvh.primitive_indices[k as usize] as usize]));
+            bvh.nodes[leaf as usize].set_aabb(b.to_aabb());
+        }
+        // Every leaf is new before any walk: a node's last refit, on the last
+        // walk through it, then sees both children final.
+        for &leaf in &leaves {
+            bvh.refit_from(leaf as usize);
+        }
+        self.refits += 1;
+        Ok(())
+    }
+
     /// Refits the leaves to the union of their boxes, then the inner nodes.
     fn refit(&mut self, boxes: &[Bounds]) {
         let Some(bvh) = &mut self.bvh else { return };
@@ -468,6 +504,45 @@ impl BoxTree {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Changing some boxes and refitting only their leaves and ancestors
+    /// finds what a tree built over the new boxes finds.
+    #[test]
+    fn updating_some_boxes_queries_as_a_new_tree() {
+        let mut boxes = grid_boxes(20, 0.0);
+        let mut tree = BoxTree::build(&boxes).unwrap();
+        let changed: Vec<(u32, Bounds)> = (0..boxes.len() as u32)
+            .filter(|i| i % 13 == 0)
+            .map(|i| {
+                let p = Vec3::new((i % 7) as f32 * 3.0, (i % 5) as f32 * 4.0, (i % 3) as f32);
+                (i, Bounds { min: p, max: p + Vec3::splat(0.25) })
+            })
+            .collect();
+        tree.update_some(&changed).unwrap();
+        for &(i, b) in &changed {
+            boxes[i as usize] = b;
+        }
+        let fresh = BoxTree::build(&boxes).unwrap();
+        assert_eq!(tree.bounds(), fresh.bounds());
+        for k in 0..60 {
+            let p = Vec3::new((k % 11) as f32 * 2.0 - 1.0, (k % 9) as f32 * 2.5, (k % 4) as f32 * 0.7);
+            let query = Bounds { min: p, max: p + Vec3::splat(1.3) };
+            let found = |t: &BoxTree| {
+                let mut hits = Vec::new();
+                t.query(&query, |i| {
+                    hits.push(i);
+                    true
+                });
+                hits.sort_unstable();
+                hits
+            };
+            assert_eq!(found(&tree), found(&fresh), "query {k}");
+            assert_eq!(tree.nearest_distance(p, 50.0), fresh.nearest_distance(p, 50.0), "point {k}");
+        }
+        assert!(tree.update_some(&[(boxes.len() as u32, changed[0].1)]).is_err());
+        let bad = Bounds { min: Vec3::ONE, max: Vec3::ZERO };
+        assert!(tree.update_some(&[(0, bad)]).is_err());
+    }
 
     fn grid_boxes(n: usize, offset: f32) -> Vec<Bounds> {
         let mut boxes = Vec::new();

@@ -23,13 +23,18 @@
 //!
 //! The clearance belongs to the colliders' state it was measured against:
 //! every change of a collider's positions or settings gives it a new
-//! [`Collider::generation`], and a stale clearance is not used.
+//! [`Collider::generation`], and a stale clearance is not used. A collider
+//! that moves between passes (a compliant one, receding) is measured by its
+//! [`Envelope`] instead ([`Clearance::with_envelopes`]): the clearance then
+//! holds for as long as the collider stays inside it.
 
 use glam::Vec3;
 use rayon::prelude::*;
 
 use super::bvh::Bounds;
+use super::bvh::BoxTree;
 use super::collider::Collider;
+use super::envelope::Envelope;
 use super::planes::{rounding_margin, LocalPlanes};
 use super::skin::{ascending_unique, Skin};
 use crate::mesh::validate_positions;
@@ -57,8 +62,8 @@ pub struct Clearance {
     /// Per vertex: the least of its own bound and those of its edges and
     /// triangles. A vertex that stays within it keeps all of them proven.
     guard: Vec<f32>,
-    /// [`Collider::generation`] of each collider measured against.
-    generations: Vec<u64>,
+    /// What each collider was measured as: its state, or its envelope.
+    measured: Vec<Measured>,
     /// The radius searched and the rounding margin of the measurement.
     radius: f32,
     margin: f64,
@@ -79,6 +84,16 @@ impl Clearance {
     /// a vertex that moves farther than that since `positions` is looked up
     /// again).
     pub fn new(colliders: &[&Collider], skin: &Skin, positions: &[Vec3], radius: f32) -> Result<Self> {
+        Self::with_envelopes(colliders, colliders.iter().map(|_| None).collect(), skin, positions, radius)
+    }
+
+    /// [`Self::new`], measuring collider `c` by `envelopes[c]` where given
+    /// (see [`Envelope`]): the clearance then serves every pass in which the
+    /// collider stands still inside its envelope, wherever it stands there.
+    pub fn with_envelopes(colliders: &[&Collider], envelopes: Vec<Option<Envelope>>, skin: &Skin, positions: &[Vec3], radius: f32) -> Result<Self> {
+        if envelopes.len() != colliders.len() {
+            return Err(Error::invalid(format!("{} envelopes given for {} colliders", envelopes.len(), colliders.len())));
+        }
         validate_positions("reference positions", positions)?;
         if positions.len() != skin.vertex_count() {
             return Err(Error::invalid(format!("{} reference positions given for a skin of {} vertices", positions.len(), skin.vertex_count())));
@@ -86,18 +101,21 @@ impl Clearance {
         if !(radius.is_finite() && radius >= 0.0) {
             return Err(Error::invalid(format!("clearance radius is {radius}; it must be finite and ≥ 0")));
         }
-        // Boxes are f32, grown by the thickness in f32: allow for their rounding.
-        let margin = rounding_margin(colliders, positions.iter().copied(), radius);
-        let roots: Vec<Bounds> = colliders.iter().map(|c| c.tree().bounds()).collect();
+        // Boxes are f32, grown by the thickness in f32: allow for their
+        // rounding (envelopes reach beyond the colliders' positions).
+        let reach = envelopes.iter().flatten().flat_map(|e| [e.bounds().min, e.bounds().max]);
+        let margin = rounding_margin(colliders, positions.iter().copied().chain(reach), radius);
+        let trees: Vec<&BoxTree> = colliders.iter().zip(&envelopes).map(|(c, e)| e.as_ref().map_or(c.tree(), Envelope::tree)).collect();
+        let roots: Vec<Bounds> = trees.iter().map(|t| t.bounds()).collect();
         // Per vertex: the distance bound, and whether any box lies within the radius.
         let (vertex, near): (Vec<f64>, Vec<bool>) = positions
             .par_iter()
             .map(|&p| {
                 let query = Bounds { min: p - Vec3::splat(radius), max: p + Vec3::splat(radius) };
                 let mut nearest = radius as f64;
-                for (c, root) in colliders.iter().zip(&roots) {
+                for (tree, root) in trees.iter().zip(&roots) {
                     if root.overlaps(&query) {
-                        nearest = c.tree().nearest_distance(p, nearest);
+                        nearest = tree.nearest_distance(p, nearest);
                     }
                 }
                 ((nearest - margin).max(0.0), nearest < radius as f64)
@@ -152,7 +170,11 @@ impl Clearance {
             vertex,
             edge,
             triangle,
-            generations: colliders.iter().map(|c| c.generation()).collect(),
+            measured: colliders
+                .iter()
+                .zip(envelopes)
+                .map(|(c, e)| e.map_or(Measured::State(c.generation()), |e| Measured::Envelope(Box::new(e))))
+                .collect(),
         })
     }
 
@@ -181,6 +203,10 @@ impl Clearance {
         if !self.is_valid_for(colliders, self.reference.len()) {
             return Err(Error::invalid("the planes must be measured against the colliders of the clearance, unchanged".to_string()));
         }
+        // Planes hold where the collider stands; an enveloped one moves.
+        if self.measured.iter().any(|m| matches!(m, Measured::Envelope(_))) {
+            return Err(Error::invalid("a clearance measured against envelopes has no planes: the colliders move within them".to_string()));
+        }
         let outward: Vec<f64> = colliders.iter().map(|c| c.outward_sign()).collect();
         self.planes = Some(LocalPlanes::new(colliders, &outward, &self.reference, &self.near, PLANE_REACH * self.radius, self.margin));
         Ok(self)
@@ -198,11 +224,15 @@ impl Clearance {
     }
 
     /// Whether this clearance was measured against exactly these colliders in
-    /// their present state, for a skin of `vertex_count` vertices.
+    /// their present state (or, where measured by an envelope, with the
+    /// collider inside it), for a skin of `vertex_count` vertices.
     pub fn is_valid_for(&self, colliders: &[&Collider], vertex_count: usize) -> bool {
         self.reference.len() == vertex_count
-            && self.generations.len() == colliders.len()
-            && self.generations.iter().zip(colliders).all(|(&g, c)| g == c.generation())
+            && self.measured.len() == colliders.len()
+            && self.measured.iter().zip(colliders).all(|(m, c)| match m {
+                Measured::State(generation) => *generation == c.generation(),
+                Measured::Envelope(envelope) => envelope.holds(c),
+            })
     }
 
     /// For a step `start → end` of the skin, the vertices, edges and
@@ -282,6 +312,15 @@ impl Clearance {
             .collect();
         Clear { vertex, edge, triangle }
     }
+}
+
+/// What a collider was measured as.
+#[derive(Debug, Clone)]
+enum Measured {
+    /// Its state ([`Collider::generation`]).
+    State(u64),
+    /// Wherever it stands inside this envelope.
+    Envelope(Box<Envelope>),
 }
 
 /// The elements [`Clearance::unproven`] leaves to the pairwise tests, by
@@ -411,6 +450,49 @@ mod tests {
                 let d = sampled_distance(&c, |t| triangle_samples(path(a, t), path(b, t), path(cc, t)));
                 prop_assert!(d > sep, "triangle {k} clear but reaches {d} <= {sep}");
             }
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 32, ..ProptestConfig::default() })]
+
+        /// Measured against a collider's envelope, whatever the clearance
+        /// proves clear stays farther than the thickness from the collider
+        /// wherever it stands inside the envelope; outside, it is stale.
+        #[test]
+        fn what_is_clear_of_an_envelope_stays_apart_wherever_the_collider_stands_in_it(
+            offset in small(0.4), goal_shift in small(0.15), fractions in prop::collection::vec(0.0f32..1.0, 4),
+            sideways in prop::collection::vec(small(0.02), 4), thickness in 0.0f32..0.03, radius in 0.05f32..0.3) {
+            let mesh = grid(6, 6, 0.6);
+            let skin = Skin::from_mesh(mesh.input()).unwrap();
+            let mut c = collider(Vec3::ZERO, thickness);
+            let start = c.current().to_vec();
+            let goal: Vec<Vec3> = start.iter().map(|&p| p + goal_shift).collect();
+            let margin = 0.02;
+            let envelope = Envelope::new(&c, &goal, margin).unwrap();
+            let reference: Vec<Vec3> = mesh.positions.iter().map(|&p| p + offset).collect();
+            let clearance = Clearance::with_envelopes(&[&c], vec![Some(envelope)], &skin, &reference, radius).unwrap();
+            prop_assert!(clearance.clone().with_planes(&[&c]).is_err(), "an enveloped clearance has no planes");
+            // Somewhere between start and goal, a little sideways: inside.
+            let inside: Vec<Vec3> = (0..4).map(|v| start[v].lerp(goal[v], fractions[v]) + sideways[v]).collect();
+            c.set_positions(&inside, &inside).unwrap();
+            prop_assert!(clearance.is_valid_for(&[&c], reference.len()));
+            let clear = clearance.clear(&skin, &reference, &reference);
+            let sep = thickness as f64;
+            for (i, _) in clear.vertex.iter().enumerate().filter(|(_, &k)| k) {
+                let d = sampled_distance(&c, |_| vec![reference[i].as_dvec3()]);
+                prop_assert!(d > sep, "vertex {i} clear but at {d} <= {sep}");
+            }
+            for (k, _) in clear.triangle.iter().enumerate().filter(|(_, &k)| k) {
+                let [a, b, cc] = skin.triangles()[k];
+                let at = |v: u32| reference[v as usize].as_dvec3();
+                let d = sampled_distance(&c, |_| triangle_samples(at(a), at(b), at(cc)));
+                prop_assert!(d > sep, "triangle {k} clear but at {d} <= {sep}");
+            }
+            // Beyond the goal by more than the margin: stale.
+            let beyond: Vec<Vec3> = goal.iter().map(|&p| p + goal_shift.normalize_or(Vec3::X) * 0.05).collect();
+            c.set_positions(&beyond, &beyond).unwrap();
+            prop_assert!(!clearance.is_valid_for(&[&c], reference.len()));
         }
     }
 

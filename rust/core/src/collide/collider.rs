@@ -96,6 +96,12 @@ pub struct Collider {
     /// Identifies the state of the positions and settings: see [`Collider::generation`].
     generation: u64,
     shape: Shape,
+    /// Set by [`Collider::rest_at`]: the still boxes are grown by `slack`
+    /// beyond the thickness, around `boxed_at` (per vertex, where its boxes
+    /// were made; empty otherwise: around the current positions), and every
+    /// vertex is within `slack` of it.
+    slack: f32,
+    boxed_at: Vec<Vec3>,
 }
 
 /// How far the f32 rounding of `p − drift` may move a point of box `b`
@@ -198,6 +204,8 @@ impl Collider {
             compliance: None,
             generation: next_generation(),
             shape: Shape::default(),
+            slack: 0.0,
+            boxed_at: Vec::new(),
         };
         collider.shape = collider.measure_shape();
         collider.swept_tree = BoxTree::build(&collider.swept_boxes())?;
@@ -272,6 +280,64 @@ impl Collider {
         self.refresh()
     }
 
+    /// At rest at `positions` (previous = current), for a mesh standing in
+    /// as a collider that moves a little everywhere and much only in places
+    /// (the skin, after every solver iteration, for compliant colliders to
+    /// stop at): the still boxes are grown by `slack` beyond the thickness,
+    /// and only those of vertices that moved more than half of it since
+    /// their boxes were made are made again, with their leaves' and the
+    /// leaves' ancestors' boxes. Each box still holds its element grown by
+    /// the thickness, so every query finds what it would with tight boxes
+    /// (a few more candidates, tested exactly). `fresh` (or another slack,
+    /// or positions that were set otherwise since) refits everything, and
+    /// rebuilds degraded trees. Returns how many vertices' boxes were made
+    /// again (all of them when refitted whole).
+    pub fn rest_at(&mut self, positions: &[Vec3], slack: f32, fresh: bool) -> Result<usize> {
+        use rayon::prelude::*;
+        self.check_count(positions.len())?;
+        validate_positions("collider positions", positions)?;
+        if !(slack.is_finite() && slack >= 0.0) {
+            return Err(Error::invalid(format!("collider slack is {slack}; it must be finite and ≥ 0")));
+        }
+        self.previous.copy_from_slice(positions);
+        self.current.copy_from_slice(positions);
+        let incremental = !fresh && self.at_rest && self.slack == slack && self.boxed_at.len() == positions.len();
+        if !incremental {
+            self.refresh_with_slack(slack, positions.to_vec())?;
+            return Ok(positions.len());
+        }
+        let reach = 0.5 * slack;
+        let moved: Vec<u32> = (0..positions.len() as u32)
+            .into_par_iter()
+            .with_min_len(4096)
+            .filter(|&v| positions[v as usize].distance(self.boxed_at[v as usize]) > reach)
+            .collect();
+        for &v in &moved {
+            self.boxed_at[v as usize] = positions[v as usize];
+        }
+        let mut triangles: Vec<u32> = moved.iter().flat_map(|&v| self.vertex_triangles(v as usize).iter().copied()).collect();
+        triangles.sort_unstable();
+        triangles.dedup();
+        let r = self.settings.thickness + slack;
+        let at = &self.boxed_at;
+        let triangle_boxes: Vec<(u32, Bounds)> =
+            triangles.par_iter().map(|&t| (t, Bounds::of_points(&self.triangles[t as usize].map(|v| at[v as usize])).inflated(r))).collect();
+        let vertex_boxes: Vec<(u32, Bounds)> = moved.par_iter().map(|&v| (v, Bounds { min: at[v as usize], max: at[v as usize] }.inflated(r))).collect();
+        self.generation = next_generation();
+        self.shape = self.measure_shape();
+        let (still, vertices) = rayon::join(|| self.tree.update_some(&triangle_boxes), || self.vertex_tree.update_some(&vertex_boxes));
+        still?;
+        vertices?;
+        Ok(moved.len())
+    }
+
+    /// [`Self::refresh`] with the still boxes grown by `slack` around `boxed_at`.
+    fn refresh_with_slack(&mut self, slack: f32, boxed_at: Vec<Vec3>) -> Result<UpdateReport> {
+        self.slack = slack;
+        self.boxed_at = boxed_at;
+        self.refresh_keeping_slack()
+    }
+
     /// Forgets the motion: previous = current (a teleport, or the first frame).
     pub fn hold(&mut self) -> Result<UpdateReport> {
         self.previous.copy_from_slice(&self.current);
@@ -306,6 +372,12 @@ impl Collider {
     }
 
     fn refresh(&mut self) -> Result<UpdateReport> {
+        self.slack = 0.0;
+        self.boxed_at = Vec::new();
+        self.refresh_keeping_slack()
+    }
+
+    fn refresh_keeping_slack(&mut self) -> Result<UpdateReport> {
         self.generation = next_generation();
         self.shape = self.measure_shape();
         self.drift = self.measure_drift();
@@ -394,14 +466,19 @@ impl Collider {
 
     fn still_boxes(&self) -> Vec<Bounds> {
         use rayon::prelude::*;
-        let r = self.settings.thickness;
-        self.triangles.par_iter().map(|t| Bounds::of_points(&t.map(|v| self.current[v as usize])).inflated(r)).collect()
+        let (r, at) = (self.settings.thickness + self.slack, self.boxed_at());
+        self.triangles.par_iter().map(|t| Bounds::of_points(&t.map(|v| at[v as usize])).inflated(r)).collect()
     }
 
     fn still_vertex_boxes(&self) -> Vec<Bounds> {
         use rayon::prelude::*;
-        let r = self.settings.thickness;
-        self.current.par_iter().map(|&p| Bounds { min: p, max: p }.inflated(r)).collect()
+        let r = self.settings.thickness + self.slack;
+        self.boxed_at().par_iter().map(|&p| Bounds { min: p, max: p }.inflated(r)).collect()
+    }
+
+    /// Where the still boxes are made around (see [`Self::rest_at`]).
+    fn boxed_at(&self) -> &[Vec3] {
+        if self.boxed_at.is_empty() { &self.current } else { &self.boxed_at }
     }
 
     pub fn triangles(&self) -> &[[u32; 3]] {
@@ -658,6 +735,55 @@ mod tests {
 
     fn point(range: f32) -> impl Strategy<Value = Vec3> {
         (-range..range, -range..range, -range..range).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+    }
+
+
+    /// A collider kept at rest by [`Collider::rest_at`] through many small
+    /// moves and a few large ones answers every query as one built afresh
+    /// at the same positions, while remaking only the moved vertices' boxes.
+    #[test]
+    fn resting_with_slack_answers_as_a_fresh_collider() {
+        let mesh = crate::mesh::shapes::grid(12, 12, 1.0);
+        let offsets: Vec<u32> = (0..=mesh.polygon_sizes.len() as u32).map(|k| 4 * k).collect();
+        let tris = crate::mesh::fan_triangles(&mesh.corner_verts, &offsets);
+        let settings = ColliderSettings::new(0.02, 0.0);
+        let mut x = mesh.positions.clone();
+        let mut resting = Collider::new(&x, &tris, settings).unwrap();
+        assert_eq!(resting.rest_at(&x, 0.01, true).unwrap(), x.len(), "fresh: every box made");
+        let mut seed = 7u32;
+        let mut rand = || {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (seed >> 8) as f32 / (1 << 24) as f32 - 0.5
+        };
+        for round in 0..12 {
+            // Rounding-sized moves everywhere, a bump in one place.
+            for (v, p) in x.iter_mut().enumerate() {
+                p.z += 1e-5 * rand();
+                if v % 37 == round {
+                    p.z += 0.1 * rand();
+                }
+            }
+            let before = resting.generation();
+            let remade = resting.rest_at(&x, 0.01, false).unwrap();
+            assert!(remade < x.len() / 4, "round {round}: {remade} of {} boxes remade", x.len());
+            // Moved positions are a new state even where no box was remade: a
+            // clearance measured before must not be taken as still valid.
+            assert_ne!(resting.generation(), before, "round {round}: generation kept after a move");
+            let fresh = Collider::new(&x, &tris, settings).unwrap();
+            for k in 0..40 {
+                let p = Vec3::new(rand(), rand(), 0.1 * rand());
+                let q = p + Vec3::new(0.2 * rand(), 0.2 * rand(), 0.4 * rand());
+                // The same points and fractions; at a point on an edge shared by
+                // two triangles either may be named (the trees differ).
+                let point = |s: Option<SurfacePoint>| s.map(|s| s.point);
+                assert_eq!(point(resting.closest_point(p)), point(fresh.closest_point(p)), "round {round}, point {k}");
+                assert_eq!(point(resting.closest_point_within(p, 0.05)), point(fresh.closest_point_within(p, 0.05)), "round {round}, point {k}");
+                assert_eq!(resting.is_within(p, 0.03), fresh.is_within(p, 0.03), "round {round}, point {k}");
+                assert_eq!(resting.first_hit(p, q).map(|h| h.0), fresh.first_hit(p, q).map(|h| h.0), "round {round}, segment {k}");
+            }
+        }
+        assert!(resting.rest_at(&x, f32::NAN, false).is_err());
+        assert!(resting.rest_at(&x[1..], 0.01, false).is_err());
     }
 
     proptest! {

@@ -7,6 +7,8 @@
 //!   refitting has degraded it (SAH cost ratio).
 //! * [`clearance`]: per-vertex distance bounds from the colliders, measured
 //!   once per frame, that let the in-loop passes skip the skin far from them.
+//! * [`envelope`]: where a collider that moves between passes (a compliant
+//!   one, receding) stays, so that a clearance can hold while it moves.
 //! * [`collider`]: a triangle mesh moving from last frame to this frame, with
 //!   thickness, friction and a BVH over its swept triangles.
 //! * [`geometry`]: f64 helpers (normals, distances, crossing tests).
@@ -24,29 +26,37 @@
 //!   shows the intended use in seed 000's Algorithm 2.
 //! * [`skin`]: the skin's vertices, edges and triangles as the passes test
 //!   them.
+//! * [`self_contact`]: the skin against itself, in the same two passes.
 //! * [`audit`]: penetration audit (vertices inside closed colliders, edges
-//!   crossing in both directions), independent of the solver.
+//!   crossing in both directions), independent of the solver;
+//!   [`audit_self`] its count of the skin's self-intersections.
 
 pub mod audit;
+pub mod audit_self;
 pub mod bvh;
 pub mod ccd;
 pub mod clearance;
 pub mod collider;
+pub mod envelope;
 pub mod geometry;
 pub mod inside;
 pub mod planes;
 pub mod proximity;
 pub mod response;
+pub mod self_contact;
 pub mod skin;
 mod slab;
 
 pub use audit::{audit, AuditParams, AuditReport};
+pub use audit_self::self_intersections;
 pub use bvh::{BoxTree, Bounds, UpdateReport};
 pub use ccd::{CcdHit, CcdParams};
 pub use clearance::{Clearance, Unproven};
 pub use collider::{Collider, ColliderSettings, Compliance, SurfacePoint};
+pub use envelope::Envelope;
 pub use inside::is_inside;
 pub use response::{ColliderMotion, ColliderSet, ContactStats, ResolveParams};
+pub use self_contact::{Candidates, SelfCollision, SelfSettings, SelfStats, Tangles};
 pub use skin::Skin;
 
 #[cfg(test)]

@@ -55,6 +55,42 @@ pub fn fan_triangles(corner_verts: &[i32], offsets: &[u32]) -> Vec<[u32; 3]> {
     tris
 }
 
+/// A triangle and the polygon it comes from.
+pub type PolygonTriangle = ([u32; 3], u32);
+
+/// The triangles of every way a renderer may split each polygon, each with
+/// its polygon: a quad with four distinct corners `a b c d` gives both
+/// splits' four triangles (`abc`, `acd` and `abd`, `bcd`: the faces of the
+/// tetrahedron of its corners), any other polygon its fan. Also the quads
+/// (their corners in order), whose two diagonals cross by construction.
+/// Self-collision and its audit use these: Blender's BVHTree, a Subdivision
+/// Surface or an exporter may draw either diagonal of a quad, and a creased
+/// quad is not planar, so a guarantee given for one split only is not one.
+pub fn either_split_triangles(corner_verts: &[i32], offsets: &[u32]) -> (Vec<PolygonTriangle>, Vec<[u32; 4]>) {
+    let mut triangles = Vec::with_capacity(corner_verts.len() * 2);
+    let mut quads = Vec::new();
+    for (polygon, w) in offsets.windows(2).enumerate() {
+        let poly = &corner_verts[w[0] as usize..w[1] as usize];
+        let corner = |k: usize| poly[k] as u32;
+        let distinct = |t: &[u32]| (0..t.len()).all(|i| (i + 1..t.len()).all(|j| t[i] != t[j]));
+        if poly.len() == 4 && distinct(&[corner(0), corner(1), corner(2), corner(3)]) {
+            let [a, b, c, d] = [corner(0), corner(1), corner(2), corner(3)];
+            for t in [[a, b, c], [a, c, d], [a, b, d], [b, c, d]] {
+                triangles.push((t, polygon as u32));
+            }
+            quads.push([a, b, c, d]);
+            continue;
+        }
+        for k in 1..poly.len().saturating_sub(1) {
+            let t = [corner(0), corner(k), corner(k + 1)];
+            if distinct(&t) {
+                triangles.push((t, polygon as u32));
+            }
+        }
+    }
+    (triangles, quads)
+}
+
 /// Compressed rows of the elements (edges, triangles) around each of `n`
 /// vertices: `(offsets, element indices)`, each vertex's ascending.
 pub fn vertex_incidence<'e>(n: usize, elements: impl Iterator<Item = &'e [u32]> + Clone) -> (Vec<u32>, Vec<u32>) {

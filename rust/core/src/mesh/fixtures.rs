@@ -74,3 +74,19 @@ pub fn smooth_bend(mesh: &PolyMesh, axis_z: f32, low: f32, high: f32, angle: f32
         })
         .collect()
 }
+
+/// A quad `0 1 2 3` creased along its diagonal 1–3 (corners 0 and 2 lifted
+/// by `lift`), and a thin upright quad (the needle) under its middle, raised
+/// by `raise`: at 0 the needle's top pierces only the split along 1–3
+/// (`0 1 3`, `1 2 3`), not the fan split (`0 1 2`, `0 2 3`), whose crease
+/// runs above it.
+pub fn creased_quad_and_a_needle(lift: f32, raise: f32) -> PolyMesh {
+    let mut mesh = PolyMesh::default();
+    mesh.positions.extend([Vec3::new(0.0, 0.0, lift), Vec3::new(1.0, 0.0, 0.0), Vec3::new(1.0, 1.0, lift), Vec3::new(0.0, 1.0, 0.0)]);
+    mesh.push_polygon(&[0, 1, 2, 3]);
+    // Over the needle the fan split lies at 0.95–1 × lift, the other at 0–0.05 × lift.
+    let z = 0.5 * lift + raise;
+    mesh.positions.extend([Vec3::new(0.45, 0.5, z - 1.0), Vec3::new(0.55, 0.5, z - 1.0), Vec3::new(0.55, 0.5, z), Vec3::new(0.45, 0.5, z)]);
+    mesh.push_polygon(&[4, 5, 6, 7]);
+    mesh
+}

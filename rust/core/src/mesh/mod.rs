@@ -17,7 +17,7 @@ mod validate;
 mod weld;
 
 pub use aggregate::{aggregate_edges, aggregate_once};
-pub use elements::{fan_triangles, polygon_edges, triangle_edges, vertex_incidence};
+pub use elements::{either_split_triangles, fan_triangles, polygon_edges, triangle_edges, vertex_incidence};
 pub use topology::{Topology, TopologyReport};
 pub use transform::transform_points;
 pub use validate::{all_finite, as_vec3, validate_positions, MeshInput};

@@ -115,6 +115,22 @@ pub fn cylinder(around: usize, along: usize, radius: f32, length: f32) -> PolyMe
     mesh
 }
 
+/// A closed tube along +Z: [`cylinder`] with a triangle fan closing each
+/// end around a pole on the axis (Blender's Cylinder with Triangle Fan caps).
+/// The poles are the last two vertices.
+pub fn capped_tube(around: usize, along: usize, radius: f32, length: f32) -> PolyMesh {
+    let mut mesh = cylinder(around, along, radius, length);
+    let (bottom, top) = (mesh.positions.len(), mesh.positions.len() + 1);
+    mesh.positions.push(Vec3::ZERO);
+    mesh.positions.push(Vec3::new(0.0, 0.0, length));
+    let at = |i: usize, j: usize| j * around + i % around;
+    for i in 0..around {
+        mesh.push_polygon(&[bottom, at(i + 1, 0), at(i, 0)]);
+        mesh.push_polygon(&[top, at(i, along), at(i + 1, along)]);
+    }
+    mesh
+}
+
 /// A closed quad sphere: a cube with `n` × `n` quads per side projected on
 /// the sphere of `radius`. `6n² + 2` vertices.
 pub fn quad_sphere(n: usize, radius: f32) -> PolyMesh {

@@ -6,7 +6,7 @@ use glam::{DVec3, Mat3, Quat, Vec3};
 use proptest::prelude::*;
 
 use super::*;
-use crate::mesh::shapes::{cylinder, grid, quad_sphere, PolyMesh};
+use crate::mesh::shapes::{capped_tube, cylinder, grid, quad_sphere, PolyMesh};
 use crate::mesh::{MeshInput, Topology};
 use crate::solve::SystemKind;
 
@@ -805,6 +805,47 @@ fn accelerated_solver_converges_in_its_iterations_at_low_closeness() {
     assert!(six <= 0.05, "6 iterations: convergence error {six} (plain {old})");
     assert!(stopped <= 0.05 && took < limit, "with the tolerance: convergence error {stopped} after {took} iterations");
     assert!(old > 0.5, "plain iterations converge faster than expected here: {old}");
+}
+
+#[test]
+#[ignore = "known failure (issue 28): warm Converge frames of a still tube with 1,000-segment fan caps drift past 1e-4 of the size"]
+fn accelerated_solves_stay_at_rest_on_a_finely_segmented_fan_cap() {
+    // A tube whose caps are triangle fans of 1,000 segments: the rims are
+    // ring fits over sliver triangles. Corrected and extrapolated like
+    // pyramid rows, a bake of the tube barely moving (warm frames, each from
+    // the last result) grows a mode on the rims from frame to frame (the
+    // likely reason the 5M-vertex benchmark tube, 1,448 segments, runs its
+    // frames to the iteration limit). Leaving the ring-fit rows out of the correction
+    // and the extrapolation makes this pass but moves the accelerated solve
+    // to another fixed point on the bent MakeHuman body (9.5 %, test
+    // `accelerated_solver_keeps_the_plain_fixed_point_where_the_iteration_is_far_from_linear`),
+    // so it is not done; the frames must stay at rest and stop early.
+    let mesh = capped_tube(1000, 20, 0.25, 2.0);
+    let size = diagonal(&mesh.positions);
+    let mut deformer = accelerated(&mesh);
+    deformer.set_tolerance(Some(CONVERGE_TOLERANCE)).unwrap();
+    let closeness = Closeness::Uniform(0.05);
+    let mut last: Option<(Vec<Vec3>, Vec<Vec3>)> = None;
+    let mut iterations = Vec::new();
+    for frame in 1..=40 {
+        // At rest but for a wobble of a millionth: what a still limb's input holds.
+        let input: Vec<Vec3> = mesh
+            .positions
+            .iter()
+            .enumerate()
+            .map(|(i, p)| *p + Vec3::splat(1e-6 * ((i * 7919 % 13) as f32 - 6.0) * frame as f32 / 40.0))
+            .collect();
+        let mut x = match &last {
+            Some((last_input, last_result)) => input.iter().zip(last_result).zip(last_input).map(|((i, r), l)| *i + (*r - *l)).collect(),
+            None => input.clone(),
+        };
+        deformer.solve_into(&input, &mut x, ACCELERATED_ITERATIONS, closeness, None).unwrap();
+        iterations.push(deformer.last_iterations());
+        let moved = max_distance(&x, &input);
+        assert!(moved < 1e-4 * size, "frame {frame}: a vertex moved {moved} ({} of the size) from an input at rest", moved / size);
+        last = Some((input, x));
+    }
+    assert!(iterations.iter().all(|&k| k < ACCELERATED_ITERATIONS), "iterations per frame: {iterations:?}");
 }
 
 /// An iteration hook that pushes every vertex back above `y = floor` (a

@@ -30,7 +30,7 @@ use rayon::prelude::*;
 
 use super::dynamics::STIFFNESS_DENSITY;
 use crate::collide::is_inside;
-use crate::collide::{Collider, ColliderMotion, ColliderSet, ColliderSettings, ContactStats, ResolveParams, Skin};
+use crate::collide::{Clearance, Collider, ColliderMotion, ColliderSet, ColliderSettings, Envelope, ResolveParams, Skin};
 use crate::Result;
 
 /// Distance a receded vertex keeps from the skin, in thicknesses. Contacts
@@ -41,6 +41,15 @@ use crate::Result;
 /// (1 and 4 substeps then differ by 10% of the motion). At two thicknesses
 /// they agree within 1% (`sequence::tests::compliance`).
 const CLEARANCE: f32 = 2.0;
+
+/// How far, in thicknesses, the skin's boxes as a collider reach beyond the
+/// thickness ([`Collider::rest_at`]): a vertex that moved less than half of
+/// that since its boxes were made keeps them. Between two iterations most
+/// of the skin moves by rounding only: on the flesh benchmark (thickness
+/// 0.005) about 5,600 of 100,000 vertices move farther than a twentieth of
+/// the thickness per iteration. Fatter boxes would keep more of them but
+/// let more candidates through every query.
+const SKIN_SLACK: f32 = 0.1;
 
 /// Target rows that make the skin give way to compliant colliders: per skin
 /// vertex a target and a weight (0 where no compliant collider claims the
@@ -108,6 +117,9 @@ pub(super) fn contact_targets(
 /// `goal` while the skin stays at `x`; contacts with the skin stop them (the
 /// collider recedes). Kinematic vertices go to their goals. The collider is
 /// left at rest at the result.
+///
+/// `fresh`: the skin standing in as a collider is refitted whole (the first
+/// recession of a substep), else only where it moved since the last.
 pub(super) fn recede_from(
     skin_collider: &mut Option<Collider>,
     skin: &Skin,
@@ -115,23 +127,35 @@ pub(super) fn recede_from(
     own: &Skin,
     x: &[Vec3],
     goal: &[Vec3],
-) -> Result<ContactStats> {
+    fresh: bool,
+) -> Result<Recession> {
     let settings = ColliderSettings { thickness: collider.settings().thickness, static_friction: 0.0, kinetic_friction: 0.0 };
-    let obstacle = match skin_collider {
+    // After every iteration the skin moves much only near the contacts: its
+    // boxes are made again only where it moved (see `SKIN_SLACK`).
+    let slack = settings.thickness * SKIN_SLACK;
+    let (obstacle, refitted) = match skin_collider {
         Some(c) => {
             c.set_settings(settings)?;
-            c.set_positions(x, x)?;
-            c
+            let refitted = c.rest_at(x, slack, fresh)?;
+            (c, refitted)
         }
-        None => skin_collider.insert(Collider::new(x, skin.triangles(), settings)?),
+        None => {
+            let c = skin_collider.insert(Collider::new(x, skin.triangles(), settings)?);
+            let refitted = c.rest_at(x, slack, true)?;
+            (c, refitted)
+        }
     };
-    let params = ResolveParams { motion: ColliderMotion::AtCurrent, friction: false, ..ResolveParams::in_loop() };
+    // In the loop the skin's own pass has just cleared the skin of the
+    // collider where it stands: only what moves now needs testing. The first
+    // recession of a substep starts from last substep's state and tests all.
+    let params = ResolveParams { motion: ColliderMotion::AtCurrent, friction: false, moving_only: !fresh, ..ResolveParams::in_loop() };
     let set = ColliderSet::new([&*obstacle]);
     // Where a goal lies behind the skin (or within the thickness of it), the
     // vertex recedes along its own normal (the direction its region pushes
     // into the skin) to the skin's offset surface on the side it is on;
-    // elsewhere it heads for its goal. That depends on the goal and the skin
-    // only, not on the path, so the result does not depend on substeps or
+    // elsewhere it heads for its goal. Where it ends depends on the goal and
+    // the skin only, not on the path (the path only tells which side of the
+    // skin the vertex is on), so the result does not depend on substeps or
     // iterations. (The point of the skin nearest the goal would minimise the
     // spring exactly, but for a goal deep behind a curved skin it moves much
     // further than the skin does: 1 and 4 substeps then differ by 6% of the
@@ -154,38 +178,70 @@ pub(super) fn recede_from(
             if hit.is_none() && !obstacle.is_within(g, clearance) {
                 return g;
             }
-            // The skin is no farther from the goal than where the straight
-            // line met it, or than the clearance it is within: the search
-            // for the closest point need not look farther (slightly
-            // more, for the rounding of the fraction).
-            let within = match hit {
-                Some((t, _)) => (1.0 - t) * (g - start[v]).length(),
-                None => clearance,
-            };
-            let Some(near) = obstacle.closest_point_within(g, within as f64 * (1.0 + 1e-4) + 1e-6) else { return g };
             let face_normal = |t: u32| {
                 let [a, b, c] = obstacle.triangles()[t as usize].map(|k| x[k as usize]);
                 (b - a).cross(c - a).normalize_or_zero()
             };
-            let normal = face_normal(near.triangle);
-            let side = if normal.dot(start[v] - near.point) >= 0.0 { normal } else { -normal };
-            if side.dot(g - near.point) >= clearance {
-                return g;
-            }
-            let fallback = near.point + side * clearance;
+            // The point of the skin nearest the goal: no farther than where
+            // the straight line met the skin, or than the clearance the goal
+            // is within (the search need not look farther; slightly more, for
+            // the rounding of the fraction).
+            let within = match hit {
+                Some((t, _)) => (1.0 - t) * (g - start[v]).length(),
+                None => clearance,
+            };
+            let nearest = || obstacle.closest_point_within(g, within as f64 * (1.0 + 1e-4) + 1e-6);
+            let outward = |triangle: u32, at: Vec3| {
+                let normal = face_normal(triangle);
+                if normal.dot(start[v] - at) >= 0.0 { normal } else { -normal }
+            };
             let n = normals[v];
-            let dir = if n.dot(side) >= 0.0 { n } else { -n };
-            if dir.dot(side) < 0.3 {
-                return fallback; // the normal runs along the skin: no well-defined crossing
-            }
-            let reach = 4.0 * ((g - near.point).length() + clearance);
+            let Some((t, _)) = hit else {
+                // The goal is within the clearance of the skin, in reach.
+                let Some(near) = nearest() else { return g };
+                let side = outward(near.triangle, near.point);
+                if side.dot(g - near.point) >= clearance {
+                    return g;
+                }
+                let dir = if n.dot(side) >= 0.0 { n } else { -n };
+                if dir.dot(side) < 0.3 {
+                    return near.point + side * clearance; // the normal runs along the skin: no well-defined crossing
+                }
+                let reach = 4.0 * ((g - near.point).length() + clearance);
+                return match obstacle.first_hit(g, g + dir * reach) {
+                    Some((t, tri)) => {
+                        let m = face_normal(tri);
+                        let m = if m.dot(dir) >= 0.0 { m } else { -m };
+                        g + dir * (t * reach + clearance / m.dot(dir).max(0.3))
+                    }
+                    None => near.point + side * clearance,
+                };
+            };
+            // The goal is behind the skin as seen from the vertex (a resting
+            // vertex pressed into it, most of the work of a frame): the vertex
+            // heads for where its own normal through the goal comes out of the
+            // skin, offset by the clearance. That crossing's triangle says
+            // whether the normal runs along the skin, so the point nearest the
+            // goal (a search through all the skin within the goal's depth
+            // behind it) is needed only where it does, or where the normal
+            // finds no crossing: the offset surface over it then, which like
+            // the crossing depends on the goal and the skin only.
+            let fallback = || match nearest() {
+                Some(near) => near.point + outward(near.triangle, near.point) * clearance,
+                None => g,
+            };
+            let dir = if n.dot(start[v] - g) >= 0.0 { n } else { -n };
+            let reach = 4.0 * ((1.0 - t) * (g - start[v]).length() + clearance);
             match obstacle.first_hit(g, g + dir * reach) {
                 Some((t, tri)) => {
                     let m = face_normal(tri);
                     let m = if m.dot(dir) >= 0.0 { m } else { -m };
-                    g + dir * (t * reach + clearance / m.dot(dir).max(0.3))
+                    if m.dot(dir) < 0.3 {
+                        return fallback(); // the normal runs along the skin: no well-defined crossing
+                    }
+                    g + dir * (t * reach + clearance / m.dot(dir))
                 }
-                None => fallback,
+                None => fallback(),
             }
         })
         .collect();
@@ -194,9 +250,41 @@ pub(super) fn recede_from(
     // A move that cannot be made free of contacts is not made: the collider
     // stays where it was, which is collision-free.
     let start = if stats.pinched.is_empty() { end } else { start };
-    let total = stats;
     collider.set_positions(&start, &start)?;
-    Ok(total)
+    Ok(Recession { contacts: stats.vertex_contacts + stats.edge_contacts + stats.collider_vertex_contacts, refitted })
+}
+
+/// What one [`recede_from`] did.
+pub(super) struct Recession {
+    /// Contacts that stopped compliant vertices at the skin.
+    pub contacts: usize,
+    /// Skin vertices whose boxes as a collider were made again.
+    pub refitted: usize,
+}
+
+/// The clearance of the skin at `positions` for a substep's in-loop passes
+/// (see [`Clearance`]), measured against the kinematic colliders where they
+/// stand and with their supporting planes. A compliant collider recedes
+/// after every pass, between where it stands and its goal and a little
+/// sideways as the skin under it moves: it is measured by its [`Envelope`],
+/// each vertex's box around both grown by the clearance's radius, and
+/// without planes. The clearance is valid for as long as every compliant
+/// collider stays inside its envelope; the step measures again when one
+/// leaves (`StepReport::clearance_measurements`).
+pub(super) fn in_loop_clearance(colliders: &[&Collider], goals: &[Option<Vec<Vec3>>], skin: &Skin, positions: &[Vec3]) -> Result<Clearance> {
+    let radius = Clearance::default_radius(colliders, skin, positions);
+    if colliders.iter().all(|c| !c.is_compliant()) {
+        return Clearance::new(colliders, skin, positions, radius)?.with_planes(colliders);
+    }
+    let envelopes = colliders
+        .iter()
+        .zip(goals)
+        .map(|(c, goal)| match goal {
+            Some(goal) if c.is_compliant() => Envelope::new(c, goal, radius).map(Some),
+            _ => Ok(None),
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Clearance::with_envelopes(colliders, envelopes, skin, positions, radius)
 }
 
 /// A compliant collider as a moving mesh: its edges and triangles, inverse

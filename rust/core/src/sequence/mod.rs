@@ -45,18 +45,20 @@
 //!
 //! Files: [`seams`] (the public boundary, in the mesh's vertices), [`step`]
 //! (the frame and its substeps), [`options`] (what a step is asked and
-//! reports), [`dynamics`], [`compliance`], [`strain_pass`].
+//! reports), [`dynamics`], [`compliance`], [`strain_pass`], [`self_pass`]
+//! (the skin's contact with itself, with the colliders).
 
 pub mod compliance;
 pub mod dynamics;
 pub mod options;
 mod seams;
+mod self_pass;
 mod step;
 mod strain_pass;
 
 use glam::Vec3;
 
-use crate::collide::{Collider, Skin};
+use crate::collide::{Collider, SelfCollision, Skin};
 use crate::mesh::{polygon_edges, MeshInput, Weld, SLIVER_RATIO, WELD_TOLERANCE};
 use crate::pyramid::{DeformerOptions, PyramidDeformer};
 use crate::solve::ConstraintId;
@@ -64,8 +66,9 @@ use crate::strain::Hierarchy;
 use crate::Result;
 
 pub use dynamics::{Dynamics, MAX_SUBSTEPS, STIFFNESS_DENSITY};
-pub use options::{StepOptions, StepReport, StrainMode, StrainOptions};
+pub use options::{SelfOptions, StepOptions, StepReport, StrainMode, StrainOptions};
 
+use self_pass::KeptTangles;
 use step::CarriedPlanes;
 
 /// A bound mesh and the state of the sequence of frames being solved.
@@ -85,6 +88,9 @@ pub struct Sequence {
     /// The mesh's own edges, which strain limits hold (the collision skin's
     /// edges also include the diagonals of triangulated polygons).
     mesh_edges: Vec<[u32; 2]>,
+    /// The welded mesh's polygons (corners, sizes): self-collision splits
+    /// them on its own, each quad both ways.
+    polygons: (Vec<i32>, Vec<i32>),
     /// Area around each vertex at rest (a third of its triangles'): masses.
     vertex_area: Vec<f32>,
     // Per-bake state.
@@ -108,6 +114,10 @@ pub struct Sequence {
     /// The multilevel blocks of the unified strain pass, built on the first
     /// step that needs them and kept while the limits stay the same.
     strain_levels: Option<Hierarchy>,
+    /// Self-collision's bind, made on the first step that asks for it.
+    self_collision: Option<SelfCollision>,
+    /// The last output's self-intersections: the next frame's tangles.
+    self_tangles: Option<KeptTangles>,
 }
 
 impl Sequence {
@@ -132,6 +142,7 @@ impl Sequence {
         let mut sequence = Self::new(deformer);
         sequence.rest = welded.positions.to_vec();
         sequence.mesh_edges = polygon_edges(welded.corner_verts, &welded.validate()?);
+        sequence.polygons = (welded.corner_verts.to_vec(), welded.polygon_sizes.to_vec());
         sequence.vertex_area = vertex_areas(welded.positions, skin.triangles());
         sequence.skin = skin;
         sequence.weld = weld;
@@ -148,6 +159,7 @@ impl Sequence {
             skin: Skin::vertices_only(n),
             rest: Vec::new(),
             mesh_edges: Vec::new(),
+            polygons: (Vec::new(), Vec::new()),
             vertex_area: vec![1.0; n],
             history: None,
             velocity: None,
@@ -157,6 +169,8 @@ impl Sequence {
             skin_collider: None,
             carried_planes: None,
             strain_levels: None,
+            self_collision: None,
+            self_tangles: None,
         }
     }
 
@@ -179,6 +193,7 @@ impl Sequence {
         self.history = None;
         self.velocity = None;
         self.last_input = None;
+        self.self_tangles = None;
     }
 }
 
@@ -207,3 +222,5 @@ mod tests;
 mod seam_tests;
 #[cfg(test)]
 mod irregular_tests;
+#[cfg(test)]
+mod self_tests;

@@ -1,7 +1,7 @@
 //! What a step is asked to do, and what it reports.
 
 use super::dynamics::Dynamics;
-use crate::collide::ContactStats;
+use crate::collide::{ContactStats, SelfSettings};
 use crate::pyramid::Closeness;
 use crate::strain::MaxStretch;
 
@@ -34,6 +34,15 @@ pub struct StrainOptions<'a> {
     pub mode: StrainMode,
 }
 
+/// Self-collision of a step: its settings, and where it applies.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct SelfOptions<'a> {
+    pub settings: SelfSettings,
+    /// Per vertex: a triangle with a corner weighted above 0 takes part, and
+    /// a pair is tested when both its triangles do (None: everywhere).
+    pub weights: Option<&'a [f32]>,
+}
+
 /// Everything one [`super::Sequence::step`] is asked to do.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StepOptions<'a> {
@@ -45,11 +54,13 @@ pub struct StepOptions<'a> {
     pub substeps: usize,
     pub dynamics: Option<Dynamics>,
     pub strain: Option<StrainOptions<'a>>,
+    /// The skin's contact with itself ([`super::self_pass`]).
+    pub self_collision: Option<SelfOptions<'a>>,
 }
 
 impl Default for StepOptions<'_> {
     fn default() -> Self {
-        StepOptions { iterations: 10, closeness: Closeness::Default, substeps: 1, dynamics: None, strain: None }
+        StepOptions { iterations: 10, closeness: Closeness::Default, substeps: 1, dynamics: None, strain: None, self_collision: None }
     }
 }
 
@@ -88,6 +99,31 @@ pub struct StepReport {
     /// still back where the pass started (over all passes and iterations):
     /// contacts that held instead of pinching.
     pub held: usize,
+    /// Self-contacts projected by the first and in-loop passes.
+    pub self_contacts: usize,
+    /// Times the self-collision fail-safe put a vertex back where its pass
+    /// started (over all passes): paths the rounds could not clear.
+    pub self_held: usize,
+    /// Vertices left crossing other skin where a sweeping collider had the
+    /// last word (ascending; they are tangles of the next frame).
+    pub self_pinched: Vec<u32>,
+    /// Pairs of the skin's triangles intersecting in the output, neighbours
+    /// not counted: those the input brought (tangles still coming apart) and
+    /// those left by pinched vertices.
+    pub self_intersections: usize,
+    /// Vertices exempt at the start of the frame: their triangles
+    /// intersected there.
+    pub self_tangled: usize,
+    /// Clearances measured for the in-loop passes: one per substep with
+    /// colliders, and again where a compliant collider left its envelope.
+    pub clearance_measurements: usize,
+    /// Skin vertices the in-loop collider passes tested against the
+    /// colliders, over all passes: those the clearance did not prove apart.
+    /// It follows the region near the colliders, not the skin's size.
+    pub in_loop_tested: usize,
+    /// Skin vertices whose boxes were made again for compliant colliders to
+    /// recede from, after the solver's iterations: those that moved since.
+    pub in_loop_skin_refits: usize,
 }
 
 /// Adds a substep's first-pass figures to the frame's.
@@ -96,6 +132,7 @@ pub(super) fn accumulate(total: &mut ContactStats, part: &ContactStats) {
     total.edge_contacts += part.edge_contacts;
     total.collider_vertex_contacts += part.collider_vertex_contacts;
     total.plane_lifts += part.plane_lifts;
+    total.tested += part.tested;
     total.rounds += part.rounds;
     total.max_correction = total.max_correction.max(part.max_correction);
     total.moved.extend_from_slice(&part.moved);

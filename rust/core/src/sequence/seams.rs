@@ -12,7 +12,7 @@
 
 use glam::Vec3;
 
-use super::options::{StepOptions, StepReport, StrainOptions};
+use super::options::{SelfOptions, StepOptions, StepReport, StrainOptions};
 use super::Sequence;
 use crate::collide::Collider;
 use crate::mesh::{validate_positions, Weld};
@@ -57,7 +57,12 @@ impl Sequence {
         validate_positions("input", input)?;
         let mut closeness_buffer = Vec::new();
         let mut stretch_buffer = Vec::new();
+        let mut self_weights = Vec::new();
         let welded_options = StepOptions {
+            self_collision: match options.self_collision {
+                Some(own) => Some(SelfOptions { weights: self.gather_self_weights(own.weights, &mut self_weights)?, ..own }),
+                None => None,
+            },
             closeness: self.gather_closeness(options.closeness, &mut closeness_buffer)?,
             strain: match options.strain {
                 Some(strain) => Some(StrainOptions {
@@ -72,6 +77,7 @@ impl Sequence {
         report.pinched = self.weld.expand(&report.pinched);
         report.first_pass.pinched = self.weld.expand(&report.first_pass.pinched);
         report.first_pass.moved = self.weld.expand(&report.first_pass.moved);
+        report.self_pinched = self.weld.expand(&report.self_pinched);
         Ok((self.scatter(&welded), report))
     }
 
@@ -122,6 +128,7 @@ impl Sequence {
         self.history = Some(if self.weld.is_identity() { positions.to_vec() } else { self.weld.gather(positions) });
         self.velocity = None;
         self.last_input = None;
+        self.self_tangles = None;
         Ok(())
     }
 
@@ -206,6 +213,20 @@ impl Sequence {
                 Closeness::PerVertex(buffer)
             }
         })
+    }
+
+    /// Self-collision weights checked against the mesh, then the largest
+    /// over each welded vertex's members: a seam takes part if a side does.
+    fn gather_self_weights<'b>(&self, weights: Option<&[f32]>, buffer: &'b mut Vec<f32>) -> Result<Option<&'b [f32]>> {
+        let Some(weights) = weights else { return Ok(None) };
+        self.check_len("self-collision weights", weights.len())?;
+        if let Some(v) = weights.iter().position(|w| !(w.is_finite() && *w >= 0.0)) {
+            return Err(Error::invalid(format!("self-collision weight of vertex {v} is {}; it must be finite and ≥ 0", weights[v])));
+        }
+        *buffer = (0..self.weld.welded_count())
+            .map(|w| self.weld.members(w).iter().map(|&v| weights[v as usize]).fold(0.0, f32::max))
+            .collect();
+        Ok(Some(buffer))
     }
 
     /// Per-vertex ε checked against the mesh, then the smallest over each

@@ -3,9 +3,10 @@
 
 use glam::Vec3;
 
-use super::compliance::{compliant_skin, contact_targets, recede_from};
+use super::compliance::{compliant_skin, contact_targets, in_loop_clearance, recede_from};
 use super::dynamics::{kinetic_energy, Dynamics, MAX_SUBSTEPS};
 use super::options::{accumulate, StepOptions, StepReport, StrainMode};
+use super::self_pass::{self, SelfPass};
 use super::strain_pass::{limit_strain_with_contacts, POST_STRAIN_SWEEPS, STRAIN_ROUNDS, STRAIN_ROUNDS_EARLY, STRAIN_TOLERANCE};
 use super::Sequence;
 use crate::collide::is_inside;
@@ -57,6 +58,7 @@ impl Sequence {
 
         let substeps = options.substeps;
         let start = self.history.clone().unwrap_or_else(|| input.to_vec());
+        let mut self_pass = self.begin_self(options.self_collision.as_ref(), &start)?;
         // Copies only where substeps interpolate or compliant colliders move:
         // the plain frame (one substep, kinematic colliders) allocates nothing here.
         let last_input = match (&self.last_input, substeps > 1) {
@@ -105,7 +107,7 @@ impl Sequence {
                     }
                 }
                 let h = options.dynamics.map_or(0.0, |d| d.frame_time / substeps as f32);
-                x = self.substep(&x, &input_s, colliders, &goals, options, limits.as_ref(), h, &mut report)?;
+                x = self.substep(&x, &input_s, colliders, &goals, options, limits.as_ref(), h, self_pass.as_mut(), &mut report)?;
             }
             Ok(())
         })();
@@ -137,6 +139,9 @@ impl Sequence {
         }
         report.pinched.sort_unstable();
         report.pinched.dedup();
+        if let Some(pass) = self_pass {
+            self.finish_self(pass, &x, &mut report)?;
+        }
         self.history = Some(x.clone());
         self.last_input = Some(input.to_vec());
         Ok((x, report))
@@ -156,6 +161,7 @@ impl Sequence {
         options: &StepOptions<'_>,
         limits: Option<&(EdgeLimits, StrainMode)>,
         h: f32,
+        mut self_pass: Option<&mut SelfPass>,
         report: &mut StepReport,
     ) -> Result<Vec<Vec3>> {
         let n = x_n.len();
@@ -176,10 +182,10 @@ impl Sequence {
         report.compliant_skin_vertices = report.compliant_skin_vertices.max(contacts.as_ref().map_or(0, |(_, w)| w.iter().filter(|&&w| w > 0.0).count()));
         self.set_contact_targets(contacts)?;
         // A warm start only where nothing else depends on the path from the
-        // last output: with colliders the first pass's path from there to
-        // the input is where friction holds the skin, and with dynamics the
-        // target is already the inertial prediction.
-        let mut x = if colliders.is_empty() && options.dynamics.is_none() { self.warm_start(&target) } else { target };
+        // last output: with colliders or self-collision the first pass's path
+        // from there to the input is where friction holds the skin, and with
+        // dynamics the target is already the inertial prediction.
+        let mut x = if colliders.is_empty() && options.dynamics.is_none() && self_pass.is_none() { self.warm_start(&target) } else { target };
         // A vertex one pass leaves pinched inside a collider starts the next
         // pass inside, where no contact is seen again: keep the suspects and
         // look at where they end.
@@ -195,8 +201,8 @@ impl Sequence {
             for &c in &compliant {
                 let goal = goals[c].as_deref().expect("compliant colliders have goals");
                 let own = compliant_skins[c].as_ref().expect("compliant");
-                let moved = recede_from(&mut self.skin_collider, &self.skin, colliders[c], own, x_n, goal)?;
-                report.compliant_contacts += moved.vertex_contacts + moved.edge_contacts + moved.collider_vertex_contacts;
+                let moved = recede_from(&mut self.skin_collider, &self.skin, colliders[c], own, x_n, goal, true)?;
+                report.compliant_contacts += moved.contacts;
             }
             // 2. The skin towards its target while the colliders sweep.
             let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
@@ -209,6 +215,11 @@ impl Sequence {
                 colliders[c].hold()?;
             }
         }
+        // 2b. The skin against itself along the same paths (with the colliders again where it moved skin).
+        if let (Some(pass), Some(collision)) = (self_pass.as_deref_mut(), self.self_collision.as_ref()) {
+            let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
+            self_pass::first_pass(collision, pass, x_n, &mut x, &refs, &self.skin, report)?;
+        }
 
         // 3. The solve, with the in-loop passes after every iteration.
         // Strain projections move a vertex in proportion to how free it is.
@@ -219,6 +230,7 @@ impl Sequence {
         let mut last_pinched: Vec<u32> = suspects.clone();
         let skin = &self.skin;
         let skin_collider = &mut self.skin_collider;
+        let self_collision = self.self_collision.as_ref().filter(|_| self_pass.is_some());
         let unified = limits.filter(|(_, mode)| *mode == StrainMode::Unified).map(|(l, _)| l);
         if let Some(limits) = unified {
             if !self.strain_levels.as_ref().is_some_and(|levels| levels.fits(limits)) {
@@ -231,18 +243,20 @@ impl Sequence {
         // Where the skin is, at the start of the in-loop passes, relative to
         // the colliders: the passes skip what cannot have reached them since,
         // and lift what the solve pulls back in along the colliders' planes.
-        // Receding compliant colliders change every pass, so they get none.
+        // Receding compliant colliders are measured by their envelopes, and
+        // again if one leaves its envelope (see `in_loop_clearance`).
         let mut clearance: Option<Clearance> = None;
-        let measure_clearance = any_colliders && compliant.is_empty();
         let mut in_loop = |iteration: usize, before: &[Vec3], after: &mut [Vec3]| -> Result<()> {
             if any_colliders {
                 // Compliant colliders stand still here; they recede below.
                 let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
-                if measure_clearance && clearance.is_none() {
-                    clearance = Some(Clearance::new(&refs, skin, before, Clearance::default_radius(&refs, skin, before))?.with_planes(&refs)?);
+                if !clearance.as_ref().is_some_and(|c| c.is_valid_for(&refs, before.len())) {
+                    clearance = Some(in_loop_clearance(&refs, goals, skin, before)?);
+                    report.clearance_measurements += 1;
                 }
                 let stats = ColliderSet::new(refs).resolve_path_with(before, after, skin, &ResolveParams::in_loop(), clearance.as_ref())?;
                 report.in_loop_contacts += stats.vertex_contacts + stats.edge_contacts + stats.collider_vertex_contacts;
+                report.in_loop_tested += stats.tested;
                 report.max_in_loop_correction = report.max_in_loop_correction.max(stats.max_correction);
                 report.held += stats.held.len();
                 suspects.extend_from_slice(&stats.pinched);
@@ -258,13 +272,18 @@ impl Sequence {
             }
             for &c in &compliant {
                 let goal = goals[c].as_deref().expect("compliant colliders have goals");
-                let moved = recede_from(skin_collider, skin, colliders[c], compliant_skins[c].as_ref().expect("compliant"), after, goal)?;
-                report.compliant_contacts += moved.vertex_contacts + moved.edge_contacts + moved.collider_vertex_contacts;
+                let moved = recede_from(skin_collider, skin, colliders[c], compliant_skins[c].as_ref().expect("compliant"), after, goal, false)?;
+                report.compliant_contacts += moved.contacts;
+                report.in_loop_skin_refits += moved.refitted;
+            }
+            if let (Some(pass), Some(collision)) = (self_pass.as_deref_mut(), self_collision) {
+                let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
+                self_pass::in_loop(collision, pass, before, after, &refs, skin, clearance.as_ref(), report)?;
             }
             Ok(())
         };
         let hook: Option<&mut dyn IterationHook> =
-            if any_colliders || unified.is_some() { Some(&mut in_loop) } else { None };
+            if any_colliders || unified.is_some() || self_collision.is_some() { Some(&mut in_loop) } else { None };
         self.deformer.solver_mut().solve(input, &mut x, options.iterations, hook)?;
         self.carried_planes = clearance.and_then(Clearance::into_planes).map(|planes| CarriedPlanes {
             planes,

@@ -230,6 +230,82 @@ mod compliance {
         assert!(stiff_recession < soft_recession, "stiffer should recede less: {stiff_recession} vs {soft_recession}");
     }
 
+    /// The same compliant ball pressed into skins of the same spacing, one
+    /// four times the other's area: the in-loop passes test the skin near
+    /// the ball only, measure their clearance once a frame (the ball stays
+    /// inside its envelope), the skin it recedes from is refitted where it
+    /// moved, and the larger skin costs them no more of either.
+    #[test]
+    fn compliant_passes_test_the_contact_region_not_the_whole_skin() {
+        let tested = |cells: usize, size: f32| {
+            let skin = grid(cells, cells, size);
+            let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
+            let (ball, tris) = sphere(0.3);
+            let at = |z: f32| moved(&ball.positions, Vec3::new(0.0, 0.0, z));
+            let mut arm = Collider::new(&at(0.5), &tris, ColliderSettings::new(0.01, 0.0)).unwrap();
+            arm.set_compliance(Some(&vec![100.0; ball.positions.len()])).unwrap();
+            let (mut tested, mut measurements, mut recession, mut refits) = (0, 0, 0.0f32, 0);
+            for k in 0..=5 {
+                arm.update(&at(0.5 - 0.06 * k as f32)).unwrap();
+                let (x, report) = deformer.step(&skin.positions, &mut [&mut arm], &StepOptions::new(10, Closeness::Uniform(0.2))).unwrap();
+                assert_eq!(penetrations(&skin, &x, &[&arm]), (0, 0, 0), "{cells}² skin, frame {k}");
+                assert!(report.pinched.is_empty());
+                tested += report.in_loop_tested;
+                refits += report.in_loop_skin_refits;
+                measurements += report.clearance_measurements;
+                recession = report.max_recession;
+            }
+            (skin.positions.len(), tested, measurements, recession, refits)
+        };
+        let (small_n, small, small_measured, small_recession, small_refits) = tested(30, 1.6);
+        let (large_n, large, large_measured, large_recession, large_refits) = tested(60, 3.2);
+        assert!(large_n > 3 * small_n);
+        assert!(small_recession > 0.01 && (large_recession - small_recession).abs() < 0.1 * small_recession, "recession {small_recession} / {large_recession}");
+        assert!(small > 0, "the passes tested nothing near the ball");
+        assert!(large as f64 <= 1.25 * small as f64, "in-loop tests grew with the skin: {small} on {small_n} vertices, {large} on {large_n}");
+        // 6 frames of 10 passes: on average under a tenth of the skin a pass.
+        let passes = 60;
+        assert!(large < passes * large_n / 10, "the in-loop passes tested most of the skin: {large} tests over {passes} passes, {large_n} vertices");
+        assert!(small_measured <= 12 && large_measured <= 12, "clearances measured: {small_measured} / {large_measured} over 6 frames");
+        // The skin the ball recedes from is refitted where it moved only.
+        assert!(small_refits > 0, "the skin never moved under the ball");
+        assert!(large_refits as f64 <= 1.25 * small_refits as f64, "skin refits grew with the skin: {small_refits} on {small_n} vertices, {large_refits} on {large_n}");
+        assert!(large_refits < passes * large_n / 10, "most of the skin was refitted after each iteration: {large_refits} refits over {passes} passes, {large_n} vertices");
+    }
+
+    /// A compliant ball pressed into a free skin rests on it; then the
+    /// skin's input rises into the ball and slides sideways under it while
+    /// the ball's animation holds still. Each iteration the ball's resting
+    /// vertices recede from where the skin has moved: the skin is never
+    /// passed through (by the audit, which shares no geometry with the
+    /// passes), the ball keeps receding as the skin comes up, and nothing
+    /// is pinched.
+    #[test]
+    fn a_skin_moving_under_a_resting_compliant_ball_is_never_passed_through() {
+        let skin = grid(30, 30, 1.6);
+        let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let (ball, tris) = sphere(0.3);
+        let at = |z: f32| moved(&ball.positions, Vec3::new(0.0, 0.0, z));
+        let mut arm = Collider::new(&at(0.5), &tris, ColliderSettings::new(0.01, 0.3)).unwrap();
+        arm.set_compliance(Some(&vec![100.0; ball.positions.len()])).unwrap();
+        let options = StepOptions::new(10, Closeness::Uniform(0.3));
+        let mut recessions = Vec::new();
+        for k in 0..=10usize {
+            arm.update(&at(0.5 - 0.06 * k.min(4) as f32)).unwrap();
+            // From frame 5 the skin's input rises by up to 0.1 and slides by up to 0.15.
+            let lift = 0.02 * k.saturating_sub(4).min(5) as f32;
+            let slide = 0.03 * k.saturating_sub(5) as f32;
+            let input = moved(&skin.positions, Vec3::new(slide, 0.0, lift));
+            let (x, report) = deformer.step(&input, &mut [&mut arm], &options).unwrap();
+            assert!(x.iter().all(|p| p.is_finite()), "frame {k}");
+            assert_eq!(penetrations(&skin, &x, &[&arm]), (0, 0, 0), "frame {k}");
+            assert!(report.pinched.is_empty(), "frame {k}: {} pinched", report.pinched.len());
+            recessions.push(report.max_recession);
+        }
+        assert!(recessions[4] > 0.01, "the ball rests in the skin: recession {}", recessions[4]);
+        assert!(recessions[9] > recessions[4] + 0.02, "the skin came up 0.1 into the ball, which should recede: {recessions:?}");
+    }
+
     #[test]
     fn bad_stiffness_is_named() {
         let (ball, tris) = sphere(0.3);

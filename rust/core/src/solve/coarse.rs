@@ -29,7 +29,8 @@
 //! it is solved approximately by one cycle through coarser levels: on each
 //! level the correction from the next one (the same aggregation again),
 //! then Gauss–Seidel smoothing ([`SWEEPS`]), down to a level of at most
-//! [`MAX_AGGREGATES`] unknowns solved by sparse Cholesky, factorised once. Piecewise constant aggregates make a coarse level
+//! [`MAX_AGGREGATES`] unknowns solved by sparse Cholesky, factorised once
+//! ([`super::coarsest`]). Piecewise constant aggregates make a coarse level
 //! stiffer than the level above, so its correction falls short; it is scaled
 //! by [`OVERCORRECTION`] between coarse levels (not onto the mesh, where the
 //! nonlinear step smooths: there it overshoots).
@@ -51,15 +52,11 @@
 //! Jacobi between the blocks) and the other loops write disjoint outputs in a
 //! fixed order: results do not depend on the thread count.
 
-use std::sync::Arc;
-
-use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::sparse::linalg::cholesky::{LltRef, SymbolicCholesky};
-use faer::{Conj, MatMut, Par};
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::system::{factorize_lower, RowBlock};
+use super::coarsest::Coarsest;
+use super::system::RowBlock;
 use crate::mesh::aggregate_once;
 use crate::Result;
 
@@ -325,7 +322,10 @@ impl Coarse {
             matrix = coarser;
         }
 
-        let Some(coarsest) = Coarsest::new(&matrix) else {
+        let lower: Vec<(u32, u32, f64)> = (0..matrix.len())
+            .flat_map(|i| matrix.row(i).filter(move |&(j, _)| j <= i).map(move |(j, v)| (j as u32, i as u32, v as f64)))
+            .collect();
+        let Some(coarsest) = Coarsest::new(matrix.len(), lower) else {
             return Ok(None);
         };
         let last = coarsest.len();
@@ -474,51 +474,6 @@ impl Coarse {
         }
         for sweep in 0..SWEEPS {
             level.matrix.sweep(&level.rhs, &mut level.error, &mut level.scratch, sweep % 2 == 1);
-        }
-    }
-}
-
-/// The coarsest level: its Cholesky factor and the solve's buffers.
-struct Coarsest {
-    symbolic: Arc<SymbolicCholesky<usize>>,
-    factor: Vec<f64>,
-    /// The three coordinates as the columns of one right-hand side, so that
-    /// one pass over the factor solves them all.
-    columns: Vec<f64>,
-    scratch: MemBuffer,
-}
-
-impl Coarsest {
-    /// Factorises the level's matrix; `None` if it is not positive definite.
-    fn new(matrix: &Csr) -> Option<Self> {
-        let n = matrix.len();
-        let lower: Vec<(u32, u32, f64)> = (0..n)
-            .flat_map(|i| matrix.row(i).filter(move |&(j, _)| j <= i).map(move |(j, v)| (j as u32, i as u32, v as f64)))
-            .collect();
-        let (symbolic, factor) = factorize_lower(n, lower, None).ok()?;
-        let scratch = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(3, Par::Seq));
-        Some(Coarsest { symbolic, factor, columns: vec![0.0; 3 * n], scratch })
-    }
-
-    fn len(&self) -> usize {
-        self.columns.len() / 3
-    }
-
-    /// Solves for the three coordinates.
-    fn solve(&mut self, rhs: &[Vec3], error: &mut [Vec3]) {
-        let n = self.len();
-        for (axis, column) in self.columns.chunks_exact_mut(n).enumerate() {
-            for (c, b) in column.iter_mut().zip(rhs) {
-                *c = b[axis] as f64;
-            }
-        }
-        let llt = LltRef::<usize, f64>::new(&self.symbolic, &self.factor);
-        let columns = MatMut::from_column_major_slice_mut(&mut self.columns, n, 3);
-        llt.solve_in_place_with_conj(Conj::No, columns, Par::Seq, MemStack::new(&mut self.scratch));
-        let (cx, rest) = self.columns.split_at(n);
-        let (cy, cz) = rest.split_at(n);
-        for (i, e) in error.iter_mut().enumerate() {
-            *e = Vec3::new(cx[i] as f32, cy[i] as f32, cz[i] as f32);
         }
     }
 }

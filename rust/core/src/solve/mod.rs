@@ -23,6 +23,7 @@ mod anderson;
 mod chebyshev;
 mod closeness;
 mod coarse;
+mod coarsest;
 mod constraint;
 mod solver;
 mod stopping;

@@ -17,8 +17,9 @@ use std::sync::Arc;
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
 use faer::sparse::linalg::cholesky::{
-    factorize_symbolic_cholesky, LltRef, SymbolicCholesky, SymmetricOrdering,
+    factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
 };
+use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side};
 use glam::Vec3;
@@ -429,7 +430,7 @@ fn cholesky<'a>(
             }
         }
     }
-    let (symbolic, values) = factorize_lower(n, entries, symbolic)?;
+    let (symbolic, values) = factorize_lower(n, entries, symbolic, false)?;
     let req = symbolic.solve_in_place_scratch::<f64>(1, Par::Seq);
     let scratch = [
         MemBuffer::new(req),
@@ -446,11 +447,14 @@ fn cholesky<'a>(
 
 /// Sums the duplicates of the lower-triangle entries `(column, row, value)`
 /// (in insertion order: deterministic) and factorises the matrix by sparse
-/// Cholesky, reusing `symbolic` when it fits.
+/// Cholesky, reusing `symbolic` when it fits. `simplicial` forces a
+/// simplicial factor (compressed columns, the diagonal first), whose
+/// structure a caller can walk itself; otherwise faer chooses.
 pub(crate) fn factorize_lower(
     n: usize,
     mut entries: Vec<(u32, u32, f64)>,
     symbolic: Option<Arc<SymbolicCholesky<usize>>>,
+    simplicial: bool,
 ) -> Result<(Arc<SymbolicCholesky<usize>>, Vec<f64>)> {
     // Stable sort: duplicates are summed in insertion order, deterministically.
     entries.par_sort_by_key(|&(col, row, _)| (col, row));
@@ -474,7 +478,14 @@ pub(crate) fn factorize_lower(
                 pattern,
                 Side::Lower,
                 SymmetricOrdering::Amd,
-                Default::default(),
+                CholeskySymbolicParams {
+                    supernodal_flop_ratio_threshold: if simplicial {
+                        SupernodalThreshold::FORCE_SIMPLICIAL
+                    } else {
+                        SupernodalThreshold::AUTO
+                    },
+                    ..Default::default()
+                },
             )
             .map_err(|e| {
                 Error::Numerical(format!(

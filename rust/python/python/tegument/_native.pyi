@@ -210,9 +210,17 @@ class PyramidDeformer:
         ``compliant_contacts`` (contacts that stopped compliant collider
         vertices), ``compliant_skin_vertices`` (skin vertices giving way to
         compliant colliders) and ``max_recession`` (largest distance of a
-        compliant collider vertex from its animated position) and ``held``
+        compliant collider vertex from its animated position), ``held``
         (times a pass put a vertex it could not clear of colliders standing
-        still back where the pass started: a contact that holds, not a pinch).
+        still back where the pass started: a contact that holds, not a pinch),
+        and with self-collision ``self_contacts`` (contacts between skin and
+        skin projected), ``self_held`` (times the fail-safe put a vertex back
+        where its pass started), ``self_pinched`` (int32 array of vertices left
+        crossing skin where a sweeping collider had the last word),
+        ``self_intersections`` (pairs of the skin's polygons intersecting in
+        the output under some split of their quads, neighbours not counted:
+        what the input brought in that has not come apart yet) and ``self_tangled`` (vertices exempt at the start
+        of the frame because their triangles intersected there).
         """
     @property
     def pinned_reasons(self) -> dict[str, Int32]:
@@ -261,7 +269,7 @@ class PyramidDeformer:
         turns into time. The first solve, and the first after :meth:`reset`
         or a failed one, start from the input.
         """
-    def step(self, positions: Floats, colliders: Sequence[Collider] | None = None, iterations: int = ..., closeness: float | Floats | None = None, substeps: int = ..., dynamics: Dynamics | None = None, max_stretch: float | Floats | None = None, strain_mode: Literal["unified", "post"] = ..., *, out: Float32 | None = None) -> Float32:
+    def step(self, positions: Floats, colliders: Sequence[Collider] | None = None, iterations: int = ..., closeness: float | Floats | None = None, substeps: int = ..., dynamics: Dynamics | None = None, max_stretch: float | Floats | None = None, strain_mode: Literal["unified", "post"] = ..., *, out: Float32 | None = None, self_collision: SelfCollision | None = None) -> Float32:
         """Solves the next frame of an animation against ``colliders`` and
         returns float32 ``(N, 3)`` positions.
 
@@ -291,7 +299,11 @@ class PyramidDeformer:
         after the collision passes; can leave penetrations). Colliders with
         compliance (:meth:`Collider.set_compliance`) are solved too: their
         :attr:`Collider.positions` become where they receded.
-        ``out`` as in :meth:`solve`.
+        ``self_collision`` (a :class:`SelfCollision`) keeps the skin from
+        passing through itself, in the same two passes and together with the
+        colliders: the output has no self-intersection its history did not
+        have; what the input brings in intersecting is left to come apart and
+        counted in :attr:`last_step`. ``out`` as in :meth:`solve`.
         """
     @property
     def tolerance(self) -> float | None:
@@ -322,6 +334,36 @@ class PyramidDeformer:
         USD importers deliver them) welded into one. Results come back per
         mesh vertex, the same position for every member of a seam.
         """
+
+class SelfCollision:
+    """Self-collision settings for :meth:`PyramidDeformer.step`.
+
+    ``thickness`` is the distance kept between skin that folds onto itself
+    (scene units; pairs already closer at rest keep their rest distance);
+    ``friction`` the static friction between the two sides (and the kinetic
+    one unless ``kinetic_friction`` is given); ``rings`` the neighbours left
+    out besides elements sharing a vertex (0: none; ``k``: elements within
+    ``k`` edges, which hides folds sharper than that); ``weights`` None
+    (everywhere) or float32 ``(N,)`` per vertex: only triangles with a corner
+    weighted above 0 take part (e.g. a group over the armpits and elbows).
+    Defaults in ``tegument.DEFAULTS`` (``self_thickness``, ...).
+    """
+    def __init__(self, thickness: float = ..., friction: float | None = None, kinetic_friction: float | None = None, rings: int = ..., weights: Floats | None = None) -> None: ...
+    @property
+    def friction(self) -> float:
+        """Static friction coefficient."""
+    @property
+    def kinetic_friction(self) -> float:
+        """Kinetic friction coefficient."""
+    @property
+    def rings(self) -> int:
+        """Rings of neighbours left out besides elements sharing a vertex."""
+    @property
+    def thickness(self) -> float:
+        """Distance kept between skin that folds onto itself."""
+    @property
+    def weights(self) -> Float32 | None:
+        """The per-vertex weights (float32 ``(N,)``), or None."""
 
 class UvWarp:
     """Content-aware UV warp of one mesh (seed 001: hierarchical position-based
@@ -411,7 +453,7 @@ def _defaults() -> dict[str, Any]:
     add-on's property defaults are these same values.
     """
 
-def audit(positions: Floats, corner_verts: Indices, polygon_sizes: Indices, colliders: Sequence[Collider], depth_tolerance: float = ...) -> AuditReport:
+def audit(positions: Floats, corner_verts: Indices, polygon_sizes: Indices, colliders: Sequence[Collider], depth_tolerance: float = ..., *, self_intersections: bool = False) -> AuditReport:
     """Penetration audit of a mesh against colliders at their current positions.
 
     ``positions`` float32 ``(N, 3)``, ``corner_verts`` and ``polygon_sizes`` int32
@@ -424,7 +466,14 @@ def audit(positions: Floats, corner_verts: Indices, polygon_sizes: Indices, coll
     ``(K,)``, ``edges_crossing_indices`` ``(K, 2)`` (vertex pairs),
     ``collider_edges_crossing_indices`` ``(K, 2)`` (collider, edge row of
     :meth:`Collider.edges`), and ``open_colliders`` (colliders skipped by the
-    inside test because they are not closed).
+    inside test because they are not closed). With ``self_intersections`` it
+    also counts the mesh's own intersections, with its own geometry (nothing of
+    the solver's): pairs of polygons sharing no vertex that intersect under
+    some split of their quads (a side or diagonal of one, a quad's two, an
+    ngon's fan diagonals, properly crosses a triangle of the other, a quad's
+    four of both splits, an ngon's fan), as ``self_intersections``
+    and ``self_intersection_indices`` ``(K, 2)`` (polygon pairs, ascending);
+    both are 0 and empty without it.
     """
 
 def rasterise_corner_values(corner_uvs: Floats, polygon_sizes: Indices, corner_values: Floats, udim: int, shape: tuple[int, int]) -> Float32:

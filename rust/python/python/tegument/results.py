@@ -118,6 +118,17 @@ class StepReport(_Report):
     held: int
     """Times a pass put a vertex it could not clear of colliders standing still back where the
     pass started (a contact that holds rather than a pinch), over all passes."""
+    self_contacts: int
+    """Contacts between skin and skin projected (self-collision), over all passes."""
+    self_held: int
+    """Times the self-collision fail-safe put a vertex back where its pass started, over all passes."""
+    self_pinched: npt.NDArray[np.int32]
+    """int32 ``(K,)``: vertices left crossing skin where a sweeping collider had the last word."""
+    self_intersections: int
+    """Pairs of the skin's triangles intersecting in the output (neighbours not counted): what the
+    input brought in that has not come apart yet."""
+    self_tangled: int
+    """Vertices exempt at the start of the frame because their triangles intersected there."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False, repr=False)
@@ -138,6 +149,10 @@ class AuditReport(_Report):
     """int32 ``(K, 2)``: (collider, row of :attr:`Collider.edges`)."""
     open_colliders: list[int]
     """Colliders the inside test skipped because they are not closed."""
+    self_intersections: int
+    """With ``self_intersections=True``: pairs of polygons sharing no vertex that intersect."""
+    self_intersection_indices: npt.NDArray[np.int32]
+    """int32 ``(K, 2)``: those polygon pairs, ascending."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False, repr=False)
@@ -228,6 +243,12 @@ class Defaults(_Report):
     kinetic_friction: float
     depth_tolerance: float
     """``audit``: vertices inside but closer than this are not counted."""
+    self_thickness: float
+    """``SelfCollision``: distance kept between skin that folds onto itself."""
+    self_friction: float
+    self_kinetic_friction: float
+    self_rings: int
+    """``SelfCollision``: rings of neighbours left out besides elements sharing a vertex."""
     warp_iterations: int
     """``UvWarp``: PBD iterations on the finest level."""
     orientation: float

@@ -65,13 +65,15 @@
 //! points; `resolve.rs` runs the rounds, vertex–triangle
 //! contacts are in `vertex.rs`, edge–edge in `edge.rs`, collider vertex–skin
 //! triangle in `face.rs`, the side and entry-time helpers in `contact.rs`,
-//! and the per-thread candidate lists in `scratch.rs`.
+//! the per-thread candidate lists in `scratch.rs`, and `verify.rs` checks
+//! given vertices' steps again after a caller changed them.
 
 mod contact;
 mod edge;
 mod face;
 mod resolve;
 mod scratch;
+mod verify;
 mod vertex;
 
 use glam::{DVec3, Vec3};
@@ -105,16 +107,24 @@ pub struct ResolveParams {
     pub collider_vertices: bool,
     /// Apply friction (off for passes where it would double count).
     pub friction: bool,
+    /// Test only the vertices that move (start ≠ end) and the edges and
+    /// triangles with such a corner. Sound only for a pass whose start the
+    /// caller knows to be clear of colliders that all stand still: an element
+    /// whose corners all stay where they were then stays clear. Used for a
+    /// compliant collider receding from the skin after an in-loop pass, which
+    /// has just cleared the skin of it: most of the collider stands still
+    /// (at its goal, or resting where it was), and only the rest costs.
+    pub moving_only: bool,
 }
 
 impl ResolveParams {
     /// Pass 1: colliders sweep over the frame, friction on.
     pub fn first_pass() -> Self {
-        ResolveParams { motion: ColliderMotion::Swept, max_rounds: 12, edge_edge: true, collider_vertices: true, friction: true }
+        ResolveParams { motion: ColliderMotion::Swept, max_rounds: 12, edge_edge: true, collider_vertices: true, friction: true, moving_only: false }
     }
     /// Pass 2: colliders at their current positions, friction on.
     pub fn in_loop() -> Self {
-        ResolveParams { motion: ColliderMotion::AtCurrent, max_rounds: 12, edge_edge: true, collider_vertices: true, friction: true }
+        ResolveParams { motion: ColliderMotion::AtCurrent, max_rounds: 12, edge_edge: true, collider_vertices: true, friction: true, moving_only: false }
     }
 }
 
@@ -131,6 +141,9 @@ pub struct ContactStats {
     /// plane without a lookup: the clearance's ([`Clearance::with_planes`])
     /// or the sweeping colliders' ([`LocalPlanes::drifting`]).
     pub plane_lifts: usize,
+    /// Skin vertices tested against the colliders: those neither the
+    /// clearance nor the colliders' whole boxes ruled out.
+    pub tested: usize,
     /// Vertices whose end position changed, ascending.
     pub moved: Vec<u32>,
     /// Vertices still in violation after the last round, ascending.

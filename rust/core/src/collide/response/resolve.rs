@@ -233,10 +233,19 @@ impl<'a> ColliderSet<'a> {
                 (listed(&reach_vertices), listed(&reach_edges), listed(&reach_triangles))
             }
         };
+        // Elements that stand still where the caller knows them clear of
+        // colliders that stand still stay clear (`ResolveParams::moving_only`).
+        if params.moving_only && still {
+            let moves = |v: u32| start[v as usize] != end[v as usize];
+            active.retain(|&i| moves(i));
+            active_edges.retain(|&e| skin.edges()[e as usize].iter().any(|&v| moves(v)));
+            active_triangles.retain(|&t| skin.triangles()[t as usize].iter().any(|&v| moves(v)));
+        }
         // Vertices with inverse mass 0 move as imposed: never corrected.
         if skin.has_inverse_mass() {
             active.retain(|&i| skin.inverse_mass(i) > 0.0);
         }
+        stats.tested = active.len();
         // Supporting planes: the clearance's for still colliders; for sweeping
         // ones, planes around the active vertices in the frame drifting with
         // the colliders, if they translate together (carried along from the

@@ -43,6 +43,42 @@ fn fast_vertex_does_not_tunnel_through_a_thin_floor() {
     assert!(stats.pinched.is_empty());
 }
 
+/// `moving_only` leaves out what stands still — even a vertex standing
+/// within the thickness, which the caller promised does not happen — and
+/// still stops every vertex that moves, and the edges they drag.
+#[test]
+fn moving_only_tests_what_moves_and_still_stops_it() {
+    let c = floor(ColliderSettings::new(0.01, 0.0));
+    // 0 stands still within the thickness; 1 dives through the floor; 2 moves
+    // far above it; 3 stands still above it, joined to 1 by an edge.
+    let start = [Vec3::new(0.0, 0.0, 0.005), Vec3::new(1.0, 0.0, 1.0), Vec3::new(2.0, 0.0, 3.0), Vec3::new(1.5, 0.0, 0.5)];
+    let request = [start[0], Vec3::new(1.0, 0.0, -1.0), Vec3::new(2.5, 0.0, 3.0), start[3]];
+    let skin = Skin::new(start.len(), vec![[1, 3]], Vec::new()).unwrap();
+    let run = |moving_only: bool| {
+        let mut end = request;
+        let params = ResolveParams { moving_only, ..ResolveParams::in_loop() };
+        let stats = ColliderSet::new([&c]).resolve_path(&start, &mut end, &skin, &params).unwrap();
+        (end, stats)
+    };
+    let (all, all_stats) = run(false);
+    assert!(all[0].z >= 0.01, "tested: the vertex within the thickness is lifted out, {:?}", all[0]);
+    let (some, stats) = run(true);
+    assert_eq!(stats.tested, all_stats.tested - 1, "the vertex standing still is not tested");
+    assert_eq!(some[0], start[0], "left alone: it does not move");
+    assert_eq!(some[3], start[3]);
+    assert!(some[1].z >= 0.01 && some[1].z < 0.0112, "the diving vertex is stopped: {:?}", some[1]);
+    assert_eq!(some[2], request[2], "a free vertex is untouched");
+    assert!(stats.pinched.is_empty());
+    // Without colliders standing still (the first pass sweeps) the flag is ignored.
+    let sweep = |moving_only: bool| {
+        let mut end = request;
+        let params = ResolveParams { moving_only, ..ResolveParams::first_pass() };
+        let stats = ColliderSet::new([&c]).resolve_path(&start, &mut end, &skin, &params).unwrap();
+        (end, stats.tested)
+    };
+    assert_eq!(sweep(true), sweep(false));
+}
+
 #[test]
 fn static_friction_holds_and_kinetic_friction_slows() {
     // Penetration depth 1 below the floor; tangential slip 0.5.

@@ -1,0 +1,447 @@
+//! Per-gather bounds of every node of the patch tree over a motion: where
+//! its triangles start, how far they move, and which way their normals
+//! point, over the whole motion.
+//!
+//! A motion is every vertex going linearly from `start` to `end` over the
+//! pass, plus, anywhere along the way, an extra offset of at most its
+//! `margin` (the corrections a pass's rounds may still add, or for the
+//! in-loop passes the whole motion: `start = end` = the reference and the
+//! margin how far a vertex may stray from it before the candidates are
+//! gathered again).
+//!
+//! * **Boxes.** Per node, the box of its start positions, the box of its
+//!   displacements and its largest margin. Two vertices share their time
+//!   parameter, so the difference of two points of two nodes lies in
+//!   `start_A − start_B + t·(motion_A − motion_B)`, `t ∈ [0, 1]`, give or
+//!   take the two margins: the relative box of [`relative_gap`]. A rigidly
+//!   moving limb moves its patches alike, and their relative box stays put.
+//! * **Normal cones** (Tang et al. 2009, continuous normal cones). A
+//!   triangle's normal `(b − a) × (c − a)` is quadratic in `t`; in Bernstein
+//!   form it is a non-negative combination of `n₀`, `(e₁(0) × e₂(1) + e₁(1) ×
+//!   e₂(0))/2` and `n₁`, so every normal over the motion lies in the cone
+//!   those three span. The node keeps the box of their unit directions: a
+//!   direction `V` with a positive dot product with every corner of the box
+//!   has one with every normal. The margins turn a normal by at most
+//!   `asin((2m(|e₁| + |e₂|) + 4m²) / h)` (`h` a lower bound of `|n(t)|`),
+//!   kept as the cone's widening `theta`.
+//! * **The contour criterion** ([`Self::cannot_touch_itself`]): Volino and
+//!   Magnenat-Thalmann (1994): a disk whose normals all have a positive dot
+//!   product with `V` projects along `V` onto a plane as an
+//!   orientation-preserving immersion, so each point of the plane has as many
+//!   preimages as its boundary winds around it. If no point is wound around
+//!   twice, the disk cannot touch itself. A closed curve that winds twice
+//!   around a point turns by at least 4π in all (its height in any direction
+//!   has at least four critical points; Fáry–Milnor), so a projected
+//!   boundary whose turning stays below 4π over the whole motion proves it
+//!   (each exterior angle bounded over the motion, [`winds_once`]).
+
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+
+use super::tree::PatchTree;
+use crate::collide::bvh::Bounds;
+
+/// The unit-normal box of a node and how far its margins may turn them.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Cone {
+    lo: Vec3,
+    hi: Vec3,
+    theta: f32,
+    /// Some normal is undefined or turns too far: no direction to test.
+    wide: bool,
+}
+
+impl Cone {
+    const EMPTY: Cone = Cone { lo: Vec3::splat(f32::INFINITY), hi: Vec3::splat(f32::NEG_INFINITY), theta: 0.0, wide: false };
+    const WIDE: Cone = Cone { lo: Vec3::splat(f32::INFINITY), hi: Vec3::splat(f32::NEG_INFINITY), theta: 0.0, wide: true };
+
+    fn union(self, o: Cone) -> Cone {
+        Cone { lo: self.lo.min(o.lo), hi: self.hi.max(o.hi), theta: self.theta.max(o.theta), wide: self.wide || o.wide }
+    }
+
+    fn add(&mut self, n: Vec3) {
+        self.lo = self.lo.min(n);
+        self.hi = self.hi.max(n);
+    }
+
+    /// A direction with a positive dot product with every normal the cone
+    /// holds, turned by its `theta`, if the box's centre is one.
+    fn axis(&self) -> Option<Vec3> {
+        if self.wide || !(self.lo.cmple(self.hi).all()) {
+            return None;
+        }
+        let v = ((self.lo + self.hi) * 0.5).try_normalize()?;
+        let mut least = f32::INFINITY;
+        for k in 0..8 {
+            let corner = Vec3::new(
+                if k & 1 == 0 { self.lo.x } else { self.hi.x },
+                if k & 2 == 0 { self.lo.y } else { self.hi.y },
+                if k & 4 == 0 { self.lo.z } else { self.hi.z },
+            );
+            least = least.min(corner.dot(v));
+        }
+        // Every normal is within acos(least) of v; turned by theta it must
+        // stay short of 90° (with room for the f32 arithmetic).
+        (least > self.theta.sin() + 1e-4).then_some(v)
+    }
+}
+
+/// Slack on angles and boxes for the f32 arithmetic of the bounds.
+const ANGLE_SLACK: f32 = 1e-4;
+
+/// Where an element or a node starts, how it moves, and how far beyond that
+/// it may stray.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Span {
+    pub start: Bounds,
+    pub motion: Bounds,
+    pub margin: f32,
+}
+
+impl Span {
+    pub(super) const EMPTY: Span = Span { start: Bounds::EMPTY, motion: Bounds::EMPTY, margin: 0.0 };
+
+    pub(super) fn union(self, o: Span) -> Span {
+        Span { start: self.start.union(o.start), motion: self.motion.union(o.motion), margin: self.margin.max(o.margin) }
+    }
+}
+
+/// The bounds of every node of a tree over one motion.
+pub(super) struct NodeBounds {
+    pub span: Vec<Span>,
+    pub cone: Vec<Cone>,
+    /// Whether the node holds a triangle taking part (the weights' region).
+    pub active: Vec<bool>,
+}
+
+/// Per-vertex inputs of a motion.
+#[derive(Clone, Copy)]
+pub(super) struct Motion<'a> {
+    pub start: &'a [Vec3],
+    pub end: &'a [Vec3],
+    pub margin: &'a [f32],
+}
+
+impl Motion<'_> {
+    /// The span of an element with these corners.
+    pub(super) fn span(&self, corners: &[u32]) -> Span {
+        corners.iter().fold(Span::EMPTY, |b, &v| {
+            let (s, e) = (self.start[v as usize], self.end[v as usize]);
+            let d = e - s;
+            Span {
+                start: Bounds { min: b.start.min.min(s), max: b.start.max.max(s) },
+                motion: Bounds { min: b.motion.min.min(d), max: b.motion.max.max(d) },
+                margin: b.margin.max(self.margin[v as usize]),
+            }
+        })
+    }
+}
+
+/// A lower bound of the distance between any point of `a` and any point of
+/// `b` over the motion (0 when they may meet): the distance from the origin
+/// to their relative box, less the two margins.
+pub(super) fn relative_gap(a: &Span, b: &Span) -> f32 {
+    let drift_lo = (a.motion.min - b.motion.max).min(Vec3::ZERO);
+    let drift_hi = (a.motion.max - b.motion.min).max(Vec3::ZERO);
+    let lo = (a.start.min - b.start.max) + drift_lo;
+    let hi = (a.start.max - b.start.min) + drift_hi;
+    (Vec3::ZERO.max(lo).max(-hi).length() - a.margin - b.margin).max(0.0)
+}
+
+/// Bounds of one triangle: normals over the motion and their widening.
+fn triangle_cone(motion: &Motion<'_>, t: [u32; 3]) -> Cone {
+    let [a, b, c] = t.map(|v| v as usize);
+    let (s, e) = (motion.start, motion.end);
+    let (e1s, e2s, e1e, e2e) = (s[b] - s[a], s[c] - s[a], e[b] - e[a], e[c] - e[a]);
+    let n0 = e1s.cross(e2s);
+    let n1 = e1e.cross(e2e);
+    let nm = 0.5 * (e1s.cross(e2e) + e1e.cross(e2s));
+    let Some(u) = (n0 + nm + n1).try_normalize() else { return Cone::WIDE };
+    let h = n0.dot(u).min(nm.dot(u)).min(n1.dot(u));
+    let scale = n0.length() + n1.length() + nm.length();
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // a NaN height must give the wide cone
+    if !(h > 1e-5 * scale) {
+        return Cone::WIDE;
+    }
+    let m = motion.margin[a].max(motion.margin[b]).max(motion.margin[c]);
+    let mut theta = ANGLE_SLACK;
+    if m > 0.0 {
+        let lengths = e1s.length().max(e1e.length()) + e2s.length().max(e2e.length());
+        let x = (2.0 * m * lengths + 4.0 * m * m) / h;
+        #[allow(clippy::neg_cmp_op_on_partial_ord)] // a NaN widening must give the wide cone
+        if !(x < 0.99) {
+            return Cone::WIDE;
+        }
+        theta += x.asin();
+    }
+    let mut cone = Cone { theta, ..Cone::EMPTY };
+    for n in [n0, n1, nm] {
+        // A zero middle term adds nothing to the cone the other two span.
+        if let Some(n) = n.try_normalize() {
+            cone.add(n);
+        }
+    }
+    cone
+}
+
+impl NodeBounds {
+    /// Bounds of every node over `motion`; `takes_part[p]` says whether the
+    /// triangle at tree position `p` is tested at all (None: all are).
+    pub(super) fn new(tree: &PatchTree, motion: &Motion<'_>, takes_part: Option<&[bool]>) -> Self {
+        let count = tree.nodes.len();
+        let leaf_bounds: Vec<(Span, Cone, bool)> = tree
+            .leaves
+            .par_iter()
+            .with_min_len(64)
+            .map(|&leaf| {
+                let node = tree.nodes[leaf as usize];
+                let (mut span, mut cone, mut active) = (Span::EMPTY, Cone::EMPTY, false);
+                for p in node.range() {
+                    let t = tree.triangles[p];
+                    span = span.union(motion.span(&t));
+                    cone = cone.union(triangle_cone(motion, t));
+                    active |= takes_part.is_none_or(|flags| flags[p]);
+                }
+                (span, cone, active)
+            })
+            .collect();
+        let mut bounds = NodeBounds { span: vec![Span::EMPTY; count], cone: vec![Cone::EMPTY; count], active: vec![false; count] };
+        for (&leaf, (span, cone, active)) in tree.leaves.iter().zip(leaf_bounds) {
+            let i = leaf as usize;
+            (bounds.span[i], bounds.cone[i], bounds.active[i]) = (span, cone, active);
+        }
+        for i in (0..count).rev() {
+            let node = tree.nodes[i];
+            if node.is_leaf() {
+                continue;
+            }
+            let (l, r) = (node.left as usize, node.left as usize + 1);
+            bounds.span[i] = bounds.span[l].union(bounds.span[r]);
+            bounds.cone[i] = bounds.cone[l].union(bounds.cone[r]);
+            bounds.active[i] = bounds.active[l] || bounds.active[r];
+        }
+        bounds
+    }
+
+    /// Whether node `i` provably cannot touch itself anywhere over the
+    /// motion: a disk whose normal cone has an axis and whose projected
+    /// boundary turns by less than 4π (see the module documentation).
+    pub(super) fn cannot_touch_itself(&self, tree: &PatchTree, motion: &Motion<'_>, i: usize) -> bool {
+        if !tree.disk[i] {
+            return false;
+        }
+        let Some(v) = self.cone[i].axis() else { return false };
+        winds_once(v, tree.boundary(i), motion)
+    }
+
+    /// Whether nodes `a` and `b` provably cannot touch each other: two
+    /// disks sharing one run of boundary edges (Tang et al.'s adjacent
+    /// patches) make a disk, which cannot touch itself if its normal cone
+    /// has an axis and its boundary winds once.
+    pub(super) fn cannot_touch_each_other(&self, tree: &PatchTree, motion: &Motion<'_>, a: usize, b: usize) -> bool {
+        if !(tree.disk[a] && tree.disk[b]) {
+            return false;
+        }
+        let Some(v) = self.cone[a].union(self.cone[b]).axis() else { return false };
+        let Some(ring) = joined(tree.boundary(a), tree.boundary(b)) else { return false };
+        winds_once(v, &ring, motion)
+    }
+}
+
+/// The boundary loop of two disks with loops `a` and `b` (vertex cycles in
+/// the triangles' winding) joined along the boundary they share, if that is
+/// one run of edges and they touch nowhere else: then their union is a disk.
+fn joined(a: &[u32], b: &[u32]) -> Option<Vec<u32>> {
+    let (na, nb) = (a.len(), b.len());
+    if na < 3 || nb < 3 {
+        return None;
+    }
+    // Where each vertex sits on b's loop; a shared edge x → y of a is y → x on b.
+    let mut on_b: std::collections::HashMap<u32, usize> = std::collections::HashMap::with_capacity(nb);
+    for (j, &v) in b.iter().enumerate() {
+        on_b.insert(v, j);
+    }
+    let shared = |i: usize| {
+        let (x, y) = (a[i], a[(i + 1) % na]);
+        on_b.get(&y).is_some_and(|&j| b[(j + 1) % nb] == x)
+    };
+    let flags: Vec<bool> = (0..na).map(shared).collect();
+    let count = flags.iter().filter(|&&f| f).count();
+    if count == 0 || count == na {
+        return None;
+    }
+    // The run's first edge: shared, its predecessor not; exactly one such.
+    let starts: Vec<usize> = (0..na).filter(|&i| flags[i] && !flags[(i + na - 1) % na]).collect();
+    let [first] = starts[..] else { return None };
+    let last = (first + count) % na; // the vertex where the run ends
+    // a from the run's end round to its start, then b from there back to the run's end.
+    let mut ring: Vec<u32> = (0..=na - count).map(|k| a[(last + k) % na]).collect();
+    let start_b = on_b[&a[first]];
+    let rest_b = nb - count; // b's edges outside the run
+    ring.extend((1..rest_b).map(|k| b[(start_b + k) % nb]));
+    // Touching anywhere else (a vertex on both loops off the run) makes a pinch.
+    let mut sorted = ring.clone();
+    sorted.sort_unstable();
+    sorted.windows(2).all(|w| w[0] != w[1]).then_some(ring)
+}
+
+/// Whether a closed boundary `ring`, projected along `v` over the motion,
+/// turns by less than 4π in all: it then winds at most once around any point
+/// (see the module documentation).
+///
+/// The turning is the sum of the exterior angles, each the angle between two
+/// consecutive projected edges `u(t)`, `w(t)`. Both are linear in `t`, so
+/// `u × w` and `u · w` are quadratics whose ranges over `[0, 1]` bound the
+/// angle, `|angle| ≤ atan2(max |u × w|, min u · w)` while the dot product
+/// stays positive (π otherwise), widened for the margins. A ring that only
+/// moves rigidly keeps every bound at its exact angle.
+fn winds_once(v: Vec3, ring: &[u32], motion: &Motion<'_>) -> bool {
+    let k = ring.len();
+    if k < 3 {
+        return false;
+    }
+    let (b1, b2) = v.any_orthonormal_pair();
+    let at = |j: usize, positions: &[Vec3]| {
+        let p = positions[ring[j % k] as usize];
+        Vec2::new(p.dot(b1), p.dot(b2))
+    };
+    // Projected edge j (from vertex j to j + 1) at the start, its change, and its margin.
+    let edge = |j: usize| {
+        let e0 = at(j + 1, motion.start) - at(j, motion.start);
+        let e1 = at(j + 1, motion.end) - at(j, motion.end);
+        let m = motion.margin[ring[j % k] as usize] + motion.margin[ring[(j + 1) % k] as usize];
+        (e0, e1 - e0, m)
+    };
+    let limit = 4.0 * std::f32::consts::PI - 1e-3;
+    let mut turning = 0.0f32;
+    let mut previous = edge(k - 1);
+    for j in 0..k {
+        let next = edge(j);
+        let ((u0, du, mu), (w0, dw, mw)) = (previous, next);
+        let cross = quadratic_range(u0.perp_dot(w0), u0.perp_dot(dw) + du.perp_dot(w0), du.perp_dot(dw));
+        let dot = quadratic_range(u0.dot(w0), u0.dot(dw) + du.dot(w0), du.dot(dw));
+        let (lu, lw) = (u0.length().max((u0 + du).length()), w0.length().max((w0 + dw).length()));
+        let spread = lu * mw + lw * mu + mu * mw;
+        turning += largest_angle((cross.0 - spread, cross.1 + spread), dot.0 - spread) + ANGLE_SLACK;
+        if turning >= limit {
+            return false;
+        }
+        previous = next;
+    }
+    turning < limit
+}
+
+/// The largest `|atan2(y, x)|` for `y` in `cross` and `x ≥ dot_min`.
+fn largest_angle((y_lo, y_hi): (f32, f32), dot_min: f32) -> f32 {
+    if y_lo > 0.0 || y_hi < 0.0 {
+        // One turning sense throughout: nearest π where x is least and |y| too (x < 0), or |y| most (x ≥ 0).
+        let (near, far) = if y_lo > 0.0 { (y_lo, y_hi) } else { (-y_hi, -y_lo) };
+        if dot_min >= 0.0 { far.atan2(dot_min) } else { near.atan2(dot_min) }
+    } else if dot_min > 0.0 {
+        y_lo.abs().max(y_hi.abs()).atan2(dot_min)
+    } else {
+        std::f32::consts::PI
+    }
+}
+
+/// `(min, max)` of `a + b·t + c·t²` over `t ∈ [0, 1]`.
+fn quadratic_range(a: f32, b: f32, c: f32) -> (f32, f32) {
+    let mut lo = a.min(a + b + c);
+    let mut hi = a.max(a + b + c);
+    if c != 0.0 {
+        let t = -b / (2.0 * c);
+        if t > 0.0 && t < 1.0 {
+            let y = a + b * t + c * t * t;
+            lo = lo.min(y);
+            hi = hi.max(y);
+        }
+    }
+    (lo, hi)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::shapes::grid;
+    use crate::mesh::{fan_triangles, MeshInput};
+
+    fn tree_of(mesh: MeshInput<'_>) -> PatchTree {
+        PatchTree::build(&fan_triangles(mesh.corner_verts, &mesh.validate().unwrap()), mesh.positions)
+    }
+
+    #[test]
+    fn a_flat_grid_cannot_touch_itself_a_folded_one_can() {
+        let g = grid(10, 10, 1.0);
+        let tree = tree_of(g.input());
+        let zero = vec![0.0; g.positions.len()];
+        let still = Motion { start: &g.positions, end: &g.positions, margin: &zero };
+        let bounds = NodeBounds::new(&tree, &still, None);
+        assert!(bounds.cannot_touch_itself(&tree, &still, 0));
+        // Folded in half over x = 0 onto itself: normals on both sides.
+        let folded: Vec<Vec3> = g.positions.iter().map(|p| if p.x > 0.0 { Vec3::new(-p.x, p.y, 0.02) } else { *p }).collect();
+        let fold = Motion { start: &g.positions, end: &folded, margin: &zero };
+        let bounds = NodeBounds::new(&tree, &fold, None);
+        assert!(!bounds.cannot_touch_itself(&tree, &fold, 0));
+        // A margin as large as the mesh leaves nothing proven.
+        let big = vec![0.5; g.positions.len()];
+        let loose = Motion { start: &g.positions, end: &g.positions, margin: &big };
+        let bounds = NodeBounds::new(&tree, &loose, None);
+        assert!(!bounds.cannot_touch_itself(&tree, &loose, 0));
+    }
+
+    #[test]
+    fn two_adjacent_disks_join_into_one_along_their_shared_run() {
+        // Squares 0-1-4-3 and 1-2-5-4 of a 3 × 2 vertex grid, counter-clockwise.
+        let a = [0, 1, 4, 3];
+        let b = [1, 2, 5, 4];
+        let ring = joined(&a, &b).expect("they share edge 1-4");
+        assert_eq!(ring.len(), 6);
+        let mut sorted = ring.clone();
+        sorted.sort_unstable();
+        assert_eq!(sorted, vec![0, 1, 2, 3, 4, 5]);
+        // Touching at a vertex only, or not at all: no union disk.
+        assert!(joined(&[0, 1, 4, 3], &[4, 5, 8, 7]).is_none());
+        assert!(joined(&[0, 1, 4, 3], &[10, 11, 14, 13]).is_none());
+        // A grid split in two halves joins back to its whole boundary.
+        let g = grid(8, 4, 1.0);
+        let tree = tree_of(g.input());
+        let zero = vec![0.0; g.positions.len()];
+        let still = Motion { start: &g.positions, end: &g.positions, margin: &zero };
+        let bounds = NodeBounds::new(&tree, &still, None);
+        let (l, r) = (tree.nodes[0].left as usize, tree.nodes[0].left as usize + 1);
+        assert!(bounds.cannot_touch_each_other(&tree, &still, l, r));
+        assert_eq!(joined(tree.boundary(l), tree.boundary(r)).map(|r| r.len()), Some(tree.boundary(0).len()));
+    }
+
+    #[test]
+    fn a_flat_spiral_ramp_is_caught_by_the_contour() {
+        // A strip wound 1.5 times around the z axis, rising slowly: every
+        // normal points up, yet it lies over itself. The normal test alone
+        // would pass it; the projected boundary turns far more than 4π.
+        let (around, across) = (90usize, 3usize);
+        let mut positions = Vec::new();
+        for i in 0..around {
+            let angle = 3.0 * std::f32::consts::PI * i as f32 / (around - 1) as f32;
+            for j in 0..across {
+                let r = 1.0 + 0.2 * j as f32;
+                positions.push(Vec3::new(r * angle.cos(), r * angle.sin(), 0.05 * angle));
+            }
+        }
+        let mut corners = Vec::new();
+        for i in 0..around - 1 {
+            for j in 0..across - 1 {
+                let at = |i: usize, j: usize| (i * across + j) as i32;
+                corners.extend_from_slice(&[at(i, j), at(i, j + 1), at(i + 1, j + 1), at(i + 1, j)]);
+            }
+        }
+        let sizes = vec![4; corners.len() / 4];
+        let mesh = MeshInput { positions: &positions, corner_verts: &corners, polygon_sizes: &sizes };
+        let tree = tree_of(mesh);
+        let zero = vec![0.0; positions.len()];
+        let still = Motion { start: &positions, end: &positions, margin: &zero };
+        let bounds = NodeBounds::new(&tree, &still, None);
+        assert!(tree.disk[0]);
+        assert!(bounds.cone[0].axis().is_some(), "the normals fit a cone: the contour has to decide");
+        assert!(!bounds.cannot_touch_itself(&tree, &still, 0));
+    }
+}

@@ -1,0 +1,251 @@
+//! Candidate pairs: the pairs of skin elements (vertex–triangle, edge–edge)
+//! that may come within the thickness over a motion, found by a
+//! self-traversal of the patch tree (Volino and Magnenat-Thalmann; Tang et
+//! al. 2009):
+//!
+//! * a node that provably cannot touch itself (a disk with a normal cone and
+//!   a contour that winds once, [`NodeBounds::cannot_touch_itself`]) holds
+//!   no candidate: the flat and gently curved skin, almost all of it, is
+//!   left after a few nodes;
+//! * otherwise its two children are tested each on its own and against
+//!   each other; two nodes whose relative box ([`relative_gap`]) stays
+//!   farther apart than the reach hold none, nor do two adjacent disks whose
+//!   union cannot touch itself
+//!   ([`NodeBounds::cannot_touch_each_other`], Tang et al.'s
+//!   connectivity culling: without it every shared border would be walked
+//!   down to its leaves);
+//! * two leaves: their triangles' relative boxes, then each element pair.
+//!
+//! Each vertex and each edge is *owned* by the first triangle of the tree's
+//! order that holds it, and an element pair is listed from the pair of
+//! triangles owning it and holding it: each pair once, without sorting.
+//!
+//! Recursion splits into parallel tasks near the top and concatenates them
+//! in a fixed order: the list is the same for any number of threads.
+
+use glam::Vec3;
+
+use super::bounds::{relative_gap, Motion, NodeBounds, Span};
+use super::tree::PatchTree;
+
+/// A pair of elements: a vertex and a triangle (`corners = [v, a, b, c]`)
+/// or two edges (`[a0, a1, b0, b1]`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub(super) struct ElementPair {
+    pub edge_edge: bool,
+    pub corners: [u32; 4],
+}
+
+impl ElementPair {
+    /// The corners of the pair's two sides.
+    pub(super) fn sides(&self) -> (&[u32], &[u32]) {
+        if self.edge_edge { (&self.corners[..2], &self.corners[2..]) } else { (&self.corners[..1], &self.corners[1..]) }
+    }
+}
+
+/// Which corners (bits 0–2) and edges (bits 3–5, edge `k` from corner `k`
+/// to corner `k + 1`) each tree position owns.
+pub(super) fn ownership(tree: &PatchTree, vertex_count: usize) -> Vec<u8> {
+    let mut vertex_owned = vec![false; vertex_count];
+    let mut edges_seen = std::collections::HashSet::new();
+    tree.triangles
+        .iter()
+        .map(|t| {
+            let mut bits = 0u8;
+            for k in 0..3 {
+                if !std::mem::replace(&mut vertex_owned[t[k] as usize], true) {
+                    bits |= 1 << k;
+                }
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                if edges_seen.insert((a.min(b), a.max(b))) {
+                    bits |= 1 << (3 + k);
+                }
+            }
+            bits
+        })
+        .collect()
+}
+
+/// One gathering: what it traverses and what it keeps.
+pub(super) struct Gather<'a> {
+    pub tree: &'a PatchTree,
+    pub owns: &'a [u8],
+    pub bounds: &'a NodeBounds,
+    pub motion: Motion<'a>,
+    /// Pairs whose relative box stays farther apart than this are dropped.
+    pub reach: f32,
+    /// Whether nodes that cannot touch themselves are skipped (off to find
+    /// every pair within the reach, not only those that may intersect).
+    pub cull: bool,
+    /// Per tree position: whether its triangle takes part (None: all do).
+    pub takes_part: Option<&'a [bool]>,
+    /// Whether two sides are tested at all (neighbours, tangles).
+    pub accept: &'a (dyn Fn(&[u32], &[u32]) -> bool + Sync),
+}
+
+/// Below this many triangles a subtree is traversed on one thread.
+const PARALLEL_BELOW: u32 = 2048;
+
+/// What a gathering lists for each pair of triangles whose relative box
+/// comes within the reach: its element pairs, or the triangle pair itself.
+pub(super) trait Found: Sized + Send {
+    fn list(gather: &Gather<'_>, p: usize, q: usize, out: &mut Vec<Self>);
+}
+
+impl Found for ElementPair {
+    fn list(gather: &Gather<'_>, p: usize, q: usize, out: &mut Vec<Self>) {
+        gather.element_pairs(p, q, out);
+    }
+}
+
+/// Tree positions of two triangles, not neighbours.
+impl Found for [u32; 2] {
+    fn list(gather: &Gather<'_>, p: usize, q: usize, out: &mut Vec<Self>) {
+        if (gather.accept)(&gather.tree.triangles[p], &gather.tree.triangles[q]) {
+            out.push([p as u32, q as u32]);
+        }
+    }
+}
+
+impl Gather<'_> {
+    /// The element pairs within the reach.
+    pub(super) fn run(&self) -> Vec<ElementPair> {
+        self.all()
+    }
+
+    /// The pairs of triangles (tree positions) within the reach.
+    pub(super) fn triangle_pairs(&self) -> Vec<[u32; 2]> {
+        self.all()
+    }
+
+    fn all<O: Found>(&self) -> Vec<O> {
+        if self.tree.nodes.is_empty() {
+            return Vec::new();
+        }
+        self.self_test(0)
+    }
+
+    fn self_test<O: Found>(&self, i: usize) -> Vec<O> {
+        let node = self.tree.nodes[i];
+        if !self.bounds.active[i] || node.count < 2 {
+            return Vec::new();
+        }
+        if node.is_leaf() {
+            let mut out = Vec::new();
+            self.leaf_pair(i, i, &mut out);
+            return out;
+        }
+        if self.cull && self.bounds.cannot_touch_itself(self.tree, &self.motion, i) {
+            return Vec::new();
+        }
+        let (l, r) = (node.left as usize, node.left as usize + 1);
+        if node.count < PARALLEL_BELOW {
+            let mut out = self.self_test(l);
+            out.extend(self.self_test(r));
+            self.pair_test(l, r, true, &mut out);
+            return out;
+        }
+        let ((mut out, right), between) = rayon::join(
+            || rayon::join(|| self.self_test(l), || self.self_test(r)),
+            || {
+                let mut between = Vec::new();
+                self.pair_test(l, r, true, &mut between);
+                between
+            },
+        );
+        out.extend(right);
+        out.extend(between);
+        out
+    }
+
+    /// The pairs between nodes `a` and `b`; `siblings` when their union is
+    /// their parent, which already failed the curvature test.
+    fn pair_test<O: Found>(&self, a: usize, b: usize, siblings: bool, out: &mut Vec<O>) {
+        let bounds = self.bounds;
+        if !(bounds.active[a] && bounds.active[b]) {
+            return;
+        }
+        if relative_gap(&bounds.span[a], &bounds.span[b]) > self.reach {
+            return;
+        }
+        if self.cull && !siblings && bounds.cannot_touch_each_other(self.tree, &self.motion, a, b) {
+            return;
+        }
+        let (na, nb) = (self.tree.nodes[a], self.tree.nodes[b]);
+        match (na.is_leaf(), nb.is_leaf()) {
+            (true, true) => self.leaf_pair(a, b, out),
+            (false, leaf_b) if leaf_b || na.count >= nb.count => {
+                self.pair_test(na.left as usize, b, false, out);
+                self.pair_test(na.left as usize + 1, b, false, out);
+            }
+            _ => {
+                self.pair_test(a, nb.left as usize, false, out);
+                self.pair_test(a, nb.left as usize + 1, false, out);
+            }
+        }
+    }
+
+    /// The element pairs between two leaves (or within one, `a == b`).
+    fn leaf_pair<O: Found>(&self, a: usize, b: usize, out: &mut Vec<O>) {
+        let (ra, rb) = (self.tree.nodes[a].range(), self.tree.nodes[b].range());
+        let span = |p: usize| self.motion.span(&self.tree.triangles[p]);
+        let part = |p: usize| self.takes_part.is_none_or(|flags| flags[p]);
+        let b_spans: Vec<Span> = rb.clone().map(span).collect();
+        for p in ra {
+            if !part(p) {
+                continue;
+            }
+            let sp = span(p);
+            for (k, q) in rb.clone().enumerate() {
+                if (a == b && q <= p) || !part(q) {
+                    continue;
+                }
+                if relative_gap(&sp, &b_spans[k]) > self.reach {
+                    continue;
+                }
+                O::list(self, p, q, out);
+            }
+        }
+    }
+
+    /// The element pairs owned by tree positions `p` and `q`.
+    fn element_pairs(&self, p: usize, q: usize, out: &mut Vec<ElementPair>) {
+        let (tp, tq) = (self.tree.triangles[p], self.tree.triangles[q]);
+        let (op, oq) = (self.owns[p], self.owns[q]);
+        let mut consider = |one: &[u32], other: &[u32], edge_edge: bool| {
+            if !(self.accept)(one, other) {
+                return;
+            }
+            if relative_gap(&self.motion.span(one), &self.motion.span(other)) > self.reach {
+                return;
+            }
+            let corners = if edge_edge { [one[0], one[1], other[0], other[1]] } else { [one[0], other[0], other[1], other[2]] };
+            out.push(ElementPair { edge_edge, corners });
+        };
+        for k in 0..3 {
+            if op & (1 << k) != 0 {
+                consider(&[tp[k]], &tq, false);
+            }
+            if oq & (1 << k) != 0 {
+                consider(&[tq[k]], &tp, false);
+            }
+        }
+        for i in 0..3 {
+            if op & (8 << i) == 0 {
+                continue;
+            }
+            let e = [tp[i], tp[(i + 1) % 3]];
+            for j in 0..3 {
+                if oq & (8 << j) != 0 {
+                    consider(&e, &[tq[j], tq[(j + 1) % 3]], true);
+                }
+            }
+        }
+    }
+}
+
+/// Largest absolute coordinate of a set of positions (at least 1e-3): the
+/// scale the f32 rounding allowances are relative to.
+pub(super) fn scale_of(positions: &[Vec3]) -> f32 {
+    positions.iter().map(|p| p.abs().max_element()).fold(1e-3, f32::max)
+}

@@ -1,0 +1,510 @@
+//! The self-collision passes: rounds of detection and projection over the
+//! candidate pairs, gathered again whenever a vertex leaves the bounds they
+//! were gathered for, and the fail-safe that ends every pass free of new
+//! intersections.
+//!
+//! One gathering ([`Candidates`]) serves all the passes of a substep: it
+//! covers every vertex's straight path from the last output to the target
+//! (the first pass), and around the target, anywhere within a per-vertex
+//! margin (the first pass's corrections, and the in-loop passes, where the
+//! solver moves the skin about as far from its input as it did last frame).
+//!
+//! * **First pass** ([`SelfCollision::resolve_path`]): from the last output
+//!   towards the frame's target.
+//! * **In-loop passes** ([`SelfCollision::resolve_in_loop`]): after every
+//!   solver iteration, from where it started to where it ended. A pair is
+//!   skipped outright while its two sides have strayed from the target less,
+//!   together, than its distance there less the separation.
+//! * A vertex leaving its margin gathers the candidates again: around the
+//!   pass's start, each margin at least twice that pass's move.
+//! * **Fail-safe**: when the rounds end with contacts left, the vertices of
+//!   every pair whose paths still cross are put back where the pass started
+//!   (free of intersections), and the pairs around them checked again, until
+//!   none crosses: with every vertex at its start nothing can cross. They are
+//!   counted as `held`, like vertices pinched between colliders.
+//!
+//! Pairs both of whose sides lie in a [`Tangles`] region (intersecting, or
+//! touching, at the start of the frame) are exempt: they may move through
+//! each other, so that an intersection the input already had can come apart.
+
+use std::collections::BTreeMap;
+
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
+
+use super::bounds::Motion;
+use super::collision::{distance, SelfCollision};
+use super::contact::{correction, first_contact, ContactParams};
+use super::gather::ElementPair;
+use super::settings::{SelfSettings, SelfStats};
+use crate::mesh::validate_positions;
+use crate::{Error, Result};
+
+/// Rounds of detection and projection before the fail-safe.
+pub const SELF_ROUNDS: usize = 8;
+
+/// The vertices of the triangles that intersected (or touched) at the start
+/// of a frame.
+#[derive(Debug, Clone, Default)]
+pub struct Tangles {
+    vertices: Vec<bool>,
+    count: usize,
+}
+
+impl Tangles {
+    /// The tangles of a frame starting at `positions`: the corners of the
+    /// triangles (of either split of a quad) that intersect there, or touch
+    /// (closer than a tenth of the thickness, where a contact has no side to
+    /// be put back on). Returns them with the intersecting polygon pairs
+    /// ([`SelfCollision::intersections`]).
+    pub fn at(collision: &SelfCollision, positions: &[Vec3], settings: &SelfSettings, takes_part: Option<&[bool]>) -> Result<(Self, Vec<[u32; 2]>)> {
+        let touching = 0.1 * settings.thickness + 2.5 * collision.rounding;
+        let meeting = collision.meeting(positions, takes_part, touching)?;
+        let pairs: Vec<[u32; 2]> = meeting.iter().map(|&(pair, _)| pair).collect();
+        let crossing: Vec<[u32; 2]> = meeting.iter().filter(|&&(_, crossing)| crossing).map(|&(pair, _)| pair).collect();
+        Ok((Tangles::new(collision, &pairs), collision.polygon_pairs(&crossing)))
+    }
+
+    /// The tangles of the triangle pairs `pairs` (tree positions).
+    fn new(collision: &SelfCollision, pairs: &[[u32; 2]]) -> Self {
+        if pairs.is_empty() {
+            return Tangles::default();
+        }
+        let mut vertices = vec![false; collision.vertex_count];
+        for pair in pairs {
+            for &t in pair {
+                for v in collision.tree.triangles[t as usize] {
+                    vertices[v as usize] = true;
+                }
+            }
+        }
+        let count = vertices.iter().filter(|&&t| t).count();
+        Tangles { vertices, count }
+    }
+
+    /// How many vertices are in a tangle.
+    pub fn vertex_count(&self) -> usize {
+        self.count
+    }
+
+    /// Whether vertex `v` is in a tangle.
+    pub fn contains(&self, v: u32) -> bool {
+        self.vertices.get(v as usize).copied().unwrap_or(false)
+    }
+
+    fn holds(&self, corners: &[u32]) -> bool {
+        !self.vertices.is_empty() && corners.iter().all(|&v| self.vertices[v as usize])
+    }
+}
+
+/// The candidate pairs of a stretch of motion (see the module
+/// documentation), shared by the passes of a substep.
+#[derive(Debug, Clone)]
+pub struct Candidates {
+    /// Where the straight paths start, and where they end: the state the
+    /// passes stay near.
+    start: Vec<Vec3>,
+    reference: Vec<Vec3>,
+    /// How far from the paths (and from `reference`) each vertex may stray.
+    margin: Vec<f32>,
+    pairs: Vec<ElementPair>,
+    /// Each pair's distance at `reference`.
+    distance: Vec<f32>,
+}
+
+impl Candidates {
+    /// How many pairs were gathered.
+    pub fn len(&self) -> usize {
+        self.pairs.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.pairs.is_empty()
+    }
+
+    /// Whether every vertex of `positions` is within its margin of the reference.
+    fn holds(&self, positions: &[&[Vec3]]) -> bool {
+        (0..self.reference.len()).into_par_iter().with_min_len(4096).all(|v| {
+            let r = self.reference[v];
+            positions.iter().all(|x| (x[v] - r).length() <= self.margin[v])
+        })
+    }
+
+    /// Whether pair `k` provably stays farther apart than its separation
+    /// over `before → after`: its sides have strayed from the reference by
+    /// less, together, than its distance there less the separation.
+    fn proves_apart(&self, k: usize, before: &[Vec3], after: &[Vec3], pass: &Pass<'_>) -> bool {
+        let pair = &self.pairs[k];
+        let strayed = |corners: &[u32]| {
+            corners.iter().fold(0.0f32, |m, &v| {
+                let r = self.reference[v as usize];
+                m.max((before[v as usize] - r).length()).max((after[v as usize] - r).length())
+            })
+        };
+        let (a, b) = pair.sides();
+        let room = self.distance[k] - strayed(a) - strayed(b);
+        room as f64 > pass.collision.pair_separation(pair) + pass.params.tolerance + pass.collision.rounding as f64
+    }
+}
+
+/// What one pass works with.
+struct Pass<'a> {
+    collision: &'a SelfCollision,
+    settings: &'a SelfSettings,
+    tangles: &'a Tangles,
+    takes_part: Option<&'a [bool]>,
+    params: ContactParams,
+}
+
+impl SelfCollision {
+    fn pass<'a>(&'a self, settings: &'a SelfSettings, tangles: &'a Tangles, takes_part: Option<&'a [bool]>) -> Result<Pass<'a>> {
+        let prepared = self.separations().len() == self.vertex_count;
+        if !prepared {
+            return Err(Error::invalid("self-collision is not prepared for these settings (call prepare first)"));
+        }
+        if takes_part.is_some_and(|t| t.len() != self.tree.triangles.len()) {
+            return Err(Error::invalid("self-collision: the triangles taking part are of another skin"));
+        }
+        let scale = self.rounding as f64 / 4e-6;
+        let slack = 0.1 * settings.thickness as f64 + 1e-5 * scale;
+        let params = ContactParams {
+            slack,
+            tolerance: (1e-6 * scale).max(0.25 * slack),
+            static_friction: settings.static_friction as f64,
+            kinetic_friction: settings.kinetic_friction as f64,
+        };
+        Ok(Pass { collision: self, settings, tangles, takes_part, params })
+    }
+
+    fn check(&self, what: &str, positions: &[Vec3]) -> Result<()> {
+        if positions.len() != self.vertex_count {
+            return Err(Error::invalid(format!("{what}: {} positions given for a skin of {} vertices", positions.len(), self.vertex_count)));
+        }
+        validate_positions(what, positions)
+    }
+
+    /// The least margin a vertex gets: room for the f32 bounds. Margins
+    /// widen the normal cones and the contour's angles, so that a margin of a
+    /// few percent of an edge everywhere would leave nothing to cull: a
+    /// vertex gets one where the solve moves it (where skin folds, which is
+    /// examined pair by pair anyway), and almost none elsewhere.
+    pub fn margin_floor(&self, _settings: &SelfSettings) -> f32 {
+        8.0 * self.rounding
+    }
+
+    /// Gathers the candidates of the straight paths `start → end`, each
+    /// vertex free to stray `margin` from its path (at least
+    /// [`Self::margin_floor`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn candidates(
+        &self,
+        start: &[Vec3],
+        end: &[Vec3],
+        margin: &[f32],
+        settings: &SelfSettings,
+        tangles: &Tangles,
+        takes_part: Option<&[bool]>,
+    ) -> Result<Candidates> {
+        self.check("start positions", start)?;
+        self.check("end positions", end)?;
+        if margin.len() != self.vertex_count || margin.iter().any(|m| !(m.is_finite() && *m >= 0.0)) {
+            return Err(Error::invalid(format!("self-collision margins: {} given for {} vertices, each finite and ≥ 0", margin.len(), self.vertex_count)));
+        }
+        let floor = self.margin_floor(settings);
+        let margin: Vec<f32> = margin.par_iter().map(|m| m.max(floor)).collect();
+        Ok(self.pass(settings, tangles, takes_part)?.candidates(start, end, margin))
+    }
+
+    /// Makes the motion `start → end` free of new self-intersections by
+    /// changing `end` (first pass). `start` must be free of them, apart from
+    /// the `tangles`. `candidates` are those of this motion (gathered here if
+    /// None, and again where a correction strays beyond them).
+    #[allow(clippy::too_many_arguments)]
+    pub fn resolve_path(
+        &self,
+        candidates: &mut Option<Candidates>,
+        start: &[Vec3],
+        end: &mut [Vec3],
+        settings: &SelfSettings,
+        tangles: &Tangles,
+        takes_part: Option<&[bool]>,
+    ) -> Result<SelfStats> {
+        self.check("start positions", start)?;
+        self.check("end positions", end)?;
+        let pass = self.pass(settings, tangles, takes_part)?;
+        let requested = end.to_vec();
+        let mut stats = SelfStats::default();
+        let fits = |c: &Candidates, end: &[Vec3]| c.start.as_slice() == start && c.holds(&[end]);
+        if !candidates.as_ref().is_some_and(|c| fits(c, end)) {
+            let margin = candidates.take().map_or_else(|| vec![self.margin_floor(settings); self.vertex_count], |c| c.margin);
+            *candidates = Some(pass.candidates(start, end, margin));
+            stats.gathers += 1;
+        }
+        let mut moved: Option<Vec<bool>> = None;
+        let mut converged = false;
+        for _ in 0..SELF_ROUNDS {
+            stats.rounds += 1;
+            let current = candidates.as_ref().expect("gathered");
+            let (contacts, changes) = pass.round(&current.pairs, start, end, moved.as_deref(), |_| false);
+            stats.contacts += contacts;
+            if changes.is_empty() {
+                converged = true;
+                break;
+            }
+            let mut flags = vec![false; self.vertex_count];
+            for (v, p) in changes {
+                end[v as usize] = p;
+                flags[v as usize] = true;
+            }
+            moved = Some(flags);
+            if !fits(current, end) {
+                let margin = candidates.take().expect("gathered").margin;
+                *candidates = Some(pass.candidates(start, end, margin));
+                stats.gathers += 1;
+                moved = None;
+            }
+        }
+        if !converged {
+            stats.held = pass.hold_back_path(start, end, &mut stats.gathers);
+        }
+        stats.max_correction = max_correction(&requested, end);
+        Ok(stats)
+    }
+
+    /// The vertices of pairs whose paths `start → end` may cross (no
+    /// separation), gathered afresh; those that did not move are left out.
+    pub fn crossings(&self, start: &[Vec3], end: &[Vec3], settings: &SelfSettings, tangles: &Tangles, takes_part: Option<&[bool]>) -> Result<Vec<u32>> {
+        self.check("start positions", start)?;
+        self.check("end positions", end)?;
+        let pass = self.pass(settings, tangles, takes_part)?;
+        let zero = vec![0.0; self.vertex_count];
+        let pairs = pass.gather(&Motion { start, end, margin: &zero });
+        Ok(pass.crossing_corners(&pairs, start, end, None))
+    }
+
+    /// Makes the in-loop motion `before → after` free of new
+    /// self-intersections by changing `after`, with `candidates` (gathered
+    /// again around `before` if a vertex strayed beyond them). Runs the
+    /// rounds only: the caller ends with [`Self::hold_back_in_loop`] (alone,
+    /// or together with the colliders' check).
+    #[allow(clippy::too_many_arguments)]
+    pub fn resolve_in_loop(
+        &self,
+        candidates: &mut Option<Candidates>,
+        before: &[Vec3],
+        after: &mut [Vec3],
+        settings: &SelfSettings,
+        tangles: &Tangles,
+        takes_part: Option<&[bool]>,
+    ) -> Result<SelfStats> {
+        self.check("positions before the iteration", before)?;
+        self.check("positions after the iteration", after)?;
+        let pass = self.pass(settings, tangles, takes_part)?;
+        let requested = after.to_vec();
+        let mut stats = SelfStats::default();
+        stats.gathers += pass.ensure(candidates, before, after) as usize;
+        let mut moved: Option<Vec<bool>> = None;
+        for _ in 0..SELF_ROUNDS {
+            stats.rounds += 1;
+            let current = candidates.as_ref().expect("ensured");
+            let skip = |k: usize| current.proves_apart(k, before, after, &pass);
+            let (contacts, changes) = pass.round(&current.pairs, before, after, moved.as_deref(), skip);
+            stats.contacts += contacts;
+            if changes.is_empty() {
+                break;
+            }
+            let mut flags = vec![false; self.vertex_count];
+            for (v, p) in changes {
+                after[v as usize] = p;
+                flags[v as usize] = true;
+            }
+            moved = Some(flags);
+            if pass.ensure(candidates, before, after) {
+                stats.gathers += 1;
+                moved = None;
+            }
+        }
+        stats.max_correction = max_correction(&requested, after);
+        Ok(stats)
+    }
+
+    /// The fail-safe's check in the in-loop passes: the vertices (of pairs
+    /// touching `touching`, or all) of pairs whose paths `before → after`
+    /// may cross.
+    #[allow(clippy::too_many_arguments)]
+    pub fn in_loop_crossings(
+        &self,
+        candidates: &mut Option<Candidates>,
+        before: &[Vec3],
+        after: &[Vec3],
+        touching: Option<&[bool]>,
+        settings: &SelfSettings,
+        tangles: &Tangles,
+        takes_part: Option<&[bool]>,
+    ) -> Result<Vec<u32>> {
+        let pass = self.pass(settings, tangles, takes_part)?;
+        pass.ensure(candidates, before, after);
+        let current = candidates.as_ref().expect("ensured");
+        let open: Vec<ElementPair> = (0..current.pairs.len())
+            .into_par_iter()
+            .with_min_len(256)
+            .filter(|&k| !current.proves_apart(k, before, after, &pass))
+            .map(|k| current.pairs[k])
+            .collect();
+        Ok(pass.crossing_corners(&open, before, after, touching))
+    }
+
+    /// [`Self::in_loop_crossings`] until none is left, putting each crossing
+    /// pair's vertices back at `before`: the in-loop fail-safe without
+    /// colliders. Returns the vertices put back.
+    #[allow(clippy::too_many_arguments)]
+    pub fn hold_back_in_loop(
+        &self,
+        candidates: &mut Option<Candidates>,
+        before: &[Vec3],
+        after: &mut [Vec3],
+        settings: &SelfSettings,
+        tangles: &Tangles,
+        takes_part: Option<&[bool]>,
+    ) -> Result<Vec<u32>> {
+        let mut held = Vec::new();
+        let mut touching: Option<Vec<bool>> = None;
+        loop {
+            let bad = self.in_loop_crossings(candidates, before, after, touching.as_deref(), settings, tangles, takes_part)?;
+            if bad.is_empty() {
+                break;
+            }
+            let mut flags = vec![false; self.vertex_count];
+            for &v in &bad {
+                after[v as usize] = before[v as usize];
+                flags[v as usize] = true;
+            }
+            held.extend_from_slice(&bad);
+            touching = Some(flags);
+        }
+        held.sort_unstable();
+        held.dedup();
+        Ok(held)
+    }
+}
+
+impl Pass<'_> {
+    fn accept(&self) -> impl Fn(&[u32], &[u32]) -> bool + Sync + '_ {
+        move |a: &[u32], b: &[u32]| !self.collision.excluded(a, b) && (!self.tangles.holds(a) || !self.tangles.holds(b))
+    }
+
+    fn gather(&self, motion: &Motion<'_>) -> Vec<ElementPair> {
+        let accept = self.accept();
+        self.collision.gather(motion, self.settings.thickness, true, self.takes_part, &accept)
+    }
+
+    /// The candidates of `start → end` with these margins; pairs that
+    /// cannot come within their separation near the end are dropped.
+    fn candidates(&self, start: &[Vec3], end: &[Vec3], margin: Vec<f32>) -> Candidates {
+        let pairs = self.gather(&Motion { start, end, margin: &margin });
+        let distance: Vec<f32> = pairs.par_iter().map(|pair| distance(pair, end)).collect();
+        Candidates { start: start.to_vec(), reference: end.to_vec(), margin, pairs, distance }
+    }
+
+    /// Gathers the in-loop candidates again, around `before`, if a vertex
+    /// strayed beyond them; returns whether it did.
+    fn ensure(&self, candidates: &mut Option<Candidates>, before: &[Vec3], after: &[Vec3]) -> bool {
+        if candidates.as_ref().is_some_and(|c| c.holds(&[before, after])) {
+            return false;
+        }
+        // Iterations shrink as a solve converges: four times this one's move
+        // (and at least the last margin) covers most of the ones to come.
+        let floor = self.collision.margin_floor(self.settings);
+        let old = candidates.take().map(|c| c.margin);
+        let margin: Vec<f32> = (0..before.len())
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|v| (4.0 * (after[v] - before[v]).length()).max(old.as_ref().map_or(0.0, |m| m[v])).max(floor))
+            .collect();
+        *candidates = Some(self.candidates(before, before, margin));
+        true
+    }
+
+    /// One round: the corrections of every pair touching a moved vertex (or
+    /// all) and not proven apart by `skip`, averaged per vertex.
+    fn round(
+        &self,
+        pairs: &[ElementPair],
+        start: &[Vec3],
+        end: &[Vec3],
+        moved: Option<&[bool]>,
+        skip: impl Fn(usize) -> bool + Sync,
+    ) -> (usize, Vec<(u32, Vec3)>) {
+        let found: Vec<(usize, [DVec3; 4])> = (0..pairs.len())
+            .into_par_iter()
+            .with_min_len(256)
+            .filter(|&k| moved.is_none_or(|m| pairs[k].corners.iter().any(|&v| m[v as usize])))
+            .filter(|&k| !skip(k))
+            .filter_map(|k| {
+                let pair = &pairs[k];
+                let separation = self.collision.pair_separation(pair);
+                let hit = first_contact(pair, start, end, separation, self.params.tolerance)?;
+                correction(pair, start, end, &hit, separation, &self.params).map(|c| (k, c))
+            })
+            .collect();
+        let mut sum: BTreeMap<u32, (DVec3, u32)> = BTreeMap::new();
+        for (k, deltas) in &found {
+            for (&v, delta) in pairs[*k].corners.iter().zip(deltas) {
+                let slot = sum.entry(v).or_insert((DVec3::ZERO, 0));
+                slot.0 += *delta;
+                slot.1 += 1;
+            }
+        }
+        let changes = sum
+            .into_iter()
+            .filter_map(|(v, (delta, count))| {
+                let p = (end[v as usize].as_dvec3() + delta / count as f64).as_vec3();
+                p.is_finite().then_some((v, p))
+            })
+            .collect();
+        (found.len(), changes)
+    }
+
+    /// The corners (of pairs touching `touching`, or all) of `pairs` whose
+    /// paths may cross, leaving out pairs none of whose corners moved.
+    fn crossing_corners(&self, pairs: &[ElementPair], start: &[Vec3], end: &[Vec3], touching: Option<&[bool]>) -> Vec<u32> {
+        let moved = |v: u32| start[v as usize] != end[v as usize];
+        let mut bad: Vec<u32> = pairs
+            .par_iter()
+            .with_min_len(256)
+            .filter(|pair| touching.is_none_or(|t| pair.corners.iter().any(|&v| t[v as usize])))
+            .filter(|pair| pair.corners.iter().any(|&v| moved(v)))
+            .filter(|pair| first_contact(pair, start, end, 0.0, self.params.tolerance).is_some())
+            .flat_map_iter(|pair| pair.corners.into_iter().filter(|&v| moved(v)))
+            .collect();
+        bad.sort_unstable();
+        bad.dedup();
+        bad
+    }
+
+    /// The first pass's fail-safe: puts the corners of crossing pairs back at
+    /// `start` until none crosses. Returns the vertices put back.
+    fn hold_back_path(&self, start: &[Vec3], end: &mut [Vec3], gathers: &mut usize) -> Vec<u32> {
+        let zero = vec![0.0; start.len()];
+        let mut held = Vec::new();
+        loop {
+            let pairs = self.gather(&Motion { start, end, margin: &zero });
+            *gathers += 1;
+            let bad = self.crossing_corners(&pairs, start, end, None);
+            if bad.is_empty() {
+                break;
+            }
+            for &v in &bad {
+                end[v as usize] = start[v as usize];
+            }
+            held.extend(bad);
+        }
+        held.sort_unstable();
+        held.dedup();
+        held
+    }
+}
+
+fn max_correction(requested: &[Vec3], end: &[Vec3]) -> f32 {
+    requested.par_iter().zip(end).map(|(a, b)| (*a - *b).length()).reduce(|| 0.0, f32::max)
+}

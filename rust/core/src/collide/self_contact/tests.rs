@@ -1,0 +1,266 @@
+//! Self-collision passes against the audit's independent count
+//! ([`crate::collide::audit_self`]).
+
+use glam::Vec3;
+use proptest::prelude::*;
+
+use super::*;
+use crate::collide::audit_self::self_intersections;
+use crate::mesh::shapes::{grid, PolyMesh};
+use crate::mesh::MeshInput;
+
+/// Two `n × n` sheets of side 1, the second `gap` above the first and
+/// shifted a little sideways (so that no edge lies exactly over another:
+/// the audit counts proper crossings only).
+fn two_sheets(n: usize, gap: f32) -> PolyMesh {
+    let lower = grid(n, n, 1.0);
+    let mut mesh = lower.clone();
+    let base = mesh.positions.len();
+    mesh.positions.extend(lower.positions.iter().map(|p| *p + Vec3::new(0.031, 0.047, gap)));
+    for w in lower.polygon_sizes.iter().scan(0usize, |at, &k| {
+        let start = *at;
+        *at += k as usize;
+        Some(start..*at)
+    }) {
+        let corners: Vec<usize> = lower.corner_verts[w].iter().map(|&v| v as usize + base).collect();
+        mesh.push_polygon(&corners);
+    }
+    mesh
+}
+
+fn bound(mesh: &PolyMesh, settings: &SelfSettings) -> SelfCollision {
+    let mut collision = SelfCollision::new(mesh.input()).unwrap();
+    collision.prepare(settings).unwrap();
+    collision
+}
+
+fn audited(mesh: &PolyMesh, positions: &[Vec3]) -> Vec<[u32; 2]> {
+    self_intersections(MeshInput { positions, ..mesh.input() }).unwrap()
+}
+
+const SETTINGS: SelfSettings = SelfSettings { thickness: 0.01, static_friction: 0.0, kinetic_friction: 0.0, rings: 0 };
+
+#[test]
+fn a_sheet_pushed_through_another_stops_on_it_and_both_give_way() {
+    let mesh = two_sheets(8, 0.1);
+    let collision = bound(&mesh, &SETTINGS);
+    let half = mesh.positions.len() / 2;
+    // The upper sheet's middle pushed down through the lower one.
+    let mut end = mesh.positions.clone();
+    for p in &mut end[half..] {
+        p.z -= 0.3 * (1.0 - 2.0 * p.truncate().length()).max(0.0);
+    }
+    assert!(!audited(&mesh, &end).is_empty(), "the unresolved motion must cross");
+    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None).unwrap();
+    assert!(stats.contacts > 0);
+    assert!(audited(&mesh, &end).is_empty(), "{stats:?}");
+    assert!(end.iter().all(|p| p.is_finite()));
+    // The contact is shared: the lower sheet was pushed down too.
+    assert!(end[..half].iter().any(|p| p.z < -0.01), "the lower sheet did not give way");
+    // And the two sheets keep about the thickness between them where they touch.
+    let centre_gap = end[half + 40].z - end[40].z;
+    assert!(centre_gap > 0.9 * SETTINGS.thickness, "gap {centre_gap}");
+}
+
+#[test]
+fn pairs_closer_than_the_thickness_at_rest_stay_as_they_are() {
+    let mesh = two_sheets(6, 0.004); // closer than the thickness of 0.01
+    let collision = bound(&mesh, &SETTINGS);
+    let mut end = mesh.positions.clone();
+    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None).unwrap();
+    assert_eq!(stats.contacts, 0);
+    assert_eq!(end, mesh.positions);
+    // Moved towards each other they are still kept apart, at a fraction of their rest gap.
+    let half = mesh.positions.len() / 2;
+    for p in &mut end[half..] {
+        p.z -= 0.01;
+    }
+    collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None).unwrap();
+    assert!(audited(&mesh, &end).is_empty());
+}
+
+#[test]
+fn tangled_input_is_left_to_come_apart_and_nothing_else_passes_through() {
+    // Two sheets crossing at the start (as a rig's input at bind can), and a
+    // third far away that moves through the first: the tangle is exempt,
+    // the rest is not.
+    let mut mesh = two_sheets(6, 0.1);
+    let crossing: Vec<Vec3> = mesh.positions.clone();
+    let n = crossing.len() / 2;
+    let mut start = crossing.clone();
+    for p in &mut start[n..] {
+        p.z = 0.3 * p.x; // tilted through the lower sheet along x = 0
+    }
+    let third = two_sheets(6, 0.1);
+    let offset = mesh.positions.len();
+    let shift = Vec3::new(3.0, 0.0, 0.0);
+    mesh.positions.extend(third.positions.iter().map(|p| *p + shift));
+    start.extend(third.positions.iter().map(|p| *p + shift));
+    for k in 0..third.polygon_sizes.len() {
+        let corners: Vec<usize> = third.corner_verts[4 * k..4 * k + 4].iter().map(|&v| v as usize + offset).collect();
+        mesh.push_polygon(&corners);
+    }
+    let collision = bound(&mesh, &SETTINGS);
+    let before = audited(&mesh, &start);
+    assert!(!before.is_empty());
+    let (tangles, crossing) = Tangles::at(&collision, &start, &SETTINGS, None).unwrap();
+    assert!(tangles.vertex_count() > 0 && !crossing.is_empty());
+    let tangled: Vec<bool> = (0..start.len() as u32).map(|v| tangles.contains(v)).collect();
+    // The tangled sheet flattens back (coming apart); the third sheet's top half drops through its bottom half.
+    let mut end = start.clone();
+    for (k, p) in end.iter_mut().enumerate() {
+        if (n..2 * n).contains(&k) {
+            p.z = 0.1;
+        } else if k >= offset + n {
+            p.z -= 0.3;
+        }
+    }
+    let stats = collision.resolve_path(&mut None, &start, &mut end, &SETTINGS, &tangles, None).unwrap();
+    assert!(end.iter().all(|p| p.is_finite()));
+    assert!(stats.contacts > 0, "the third sheet must have been stopped");
+    let after = audited(&mesh, &end);
+    let third_polygons = (2 * third.polygon_sizes.len()) as u32;
+    assert!(after.iter().all(|&[a, _]| a < third_polygons), "the untangled sheets crossed: {after:?}");
+    // The tangle is left alone: what still intersects lies where it was
+    // (every polygon of a crossing pair touches the tangle), nothing new beside it.
+    let touches = |p: u32| mesh.corner_verts[4 * p as usize..4 * p as usize + 4].iter().any(|&v| tangled[v as usize]);
+    assert!(after.iter().all(|&[a, b]| touches(a) && touches(b)), "the tangle spread: {before:?} -> {after:?}");
+}
+
+#[test]
+fn intersections_of_a_state_match_the_audits() {
+    let mesh = two_sheets(6, 0.1);
+    let collision = bound(&mesh, &SETTINGS);
+    let mut x = mesh.positions.clone();
+    let n = x.len() / 2;
+    for p in &mut x[n..] {
+        p.z = 0.3 * p.x + 0.05 * p.y;
+    }
+    let ours = collision.intersections(&x, None).unwrap();
+    assert!(!ours.is_empty());
+    assert_eq!(ours, audited(&mesh, &x));
+}
+
+/// The mesh with each quad replaced by the two triangles of one split
+/// (`diagonal` 0: along its corners 0–2, the fan; 1: along 1–3).
+fn split(mesh: &PolyMesh, diagonal: usize) -> PolyMesh {
+    let mut out = PolyMesh { positions: mesh.positions.clone(), ..PolyMesh::default() };
+    for q in mesh.corner_verts.chunks(4) {
+        let c: Vec<usize> = q.iter().map(|&v| v as usize).collect();
+        let (one, other) = if diagonal == 0 { ([c[0], c[1], c[2]], [c[0], c[2], c[3]]) } else { ([c[0], c[1], c[3]], [c[1], c[2], c[3]]) };
+        out.push_polygon(&one);
+        out.push_polygon(&other);
+    }
+    out
+}
+
+#[test]
+fn a_quad_crossed_only_under_its_other_diagonal_is_kept_apart() {
+    // The needle rises by 0.5 from under a creased quad into where only the
+    // split the solver does not draw (along 1–3) has its surface.
+    let lift = 0.4;
+    let mesh = crate::mesh::fixtures::creased_quad_and_a_needle(lift, -0.5);
+    let target = crate::mesh::fixtures::creased_quad_and_a_needle(lift, 0.0).positions;
+    let count = |diagonal: usize, x: &[Vec3]| audited(&split(&mesh, diagonal), x).len();
+    assert_eq!((count(0, &mesh.positions), count(1, &mesh.positions)), (0, 0), "the start is free under both splits");
+    assert_eq!((count(0, &target), count(1, &target) > 0), (0, true), "unresolved, the motion crosses under the other split only");
+    let collision = bound(&mesh, &SETTINGS);
+    let mut end = target.clone();
+    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None).unwrap();
+    assert!(stats.contacts > 0, "{stats:?}");
+    assert!(end.iter().all(|p| p.is_finite()));
+    assert_eq!((count(0, &end), count(1, &end)), (0, 0), "{stats:?}");
+    // Stopped on the lower crease, not merely held at the start: the needle rose.
+    assert!(end[6].z > mesh.positions[6].z + 0.2, "{:?} -> {:?}", mesh.positions[6], end[6]);
+    // And in the in-loop pass.
+    let mut after = target.clone();
+    let mut candidates = None;
+    collision.resolve_in_loop(&mut candidates, &mesh.positions, &mut after, &SETTINGS, &Tangles::default(), None).unwrap();
+    collision.hold_back_in_loop(&mut candidates, &mesh.positions, &mut after, &SETTINGS, &Tangles::default(), None).unwrap();
+    assert_eq!((count(0, &after), count(1, &after)), (0, 0));
+    // A state crossing under either split is an intersection of its own count and of the tangles.
+    assert_eq!(collision.intersections(&target, None).unwrap(), vec![[0, 1]]);
+    let (tangles, crossing) = Tangles::at(&collision, &target, &SETTINGS, None).unwrap();
+    assert_eq!((crossing, tangles.vertex_count() > 0), (vec![[0, 1]], true));
+}
+
+#[test]
+fn the_weights_limit_where_it_applies() {
+    let mesh = two_sheets(8, 0.1);
+    let collision = bound(&mesh, &SETTINGS);
+    let half = mesh.positions.len() / 2;
+    let mut end = mesh.positions.clone();
+    for p in &mut end[half..] {
+        p.z -= 0.3;
+    }
+    // Only the lower sheet in the group: no pair has both sides in it.
+    let weights: Vec<f32> = (0..mesh.positions.len()).map(|v| if v < half { 1.0 } else { 0.0 }).collect();
+    let part = collision.takes_part(Some(&weights)).unwrap();
+    let mut free = end.clone();
+    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut free, &SETTINGS, &Tangles::default(), part.as_deref()).unwrap();
+    assert_eq!((stats.contacts, free == end), (0, true));
+    assert!(collision.takes_part(Some(&weights[1..])).is_err());
+    let mut bad = weights.clone();
+    bad[3] = f32::NAN;
+    assert!(collision.takes_part(Some(&bad)).unwrap_err().to_string().contains("vertex 3"));
+}
+
+#[test]
+fn the_in_loop_pass_reuses_its_candidates_and_holds_back_what_it_cannot_clear() {
+    let mesh = two_sheets(8, 0.03);
+    let collision = bound(&mesh, &SETTINGS);
+    let half = mesh.positions.len() / 2;
+    let mut state: Option<Candidates> = None;
+    let mut before = mesh.positions.clone();
+    let mut total = SelfStats::default();
+    // Ten small steps pressing the upper sheet down onto the lower one.
+    for _ in 0..10 {
+        let mut after = before.clone();
+        for p in &mut after[half..] {
+            p.z -= 0.008 * (1.0 - 2.0 * p.truncate().length()).max(0.0);
+        }
+        let stats = collision.resolve_in_loop(&mut state, &before, &mut after, &SETTINGS, &Tangles::default(), None).unwrap();
+        let held = collision.hold_back_in_loop(&mut state, &before, &mut after, &SETTINGS, &Tangles::default(), None).unwrap();
+        total.add(&SelfStats { held, ..stats });
+        assert!(audited(&mesh, &after).is_empty());
+        before = after;
+    }
+    assert!(total.contacts > 0);
+    assert!(total.gathers < 10, "every pass gathered again: {total:?}");
+}
+
+/// A random motion of two small sheets towards and through each other.
+fn motion() -> impl Strategy<Value = (Vec<f32>, Vec<f32>, f32)> {
+    (prop::collection::vec(-0.4f32..0.1, 50), prop::collection::vec(-0.05f32..0.05, 50), 0.0f32..0.02)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+
+    /// Whatever the motion, the pass ends free of intersections (with the
+    /// fail-safe if it must), finite, and within the motion's reach.
+    #[test]
+    fn any_motion_ends_free_of_intersections((drops, shear, thickness) in motion()) {
+        let mesh = two_sheets(4, 0.1);
+        let settings = SelfSettings { thickness, ..SETTINGS };
+        let collision = bound(&mesh, &settings);
+        let half = mesh.positions.len() / 2;
+        let mut end = mesh.positions.clone();
+        for (k, p) in end.iter_mut().enumerate() {
+            let j = k % 25;
+            if k >= half {
+                p.z += drops[j];
+                p.x += shear[j];
+            } else {
+                p.z += 0.5 * drops[25 + j] + 0.1;
+                p.y += shear[25 + j];
+            }
+        }
+        let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &settings, &Tangles::default(), None).unwrap();
+        prop_assert!(end.iter().all(|p| p.is_finite()));
+        prop_assert!(audited(&mesh, &end).is_empty(), "{:?}", stats);
+        for (p, s) in end.iter().zip(&mesh.positions) {
+            prop_assert!((*p - *s).length() < 2.0);
+        }
+    }
+}

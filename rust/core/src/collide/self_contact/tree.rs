@@ -1,0 +1,317 @@
+//! The patch tree: the skin's triangles split at rest, by median cuts of
+//! their centroids along the longest axis, into a binary tree of spatially
+//! compact patches (leaves of at most [`LEAF`] triangles, or one polygon's,
+//! each a contiguous range of the tree's triangle order; a polygon's
+//! triangles never part). Built once per bind; every pass
+//! refits its boxes and normal cones ([`super::bounds`]).
+//!
+//! Volino and Magnenat-Thalmann's curvature criterion needs to know which
+//! patches are **disks** (connected, manifold, consistently oriented, one
+//! boundary loop, Euler characteristic 1): a disk whose normals all lie on
+//! one side of a plane and whose boundary, projected along that plane's
+//! normal, winds at most once around any point cannot touch itself
+//! ([`super::bounds`] says why). Which nodes are disks, and their boundary
+//! loops, are found here bottom-up: a node's boundary is its children's with
+//! the edges they share cancelled, which is what makes it cheap.
+
+use glam::Vec3;
+
+/// Most triangles of a leaf.
+pub(super) const LEAF: usize = 8;
+
+/// Boundary loops longer than this are not kept: such a patch is large, its
+/// normals rarely fit a cone, and its parents are not disks either.
+const MAX_LOOP: usize = 8192;
+
+pub(super) const NONE: u32 = u32::MAX;
+
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Node {
+    /// First position in the tree's triangle order, and how many.
+    pub first: u32,
+    pub count: u32,
+    /// Left child (the right one follows it), or [`NONE`] for a leaf.
+    pub left: u32,
+}
+
+impl Node {
+    pub(super) fn is_leaf(&self) -> bool {
+        self.left == NONE
+    }
+    pub(super) fn range(&self) -> std::ops::Range<usize> {
+        self.first as usize..(self.first + self.count) as usize
+    }
+}
+
+#[derive(Debug, Clone)]
+pub(super) struct PatchTree {
+    /// Parents before their children (index order is a preorder).
+    pub nodes: Vec<Node>,
+    /// The skin's triangles in tree order.
+    pub triangles: Vec<[u32; 3]>,
+    /// Tree position → the skin's triangle index.
+    pub order: Vec<u32>,
+    /// The leaves' node indices, ascending.
+    pub leaves: Vec<u32>,
+    /// Per node: whether it is a disk ([`Self::boundary`] then holds its loop).
+    pub disk: Vec<bool>,
+    loop_offsets: Vec<u32>,
+    loop_vertices: Vec<u32>,
+}
+
+/// A node's surface as the bottom-up pass sees it.
+struct Shape {
+    /// Directed boundary edges (from the triangles' winding).
+    boundary: Vec<[u32; 2]>,
+    vertices: i64,
+    edges: i64,
+    faces: i64,
+    /// Not a manifold, consistently oriented patch (or too large to say).
+    tainted: bool,
+}
+
+impl PatchTree {
+    /// The tree of single triangles (every triangle is surface).
+    #[cfg(test)]
+    pub(super) fn build(triangles: &[[u32; 3]], rest: &[Vec3]) -> Self {
+        let units: Vec<u32> = (0..=triangles.len() as u32).collect();
+        Self::build_in_units(triangles, &units, &vec![true; triangles.len()], rest)
+    }
+
+    /// The tree of `triangles` cut between *units*, runs of triangles
+    /// (`unit_offsets`, compressed rows) that stay in one leaf: a polygon's.
+    /// Only the triangles flagged in `surface` (one split of each polygon)
+    /// decide which nodes are disks: a quad split both ways is four
+    /// triangles over one surface, and with whole quads in a node every
+    /// choice of their splits has the same boundary, so what is proven for
+    /// one split of the node ([`super::bounds`], its cones covering all
+    /// four triangles) holds for every split.
+    pub(super) fn build_in_units(triangles: &[[u32; 3]], unit_offsets: &[u32], surface: &[bool], rest: &[Vec3]) -> Self {
+        let unit_count = unit_offsets.len().saturating_sub(1);
+        let size = |u: u32| unit_offsets[u as usize + 1] - unit_offsets[u as usize];
+        let centroid: Vec<Vec3> = (0..unit_count)
+            .map(|u| {
+                let range = unit_offsets[u] as usize..unit_offsets[u + 1] as usize;
+                let sum = triangles[range.clone()].iter().fold(Vec3::ZERO, |acc, t| acc + rest[t[0] as usize] + rest[t[1] as usize] + rest[t[2] as usize]);
+                sum / (3 * range.len().max(1)) as f32
+            })
+            .collect();
+        let mut units: Vec<u32> = (0..unit_count as u32).collect();
+        // Built over units (first unit, count of units, triangles); turned into triangle ranges below.
+        let mut built: Vec<(u32, u32, u32, u32)> = vec![(0, unit_count as u32, triangles.len() as u32, NONE)];
+        let mut stack = vec![0usize];
+        while let Some(i) = stack.pop() {
+            let (first, count, triangle_count, _) = built[i];
+            if triangle_count as usize <= LEAF || count < 2 {
+                continue;
+            }
+            let slice = &mut units[first as usize..(first + count) as usize];
+            let (lo, hi) = slice.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), &u| {
+                let c = centroid[u as usize];
+                (lo.min(c), hi.max(c))
+            });
+            let extent = hi - lo;
+            let axis = if extent.x >= extent.y && extent.x >= extent.z { 0 } else if extent.y >= extent.z { 1 } else { 2 };
+            let mid = count / 2;
+            slice.select_nth_unstable_by(mid as usize, |&a, &b| {
+                centroid[a as usize][axis].total_cmp(&centroid[b as usize][axis]).then(a.cmp(&b))
+            });
+            let left_triangles: u32 = slice[..mid as usize].iter().map(|&u| size(u)).sum();
+            let left = built.len();
+            built[i].3 = left as u32;
+            built.push((first, mid, left_triangles, NONE));
+            built.push((first + mid, count - mid, triangle_count - left_triangles, NONE));
+            stack.push(left);
+            stack.push(left + 1);
+        }
+        let mut unit_start = Vec::with_capacity(unit_count + 1);
+        let mut order: Vec<u32> = Vec::with_capacity(triangles.len());
+        for &u in &units {
+            unit_start.push(order.len() as u32);
+            order.extend(unit_offsets[u as usize]..unit_offsets[u as usize + 1]);
+        }
+        unit_start.push(order.len() as u32);
+        let nodes: Vec<Node> = built.iter().map(|&(first, _, count, left)| Node { first: unit_start[first as usize], count, left }).collect();
+        let tree_triangles: Vec<[u32; 3]> = order.iter().map(|&t| triangles[t as usize]).collect();
+        let tree_surface: Vec<bool> = order.iter().map(|&t| surface[t as usize]).collect();
+        let leaves: Vec<u32> = (0..nodes.len() as u32).filter(|&i| nodes[i as usize].is_leaf()).collect();
+
+        // Bottom-up: a node's shape from its children's (children follow their parent).
+        let mut shapes: Vec<Option<Shape>> = (0..nodes.len()).map(|_| None).collect();
+        let mut disk = vec![false; nodes.len()];
+        let mut loops: Vec<Vec<u32>> = vec![Vec::new(); nodes.len()];
+        for i in (0..nodes.len()).rev() {
+            let node = nodes[i];
+            let shape = if node.is_leaf() {
+                let range = node.range();
+                let on_surface: Vec<[u32; 3]> = tree_triangles[range.clone()].iter().zip(&tree_surface[range]).filter(|(_, &s)| s).map(|(t, _)| *t).collect();
+                leaf_shape(&on_surface)
+            } else {
+                let l = shapes[node.left as usize].take().expect("children come after their parent");
+                let r = shapes[node.left as usize + 1].take().expect("children come after their parent");
+                merge(l, r)
+            };
+            if !shape.tainted && shape.vertices - shape.edges + shape.faces == 1 {
+                if let Some(cycle) = single_cycle(&shape.boundary) {
+                    disk[i] = true;
+                    loops[i] = cycle;
+                }
+            }
+            shapes[i] = Some(shape);
+        }
+        let mut loop_offsets = Vec::with_capacity(nodes.len() + 1);
+        loop_offsets.push(0u32);
+        let mut loop_vertices = Vec::new();
+        for l in loops {
+            loop_vertices.extend_from_slice(&l);
+            loop_offsets.push(loop_vertices.len() as u32);
+        }
+        PatchTree { nodes, triangles: tree_triangles, order, leaves, disk, loop_offsets, loop_vertices }
+    }
+
+    /// The boundary loop of disk node `i` (vertices in order), empty otherwise.
+    pub(super) fn boundary(&self, i: usize) -> &[u32] {
+        &self.loop_vertices[self.loop_offsets[i] as usize..self.loop_offsets[i + 1] as usize]
+    }
+}
+
+fn leaf_shape(triangles: &[[u32; 3]]) -> Shape {
+    let half_edges: Vec<[u32; 2]> = triangles.iter().flat_map(|&[a, b, c]| [[a, b], [b, c], [c, a]]).collect();
+    let (boundary, _, tainted) = cancel(half_edges);
+    let mut vertices: Vec<u32> = triangles.iter().flatten().copied().collect();
+    vertices.sort_unstable();
+    vertices.dedup();
+    let faces = triangles.len() as i64;
+    Shape { edges: (3 * faces + boundary.len() as i64) / 2, vertices: vertices.len() as i64, faces, tainted, boundary }
+}
+
+fn merge(l: Shape, r: Shape) -> Shape {
+    let tainted = l.tainted || r.tainted;
+    let common = {
+        let ends = |s: &Shape| {
+            let mut v: Vec<u32> = s.boundary.iter().flatten().copied().collect();
+            v.sort_unstable();
+            v.dedup();
+            v
+        };
+        let (a, b) = (ends(&l), ends(&r));
+        a.iter().filter(|v| b.binary_search(v).is_ok()).count() as i64
+    };
+    let mut half_edges = l.boundary;
+    half_edges.extend_from_slice(&r.boundary);
+    let (boundary, shared, cancelled_badly) = cancel(half_edges);
+    let too_big = boundary.len() > MAX_LOOP;
+    Shape {
+        boundary: if too_big { Vec::new() } else { boundary },
+        vertices: l.vertices + r.vertices - common,
+        edges: l.edges + r.edges - shared as i64,
+        faces: l.faces + r.faces,
+        tainted: tainted || cancelled_badly || too_big,
+    }
+}
+
+/// Cancels pairs of opposite half-edges: returns the rest (the boundary),
+/// the number of pairs cancelled, and whether some edge was used twice in
+/// the same direction or more than twice (not a consistently oriented
+/// manifold there).
+fn cancel(mut half_edges: Vec<[u32; 2]>) -> (Vec<[u32; 2]>, usize, bool) {
+    half_edges.sort_unstable_by_key(|&[a, b]| (a.min(b), a.max(b), a));
+    let mut boundary = Vec::new();
+    let (mut pairs, mut bad) = (0, false);
+    let mut i = 0;
+    while i < half_edges.len() {
+        let key = |e: [u32; 2]| (e[0].min(e[1]), e[0].max(e[1]));
+        let mut j = i + 1;
+        while j < half_edges.len() && key(half_edges[j]) == key(half_edges[i]) {
+            j += 1;
+        }
+        match j - i {
+            1 => boundary.push(half_edges[i]),
+            2 if half_edges[i][0] == half_edges[i + 1][1] => pairs += 1,
+            _ => bad = true,
+        }
+        i = j;
+    }
+    (boundary, pairs, bad)
+}
+
+/// The boundary's vertices in order if its half-edges form one simple cycle.
+fn single_cycle(boundary: &[[u32; 2]]) -> Option<Vec<u32>> {
+    if boundary.len() < 3 {
+        return None;
+    }
+    let mut by_start = boundary.to_vec();
+    by_start.sort_unstable();
+    if by_start.windows(2).any(|w| w[0][0] == w[1][0]) {
+        return None; // a vertex where the boundary touches itself
+    }
+    let next = |v: u32| by_start.binary_search_by_key(&v, |e| e[0]).ok().map(|k| by_start[k][1]);
+    let start = by_start[0][0];
+    let mut cycle = vec![start];
+    let mut at = next(start)?;
+    while at != start {
+        if cycle.len() >= boundary.len() {
+            return None;
+        }
+        cycle.push(at);
+        at = next(at)?;
+    }
+    (cycle.len() == boundary.len()).then_some(cycle)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::shapes::{grid, quad_sphere};
+    use crate::mesh::{fan_triangles, MeshInput};
+
+    fn triangles(mesh: MeshInput<'_>) -> Vec<[u32; 3]> {
+        fan_triangles(mesh.corner_verts, &mesh.validate().unwrap())
+    }
+
+    #[test]
+    fn a_grid_is_a_disk_at_every_node_and_leaves_cover_each_triangle_once() {
+        let g = grid(12, 12, 1.0);
+        let tris = triangles(g.input());
+        let tree = PatchTree::build(&tris, &g.positions);
+        assert!(tree.disk[0], "the whole grid is a disk");
+        let mut seen = vec![0; tris.len()];
+        for &leaf in &tree.leaves {
+            let node = tree.nodes[leaf as usize];
+            assert!(node.count as usize <= LEAF && node.count > 0);
+            for p in node.range() {
+                seen[tree.order[p] as usize] += 1;
+                assert_eq!(tree.triangles[p], tris[tree.order[p] as usize]);
+            }
+        }
+        assert!(seen.iter().all(|&k| k == 1));
+        assert_eq!(tree.boundary(0).len(), 4 * 12);
+    }
+
+    #[test]
+    fn a_grid_of_quads_split_both_ways_is_still_a_disk_and_no_quad_parts() {
+        let g = grid(12, 12, 1.0);
+        let offsets = g.input().validate().unwrap();
+        let (tris, _) = crate::mesh::either_split_triangles(g.corner_verts.as_slice(), &offsets);
+        let units: Vec<u32> = (0..=tris.len() as u32 / 4).map(|u| 4 * u).collect();
+        let surface: Vec<bool> = (0..tris.len()).map(|t| t % 4 < 2).collect();
+        let triangles: Vec<[u32; 3]> = tris.iter().map(|(t, _)| *t).collect();
+        let tree = PatchTree::build_in_units(&triangles, &units, &surface, &g.positions);
+        assert!(tree.disk[0], "the whole grid is a disk under one split, so under both");
+        assert_eq!(tree.boundary(0).len(), 4 * 12);
+        for &leaf in &tree.leaves {
+            let node = tree.nodes[leaf as usize];
+            assert_eq!((node.first % 4, node.count % 4), (0, 0), "a quad's four triangles share a leaf");
+        }
+    }
+
+    #[test]
+    fn a_closed_sphere_is_not_a_disk_but_its_small_patches_are() {
+        let s = quad_sphere(6, 1.0);
+        let tris = triangles(s.input());
+        let tree = PatchTree::build(&tris, &s.positions);
+        assert!(!tree.disk[0], "a closed surface has no boundary loop");
+        let disks = tree.leaves.iter().filter(|&&l| tree.disk[l as usize]).count();
+        assert!(disks * 4 >= tree.leaves.len() * 3, "{disks} of {} leaves are disks", tree.leaves.len());
+    }
+}

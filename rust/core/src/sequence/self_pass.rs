@@ -1,0 +1,185 @@
+//! The skin's contact with itself in the frame stepper: the same two passes
+//! as the colliders' (seed 000, Algorithm 2), together with them.
+//!
+//! * **First pass**: after the colliders' sweep, self-collision along each
+//!   vertex's path from the last output; where it changed paths, the
+//!   colliders once more. Skin squeezed between a sweeping collider and
+//!   itself is left to the colliders and counted as `self_pinched` (a
+//!   tangle of the next frame, never a NaN).
+//! * **In-loop passes**: after the colliders, strain limits and compliant
+//!   colliders of an iteration, self-collision's rounds; where they moved
+//!   skin, the (still) colliders' pass again; then the joint fail-safe: every
+//!   vertex whose path still crosses other skin, or whose step a collider
+//!   now meets, goes back to where the iteration started, which was free of
+//!   both, until none is left. The output satisfies both.
+//!
+//! The intersections of each frame's output are counted (the report's
+//! `self_intersections`) and kept as the tangles of the next frame: what
+//! the input brought in intersecting is exempt until it comes apart.
+
+use glam::Vec3;
+
+use super::options::{SelfOptions, StepReport};
+use super::Sequence;
+use crate::collide::{Candidates, Clearance, Collider, ColliderSet, ResolveParams, SelfCollision, SelfSettings, Skin, Tangles};
+use crate::mesh::MeshInput;
+use crate::{Error, Result};
+
+/// What self-collision carries through one step.
+pub(super) struct SelfPass {
+    settings: SelfSettings,
+    takes_part: Option<Vec<bool>>,
+    tangles: Tangles,
+    /// Per vertex, how far the solve may take it from its input: twice as
+    /// far as the last frame's did (the candidates' margins).
+    margin: Vec<f32>,
+    /// The candidates of the current substep, for its first and in-loop passes.
+    candidates: Option<Candidates>,
+    /// Where the last first pass ended: the in-loop passes' candidates are
+    /// gathered around it.
+    first_end: Option<Vec<Vec3>>,
+}
+
+/// The tangles of the last output, with what they were found under, and
+/// how far the last frame's solve moved the skin from where its first pass
+/// ended.
+#[derive(Debug, Clone)]
+pub(super) struct KeptTangles {
+    rings: u32,
+    takes_part: Option<Vec<bool>>,
+    tangles: Tangles,
+    drift: Vec<f32>,
+}
+
+impl Sequence {
+    /// Readies self-collision for a step from `start` (bound on the first
+    /// step that asks for it), or None without it.
+    pub(super) fn begin_self(&mut self, options: Option<&SelfOptions<'_>>, start: &[Vec3]) -> Result<Option<SelfPass>> {
+        let Some(options) = options else { return Ok(None) };
+        options.settings.validate()?;
+        if self.skin.triangles().is_empty() {
+            return Err(Error::invalid("self-collision needs a deformer bound to a mesh (its triangles)"));
+        }
+        if self.self_collision.is_none() {
+            let (corner_verts, polygon_sizes) = (&self.polygons.0, &self.polygons.1);
+            self.self_collision = Some(SelfCollision::new(MeshInput { positions: &self.rest, corner_verts, polygon_sizes })?);
+        }
+        let collision = self.self_collision.as_mut().expect("just made");
+        collision.prepare(&options.settings)?;
+        let takes_part = collision.takes_part(options.weights)?;
+        let kept = self.self_tangles.take();
+        // The margins cover how far the solve takes the skin from where the
+        // first pass leaves it: twice last frame's. Not from the input: where
+        // the input folds through itself the output stays far from it, and
+        // margins that wide would pair up the whole fold.
+        let margin = match (&kept, &self.history, &self.last_input) {
+            (Some(k), _, _) if k.drift.len() == start.len() => k.drift.iter().map(|d| 2.0 * d).collect(),
+            (_, Some(output), Some(input)) if output.len() == start.len() && input.len() == start.len() => {
+                output.iter().zip(input).map(|(o, i)| 2.0 * (*o - *i).length()).collect()
+            }
+            _ => vec![0.0; start.len()],
+        };
+        let kept = kept.filter(|k| k.rings == options.settings.rings && k.takes_part == takes_part);
+        let tangles = match kept {
+            Some(k) => k.tangles,
+            None => Tangles::at(collision, start, &options.settings, takes_part.as_deref())?.0,
+        };
+        Ok(Some(SelfPass { settings: options.settings, takes_part, tangles, margin, candidates: None, first_end: None }))
+    }
+
+    /// Counts the output's intersections into the report and keeps them as
+    /// the next frame's tangles.
+    pub(super) fn finish_self(&mut self, pass: SelfPass, output: &[Vec3], report: &mut StepReport) -> Result<()> {
+        let collision = self.self_collision.as_ref().expect("begun");
+        // With no tangle at the start and nothing left pinched, every pass kept
+        // the skin free of intersections: nothing to look for.
+        let clean = pass.tangles.vertex_count() == 0 && report.self_pinched.is_empty();
+        let (tangles, crossing) =
+            if clean { (Tangles::default(), Vec::new()) } else { Tangles::at(collision, output, &pass.settings, pass.takes_part.as_deref())? };
+        report.self_intersections = crossing.len();
+        report.self_tangled = pass.tangles.vertex_count();
+        report.self_pinched.sort_unstable();
+        report.self_pinched.dedup();
+        let drift = match &pass.first_end {
+            Some(end) if end.len() == output.len() => output.iter().zip(end).map(|(o, e)| (*o - *e).length()).collect(),
+            _ => Vec::new(),
+        };
+        self.self_tangles = Some(KeptTangles { rings: pass.settings.rings, tangles, takes_part: pass.takes_part, drift });
+        Ok(())
+    }
+}
+
+
+/// The first pass's self-collision, after the colliders' (see the module
+/// documentation).
+pub(super) fn first_pass(
+    collision: &SelfCollision,
+    pass: &mut SelfPass,
+    x_n: &[Vec3],
+    x: &mut [Vec3],
+    colliders: &[&Collider],
+    skin: &Skin,
+    report: &mut StepReport,
+) -> Result<()> {
+    let part = pass.takes_part.as_deref();
+    pass.candidates = Some(collision.candidates(x_n, x, &pass.margin, &pass.settings, &pass.tangles, part)?);
+    let stats = collision.resolve_path(&mut pass.candidates, x_n, x, &pass.settings, &pass.tangles, part)?;
+    pass.first_end = Some(x.to_vec());
+    report.self_contacts += stats.contacts;
+    report.self_held += stats.held.len();
+    if colliders.is_empty() || (stats.contacts == 0 && stats.held.is_empty()) {
+        return Ok(());
+    }
+    let again = ColliderSet::new(colliders.iter().copied()).resolve_path(x_n, x, skin, &ResolveParams::first_pass())?;
+    report.pinched.extend_from_slice(&again.pinched);
+    if !again.moved.is_empty() {
+        report.self_pinched.extend(collision.crossings(x_n, x, &pass.settings, &pass.tangles, part)?);
+    }
+    Ok(())
+}
+
+/// An in-loop pass's self-collision, after the colliders, strain limits and
+/// compliant colliders of the iteration (see the module documentation).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn in_loop(
+    collision: &SelfCollision,
+    pass: &mut SelfPass,
+    before: &[Vec3],
+    after: &mut [Vec3],
+    colliders: &[&Collider],
+    skin: &Skin,
+    clearance: Option<&Clearance>,
+    report: &mut StepReport,
+) -> Result<()> {
+    let (settings, tangles, part) = (&pass.settings, &pass.tangles, pass.takes_part.as_deref());
+    let stats = collision.resolve_in_loop(&mut pass.candidates, before, after, settings, tangles, part)?;
+    report.self_contacts += stats.contacts;
+    let set = ColliderSet::new(colliders.iter().copied());
+    let params = ResolveParams::in_loop();
+    if !colliders.is_empty() && stats.contacts > 0 {
+        let again = set.resolve_path_with(before, after, skin, &params, clearance)?;
+        report.in_loop_contacts += again.vertex_contacts + again.edge_contacts + again.collider_vertex_contacts;
+        report.held += again.held.len();
+    }
+    // The joint fail-safe: back to `before` (free of both) until nothing crosses.
+    let mut touching: Option<Vec<bool>> = None;
+    let mut last: Vec<u32> = Vec::new();
+    loop {
+        let mut bad = collision.in_loop_crossings(&mut pass.candidates, before, after, touching.as_deref(), settings, tangles, part)?;
+        bad.extend(set.violations(before, after, skin, &last, &params));
+        bad.retain(|&v| after[v as usize] != before[v as usize]);
+        bad.sort_unstable();
+        bad.dedup();
+        if bad.is_empty() {
+            return Ok(());
+        }
+        let mut flags = vec![false; before.len()];
+        for &v in &bad {
+            after[v as usize] = before[v as usize];
+            flags[v as usize] = true;
+        }
+        report.self_held += bad.len();
+        touching = Some(flags);
+        last = bad;
+    }
+}

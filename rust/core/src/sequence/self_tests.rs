@@ -1,0 +1,121 @@
+//! The frame stepper with self-collision, checked by the audit's own count
+//! of self-intersections ([`crate::collide::audit_self`]).
+
+use glam::Vec3;
+
+use super::*;
+use crate::collide::{self_intersections, ColliderSettings, SelfSettings};
+use crate::mesh::fixtures::smooth_bend;
+use crate::mesh::shapes::{cylinder, grid, PolyMesh};
+use crate::pyramid::Closeness;
+
+fn audited(mesh: &PolyMesh, x: &[Vec3]) -> usize {
+    self_intersections(MeshInput { positions: x, ..mesh.input() }).unwrap().len()
+}
+
+fn with_self(settings: SelfSettings) -> StepOptions<'static> {
+    StepOptions { self_collision: Some(SelfOptions { settings, weights: None }), ..StepOptions::new(10, Closeness::Uniform(0.05)) }
+}
+
+const SETTINGS: SelfSettings = SelfSettings { thickness: 0.004, static_friction: 0.2, kinetic_friction: 0.15, rings: 0 };
+
+/// A tube bent to 150° at its middle over 12 frames, as a two-bone rig's
+/// linear blend would (its inner side folds through itself): the most
+/// intersecting pairs of a frame, and the reports, with or without
+/// self-collision.
+fn bend(options: &StepOptions<'_>) -> (usize, Vec<StepReport>) {
+    let tube = cylinder(24, 48, 0.2, 2.0);
+    let mut sequence = Sequence::bind(tube.input(), DeformerOptions::default()).unwrap();
+    let mut worst = 0;
+    let mut reports = Vec::new();
+    for frame in 0..=12 {
+        let angle = 150f32.to_radians() * frame as f32 / 12.0;
+        let input = smooth_bend(&tube, 1.0, 0.85, 1.15, angle, 0.0);
+        let (x, report) = sequence.step(&input, &mut [], options).unwrap();
+        assert!(x.iter().all(|p| p.is_finite()), "frame {frame}: non-finite output");
+        worst = worst.max(audited(&tube, &x));
+        reports.push(report);
+    }
+    (worst, reports)
+}
+
+#[test]
+fn a_tube_bent_150_degrees_folds_without_passing_through_itself() {
+    let (without, _) = bend(&StepOptions::new(10, Closeness::Uniform(0.05)));
+    assert!(without > 0, "the bend must fold the tube through itself without self-collision");
+    let (with, reports) = bend(&with_self(SETTINGS));
+    assert_eq!(with, 0, "{reports:?}");
+    assert!(reports.iter().map(|r| r.self_contacts).sum::<usize>() > 0);
+    assert!(reports.iter().all(|r| r.self_intersections == 0 && r.self_tangled == 0));
+}
+
+#[test]
+fn input_intersecting_at_bind_is_reported_never_explodes_and_adds_nothing() {
+    // Two overlapping shells at rest (as the MakeHuman cuffs are): a sheet
+    // tilted through another. Then a third sheet, away from them, pushed
+    // down through the first: that must be stopped.
+    let mut mesh = grid(6, 6, 1.0);
+    let n = mesh.positions.len();
+    let tilted: Vec<Vec3> = mesh.positions.iter().map(|p| Vec3::new(p.x + 0.031, p.y + 0.047, 0.3 * p.x + 0.01)).collect();
+    let flat_count = mesh.polygon_sizes.len();
+    mesh.positions.extend(tilted);
+    for k in 0..flat_count {
+        let corners: Vec<usize> = mesh.corner_verts[4 * k..4 * k + 4].iter().map(|&v| v as usize + n).collect();
+        mesh.push_polygon(&corners);
+    }
+    let at_rest = audited(&mesh, &mesh.positions);
+    assert!(at_rest > 0);
+    let mut sequence = Sequence::bind(mesh.input(), DeformerOptions::default()).unwrap();
+    let options = with_self(SETTINGS);
+    for frame in 0..6 {
+        // The whole mesh swings about x, the overlap as it was at rest.
+        let turn = glam::Mat3::from_rotation_x(0.1 * frame as f32);
+        let input: Vec<Vec3> = mesh.positions.iter().map(|p| turn * *p).collect();
+        let (x, report) = sequence.step(&input, &mut [], &options).unwrap();
+        assert!(x.iter().all(|p| p.is_finite()));
+        assert!(report.self_intersections > 0 && report.self_tangled > 0, "frame {frame}: {report:?}");
+        assert!(audited(&mesh, &x) <= at_rest, "frame {frame}: new intersections");
+        let spread = x.iter().zip(&input).map(|(a, b)| (*a - *b).length()).fold(0.0, f32::max);
+        assert!(spread < 0.2, "frame {frame}: moved {spread} from its input");
+    }
+}
+
+#[test]
+fn self_collision_and_colliders_hold_together() {
+    // The bent tube with a sphere collider inside its elbow's fold: the
+    // output keeps out of both.
+    let tube = cylinder(24, 48, 0.2, 2.0);
+    let mut sequence = Sequence::bind(tube.input(), DeformerOptions::default()).unwrap();
+    let (sphere, tris) = crate::mesh::shapes::uv_sphere_triangles(16, 8, 0.08);
+    let centre = Vec3::new(0.0, 0.32, 1.05);
+    let at: Vec<Vec3> = sphere.iter().map(|p| *p + centre).collect();
+    let mut collider = Collider::new(&at, &tris, ColliderSettings { thickness: 0.004, static_friction: 0.0, kinetic_friction: 0.0 }).unwrap();
+    let options = with_self(SETTINGS);
+    for frame in 0..=12 {
+        let angle = 150f32.to_radians() * frame as f32 / 12.0;
+        let input = smooth_bend(&tube, 1.0, 0.85, 1.15, angle, 0.0);
+        collider.update(&at).unwrap();
+        let (x, report) = sequence.step(&input, &mut [&mut collider], &options).unwrap();
+        assert!(x.iter().all(|p| p.is_finite()));
+        assert_eq!(audited(&tube, &x), 0, "frame {frame}: {report:?}");
+        if report.pinched.is_empty() && report.self_pinched.is_empty() {
+            let found = crate::collide::audit(MeshInput { positions: &x, ..tube.input() }, &[&collider], &crate::collide::AuditParams::default()).unwrap();
+            assert_eq!((found.vertices_inside.len(), found.edges_crossing.len(), found.collider_edges_crossing.len()), (0, 0, 0), "frame {frame}");
+        }
+    }
+}
+
+#[test]
+fn bad_self_collision_settings_are_refused_naming_what() {
+    let tube = cylinder(8, 4, 0.2, 1.0);
+    let mut sequence = Sequence::bind(tube.input(), DeformerOptions::default()).unwrap();
+    let bad = with_self(SelfSettings { thickness: f32::NAN, ..SETTINGS });
+    let error = sequence.step(&tube.positions, &mut [], &bad).unwrap_err().to_string();
+    assert!(error.contains("thickness"), "{error}");
+    let weights = vec![1.0; 3];
+    let short = StepOptions { self_collision: Some(SelfOptions { settings: SETTINGS, weights: Some(&weights) }), ..StepOptions::default() };
+    assert!(sequence.step(&tube.positions, &mut [], &short).is_err());
+    let rings = with_self(SelfSettings { rings: 99, ..SETTINGS });
+    assert!(sequence.step(&tube.positions, &mut [], &rings).unwrap_err().to_string().contains("rings"));
+}
+
