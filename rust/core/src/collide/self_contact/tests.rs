@@ -226,7 +226,7 @@ fn the_in_loop_pass_reuses_its_candidates_and_holds_back_what_it_cannot_clear() 
         before = after;
     }
     assert!(total.contacts > 0);
-    assert!(total.gathers < 10, "every pass gathered again: {total:?}");
+    assert!(total.gathers < 10, "every pass gathered the whole skin again: {total:?}");
 }
 
 /// A random motion of two small sheets towards and through each other.
