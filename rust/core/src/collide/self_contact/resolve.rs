@@ -173,7 +173,7 @@ impl Candidates {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Gathered {
     Nothing,
-    /// Only around the vertices that strayed.
+    /// Only around some vertices (those the fail-safe put back).
     Around,
     /// The whole skin.
     Whole,
@@ -300,14 +300,9 @@ impl SelfCollision {
             }
             moved = Some(flags);
             if !fits(current, end) {
-                let c = candidates.as_mut().expect("gathered");
-                if c.start.as_slice() == start && pass.widen_path(c, end) {
-                    stats.gathers_around += 1;
-                } else {
-                    let margin = candidates.take().expect("gathered").margin;
-                    *candidates = Some(pass.candidates(start, end, margin));
-                    stats.gathers += 1;
-                }
+                let margin = candidates.take().expect("gathered").margin;
+                *candidates = Some(pass.candidates(start, end, margin));
+                stats.gathers += 1;
                 moved = None;
             }
         }
@@ -460,11 +455,6 @@ impl Pass<'_> {
         if candidates.as_ref().is_some_and(|c| c.holds(&[before, after])) {
             return Gathered::Nothing;
         }
-        if let Some(c) = candidates.as_mut() {
-            if self.widen(c, before, after) {
-                return Gathered::Around;
-            }
-        }
         // Iterations shrink as a solve converges: four times this one's move
         // (and at least the last margin) covers most of the ones to come.
         let floor = self.collision.margin_floor(self.settings);
@@ -476,81 +466,6 @@ impl Pass<'_> {
             .collect();
         *candidates = Some(self.candidates(before, before, margin));
         Gathered::Whole
-    }
-
-    /// Moves the reference of the vertices that strayed beyond their
-    /// margins, or move faster than their margins allow, to where this
-    /// iteration started, each with a margin of four times this
-    /// iteration's move (at least its last), as a whole gathering around
-    /// `before` would, and gathers again only the pairs with a corner
-    /// among them ([`Self::refocus`]).
-    fn widen(&self, c: &mut Candidates, before: &[Vec3], after: &[Vec3]) -> bool {
-        let floor = self.collision.margin_floor(self.settings);
-        let changes: Vec<Option<(Vec3, f32)>> = (0..before.len())
-            .into_par_iter()
-            .with_min_len(4096)
-            .map(|v| {
-                let r = c.reference[v];
-                let far = (before[v] - r).length().max((after[v] - r).length());
-                let step = 4.0 * (after[v] - before[v]).length();
-                // Strayed, or about to: moving faster than its margin allows.
-                (far > c.margin[v] || step > c.margin[v]).then(|| (before[v], step.max(c.margin[v]).max(floor)))
-            })
-            .collect();
-        if !self.refocus(c, &changes, false) {
-            return false;
-        }
-        // The list now covers only the neighbourhood of the references, not
-        // the paths that led there: no first pass may take it for its own.
-        c.start.clone_from(&c.reference);
-        true
-    }
-
-    /// The first pass's counterpart of [`Self::widen`]: the paths of the
-    /// vertices whose corrected ends left their margins now end where they
-    /// are, with margins at least as far as they strayed.
-    fn widen_path(&self, c: &mut Candidates, end: &[Vec3]) -> bool {
-        let changes: Vec<Option<(Vec3, f32)>> = (0..end.len())
-            .into_par_iter()
-            .with_min_len(4096)
-            .map(|v| {
-                let far = (end[v] - c.reference[v]).length();
-                (far > c.margin[v]).then(|| (end[v], far.max(c.margin[v])))
-            })
-            .collect();
-        self.refocus(c, &changes, true)
-    }
-
-    /// Gives the vertices with a change their new reference and margin and
-    /// gathers again only the pairs with a corner among them, over the
-    /// paths from the list's start (`along_path`) or around the references.
-    /// Every other pair keeps what the list said of it: whether two
-    /// elements can come within reach depends on their own corners alone,
-    /// and those keep the references and margins the list was gathered
-    /// for. Returns false, changing nothing, where more than a quarter of
-    /// the skin changed: a whole gathering then costs no more.
-    fn refocus(&self, c: &mut Candidates, changes: &[Option<(Vec3, f32)>], along_path: bool) -> bool {
-        let count = changes.iter().filter(|m| m.is_some()).count();
-        if count == 0 || 4 * count > changes.len() {
-            return false;
-        }
-        let flags: Vec<bool> = changes.iter().map(Option::is_some).collect();
-        for (v, change) in changes.iter().enumerate() {
-            if let Some((reference, margin)) = *change {
-                (c.reference[v], c.margin[v]) = (reference, margin);
-            }
-        }
-        let focus = self.collision.focus_around(&flags);
-        let touches = |pair: &ElementPair| pair.corners.iter().any(|&v| flags[v as usize]);
-        let start = if along_path { &c.start } else { &c.reference };
-        let found = self.gather(&Motion { start, end: &c.reference, margin: &c.margin }, Some(&focus));
-        let (mut pairs, mut distances): (Vec<ElementPair>, Vec<f32>) =
-            c.pairs.iter().zip(&c.distance).filter(|(pair, _)| !touches(pair)).map(|(pair, d)| (*pair, *d)).unzip();
-        let fresh: Vec<ElementPair> = found.into_iter().filter(|pair| touches(pair)).collect();
-        distances.extend(fresh.par_iter().map(|pair| distance(pair, &c.reference)).collect::<Vec<f32>>());
-        pairs.extend(fresh);
-        (c.pairs, c.distance) = (pairs, distances);
-        true
     }
 
     /// One round: the corrections of every pair touching a moved vertex (or
