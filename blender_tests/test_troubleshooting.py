@@ -24,6 +24,7 @@ INTERNAL = {
     "does not belong to this solver": "solver constraints are built by the core itself",
     "vertices given, the solver has": "the solver is driven by the deformer, which checks the counts first",
     "weights given for": "solver constraint weights are built by the core itself",
+    "unextrapolated vertices: a mask of": "the deformer builds the solver's mask from its own ring fit",
     "weights must be finite and non-negative": "solver constraint weights are built by the core itself",
     ", but there are": "solver constraint rows are built by the core itself",
     "has a non-finite coefficient": "solver constraint rows are built by the core itself",
