@@ -60,6 +60,7 @@ fn case(report: &mut Report, label: &str, mesh: &PolyMesh, bend: &Bend, thicknes
         let mut contacts = 0;
         let mut held = 0;
         let mut reached = 0;
+        let mut phases: std::collections::BTreeMap<&str, f64> = std::collections::BTreeMap::new();
         let budget = budget_seconds();
         for (k, input) in frames.iter().enumerate() {
             let t = Instant::now();
@@ -77,7 +78,28 @@ fn case(report: &mut Report, label: &str, mesh: &PolyMesh, bend: &Bend, thicknes
             }
             contacts += rb.self_contacts;
             held += rb.self_held;
-            println!("frame {k}: {:.1} / {:.1} ms, self contacts {}, held {}, intersections {}", 1000.0 * ta, 1000.0 * tb, rb.self_contacts, rb.self_held, rb.self_intersections);
+            let w = rb.self_work;
+            println!(
+                "frame {k}: {:.1} / {:.1} ms, self contacts {}, held {}, intersections {}; phases ms: begin {:.1}, first pass {:.1}, in-loop rounds {:.1}, in-loop fail-safe {:.1}, tangles {:.1}; gathers {} whole + {} around, most candidates {}",
+                1000.0 * ta,
+                1000.0 * tb,
+                rb.self_contacts,
+                rb.self_held,
+                rb.self_intersections,
+                w.begin_ms,
+                w.first_pass_ms,
+                w.in_loop_rounds_ms,
+                w.in_loop_fail_safe_ms,
+                w.tangles_ms,
+                w.gathers,
+                w.gathers_around,
+                w.most_candidates
+            );
+            if k > 0 {
+                for (phase, ms) in [("begin", w.begin_ms), ("first pass", w.first_pass_ms), ("in-loop rounds", w.in_loop_rounds_ms), ("in-loop fail-safe", w.in_loop_fail_safe_ms), ("tangles", w.tangles_ms)] {
+                    *phases.entry(phase).or_insert(0.0) += ms;
+                }
+            }
             (last_a, last_b) = (xa, xb);
             reached = k;
             if time_b.iter().sum::<f64>() > budget && k < FRAMES {
@@ -96,6 +118,9 @@ fn case(report: &mut Report, label: &str, mesh: &PolyMesh, bend: &Bend, thicknes
         report.add(label, "step without self-collision", ma, "ms", 2, "median of the bend's frames");
         report.add(label, "step with self-collision", mb, "ms", 2, "median of the bend's frames");
         report.add(label, "with / without (all frames)", ratio, "x", 2, "sum of the measured frames' times; target <= 2");
+        for (phase, ms) in &phases {
+            report.add(label, &format!("self-collision time: {phase} (all frames)"), *ms, "ms", 2, "sum over the measured frames after the first");
+        }
         report.add(label, "self contacts (all frames)", contacts as f64, "", 2, "");
         report.add(label, "self fail-safe vertices (all frames)", held as f64, "", 2, "");
         let audit = |x: &[glam::Vec3]| self_intersections(MeshInput { positions: x, ..mesh.input() }).unwrap().len() as f64;

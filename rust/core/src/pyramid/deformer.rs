@@ -210,6 +210,9 @@ impl PyramidDeformer {
             None => None,
         };
         let closeness = solver.add(Box::new(solve::Closeness::all(n)), vec![1.0; n])?;
+        // A sliver's vertex is carried from its anchor; on a triangle fan's
+        // rim each is anchored to the next, a chain the length of the rim.
+        solver.set_unextrapolated(&anchored_mask)?;
         let mut deformer = PyramidDeformer {
             encoding,
             formulation,

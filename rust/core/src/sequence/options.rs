@@ -114,6 +114,8 @@ pub struct StepReport {
     /// Vertices exempt at the start of the frame: their triangles
     /// intersected there.
     pub self_tangled: usize,
+    /// Where self-collision's time went in this step (for benchmarks).
+    pub self_work: SelfWork,
     /// Clearances measured for the in-loop passes: one per substep with
     /// colliders, and again where a compliant collider left its envelope.
     pub clearance_measurements: usize,
@@ -124,6 +126,30 @@ pub struct StepReport {
     /// Skin vertices whose boxes were made again for compliant colliders to
     /// recede from, after the solver's iterations: those that moved since.
     pub in_loop_skin_refits: usize,
+}
+
+/// Where one step's self-collision time went: wall-clock milliseconds per
+/// phase and how much the candidate search did. Timings, so not the same
+/// from run to run: for benchmarks and traces, never for decisions.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SelfWork {
+    /// Readying the step: settings, and the tangles of the first frame.
+    pub begin_ms: f64,
+    /// The first passes: their gathering, rounds and fail-safe.
+    pub first_pass_ms: f64,
+    /// The in-loop passes' rounds (with the gatherings they needed).
+    pub in_loop_rounds_ms: f64,
+    /// The in-loop passes' joint fail-safe (with the colliders' check).
+    pub in_loop_fail_safe_ms: f64,
+    /// Counting the output's intersections and the next frame's tangles.
+    pub tangles_ms: f64,
+    /// Candidate gatherings over the whole skin, over the step's passes.
+    pub gathers: usize,
+    /// Candidate gatherings only around vertices that left their margins
+    /// (or that the first pass's fail-safe put back).
+    pub gathers_around: usize,
+    /// The most candidate pairs one pass held.
+    pub most_candidates: usize,
 }
 
 /// Adds a substep's first-pass figures to the frame's.

@@ -17,6 +17,8 @@
 //! `self_intersections`) and kept as the tangles of the next frame: what
 //! the input brought in intersecting is exempt until it comes apart.
 
+use std::time::Instant;
+
 use glam::Vec3;
 
 use super::options::{SelfOptions, StepReport};
@@ -38,6 +40,8 @@ pub(super) struct SelfPass {
     /// Where the last first pass ended: the in-loop passes' candidates are
     /// gathered around it.
     first_end: Option<Vec<Vec3>>,
+    /// How long readying the step took (for the report's [`super::SelfWork`]).
+    begin_ms: f64,
 }
 
 /// The tangles of the last output, with what they were found under, and
@@ -56,6 +60,7 @@ impl Sequence {
     /// step that asks for it), or None without it.
     pub(super) fn begin_self(&mut self, options: Option<&SelfOptions<'_>>, start: &[Vec3]) -> Result<Option<SelfPass>> {
         let Some(options) = options else { return Ok(None) };
+        let began = Instant::now();
         options.settings.validate()?;
         if self.skin.triangles().is_empty() {
             return Err(Error::invalid("self-collision needs a deformer bound to a mesh (its triangles)"));
@@ -84,18 +89,30 @@ impl Sequence {
             Some(k) => k.tangles,
             None => Tangles::at(collision, start, &options.settings, takes_part.as_deref())?.0,
         };
-        Ok(Some(SelfPass { settings: options.settings, takes_part, tangles, margin, candidates: None, first_end: None }))
+        let begin_ms = milliseconds(began);
+        Ok(Some(SelfPass { settings: options.settings, takes_part, tangles, margin, candidates: None, first_end: None, begin_ms }))
     }
 
     /// Counts the output's intersections into the report and keeps them as
     /// the next frame's tangles.
     pub(super) fn finish_self(&mut self, pass: SelfPass, output: &[Vec3], report: &mut StepReport) -> Result<()> {
+        let began = Instant::now();
         let collision = self.self_collision.as_ref().expect("begun");
-        // With no tangle at the start and nothing left pinched, every pass kept
-        // the skin free of intersections: nothing to look for.
+        // Every pass kept each pair apart by at least its separation, except
+        // pairs with both sides in a tangle (exempt) and pinched paths: only
+        // around those can the output intersect or touch. With neither,
+        // nothing to look for.
         let clean = pass.tangles.vertex_count() == 0 && report.self_pinched.is_empty();
-        let (tangles, crossing) =
-            if clean { (Tangles::default(), Vec::new()) } else { Tangles::at(collision, output, &pass.settings, pass.takes_part.as_deref())? };
+        let (tangles, crossing) = if clean {
+            (Tangles::default(), Vec::new())
+        } else {
+            let mut around = pass.tangles.vertex_flags().to_vec();
+            around.resize(output.len(), false);
+            for &v in &report.self_pinched {
+                around[v as usize] = true;
+            }
+            Tangles::around(collision, output, &pass.settings, pass.takes_part.as_deref(), &around)?
+        };
         report.self_intersections = crossing.len();
         report.self_tangled = pass.tangles.vertex_count();
         report.self_pinched.sort_unstable();
@@ -105,8 +122,21 @@ impl Sequence {
             _ => Vec::new(),
         };
         self.self_tangles = Some(KeptTangles { rings: pass.settings.rings, tangles, takes_part: pass.takes_part, drift });
+        report.self_work.begin_ms += pass.begin_ms;
+        report.self_work.tangles_ms += milliseconds(began);
         Ok(())
     }
+}
+
+fn milliseconds(since: Instant) -> f64 {
+    1000.0 * since.elapsed().as_secs_f64()
+}
+
+/// Adds a pass's gatherings and candidate count to the report's figures.
+fn count_work(report: &mut StepReport, gathers: usize, around: usize, candidates: Option<&Candidates>) {
+    report.self_work.gathers += gathers;
+    report.self_work.gathers_around += around;
+    report.self_work.most_candidates = report.self_work.most_candidates.max(candidates.map_or(0, Candidates::len));
 }
 
 
@@ -121,10 +151,13 @@ pub(super) fn first_pass(
     skin: &Skin,
     report: &mut StepReport,
 ) -> Result<()> {
+    let began = Instant::now();
     let part = pass.takes_part.as_deref();
     pass.candidates = Some(collision.candidates(x_n, x, &pass.margin, &pass.settings, &pass.tangles, part)?);
     let stats = collision.resolve_path(&mut pass.candidates, x_n, x, &pass.settings, &pass.tangles, part)?;
     pass.first_end = Some(x.to_vec());
+    count_work(report, 1 + stats.gathers, stats.gathers_around, pass.candidates.as_ref());
+    report.self_work.first_pass_ms += milliseconds(began);
     report.self_contacts += stats.contacts;
     report.self_held += stats.held.len();
     if colliders.is_empty() || (stats.contacts == 0 && stats.held.is_empty()) {
@@ -151,9 +184,11 @@ pub(super) fn in_loop(
     clearance: Option<&Clearance>,
     report: &mut StepReport,
 ) -> Result<()> {
+    let began = Instant::now();
     let (settings, tangles, part) = (&pass.settings, &pass.tangles, pass.takes_part.as_deref());
     let stats = collision.resolve_in_loop(&mut pass.candidates, before, after, settings, tangles, part)?;
     report.self_contacts += stats.contacts;
+    count_work(report, stats.gathers, stats.gathers_around, pass.candidates.as_ref());
     let set = ColliderSet::new(colliders.iter().copied());
     let params = ResolveParams::in_loop();
     if !colliders.is_empty() && stats.contacts > 0 {
@@ -161,7 +196,9 @@ pub(super) fn in_loop(
         report.in_loop_contacts += again.vertex_contacts + again.edge_contacts + again.collider_vertex_contacts;
         report.held += again.held.len();
     }
+    report.self_work.in_loop_rounds_ms += milliseconds(began);
     // The joint fail-safe: back to `before` (free of both) until nothing crosses.
+    let began = Instant::now();
     let mut touching: Option<Vec<bool>> = None;
     let mut last: Vec<u32> = Vec::new();
     loop {
@@ -171,6 +208,7 @@ pub(super) fn in_loop(
         bad.sort_unstable();
         bad.dedup();
         if bad.is_empty() {
+            report.self_work.in_loop_fail_safe_ms += milliseconds(began);
             return Ok(());
         }
         let mut flags = vec![false; before.len()];

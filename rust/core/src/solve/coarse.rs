@@ -351,7 +351,8 @@ impl Coarse {
     /// the accelerated next iterate: `x + ω (g − x)` plus the correction
     /// `P e₁`, `e₁` from one V-cycle on `A₁ e₁ = ω Pᵀ M (g − x)`, extrapolated
     /// from the iterate before, `previous + weight · (that − previous)`
-    /// (see [`super::chebyshev`]; weight 1 = none); `previous` then holds `x`.
+    /// (see [`super::chebyshev`]; weight 1 = none), except at the vertices
+    /// `extrapolation.1` marks; `previous` then holds `x`.
     /// Returns the squared norms of the residual (`g − x` before all that),
     /// of the accelerated step and of the new iterate's offset from `input`.
     ///
@@ -364,9 +365,10 @@ impl Coarse {
         g: &mut [Vec3],
         held: Option<&[bool]>,
         previous: &mut [Vec3],
-        weight: f32,
+        extrapolation: (f32, Option<&[bool]>),
         input: &[Vec3],
     ) -> Sums {
+        let (weight, unextrapolated) = extrapolation;
         let (offsets, columns, values) = (&self.offsets, &self.columns, &self.values);
         let rhs = match self.levels.first_mut() {
             Some(level) => &mut level.rhs,
@@ -416,13 +418,15 @@ impl Coarse {
         let extrapolate = weight != 1.0;
         let sums: Vec<Sums> = g
             .par_chunks_mut(APPLY_BLOCK)
+            .enumerate()
             .zip(x.par_chunks(APPLY_BLOCK))
             .zip(previous.par_chunks_mut(APPLY_BLOCK))
             .zip(input.par_chunks(APPLY_BLOCK))
             .zip(aggregate.par_chunks(APPLY_BLOCK))
-            .map(|((((g, x), previous), input), aggregate)| {
+            .map(|(((((block, g), x), previous), input), aggregate)| {
                 let (mut residual, mut step, mut offset) = (0.0f32, 0.0f32, 0.0f32);
-                for ((((gi, xi), pi), ii), &a) in g.iter_mut().zip(x).zip(previous).zip(input).zip(aggregate) {
+                let left_out = unextrapolated.map(|mask| &mask[block * APPLY_BLOCK..]);
+                for (k, ((((gi, xi), pi), ii), &a)) in g.iter_mut().zip(x).zip(previous).zip(input).zip(aggregate).enumerate() {
                     let a = a as usize;
                     let plain = *gi - *xi;
                     residual += plain.length_squared();
@@ -431,7 +435,11 @@ impl Coarse {
                     // Weight 1 exactly: `p + (c − p)` can differ from `c` in
                     // the last bit, which would make a solve depend on the
                     // solve before it (the previous iterate it left behind).
-                    let next = if extrapolate { *pi + (corrected - *pi) * weight } else { corrected };
+                    let next = if extrapolate && !left_out.is_some_and(|mask| mask[k]) {
+                        *pi + (corrected - *pi) * weight
+                    } else {
+                        corrected
+                    };
                     step += (next - *xi).length_squared();
                     offset += (next - *ii).length_squared();
                     *gi = next;

@@ -77,6 +77,9 @@ pub struct Solver {
     /// vertices the hook then moved.
     before_hook: Vec<Vec3>,
     hook_moved: Vec<bool>,
+    /// Vertices the Chebyshev extrapolation leaves out (empty: none); see
+    /// [`Solver::set_unextrapolated`].
+    unextrapolated: Vec<bool>,
     /// The corrected iteration's iterate before the current one, for its
     /// Chebyshev extrapolation (see [`super::chebyshev`]).
     previous: Vec<Vec3>,
@@ -104,6 +107,7 @@ impl Solver {
             coarse: None,
             before_hook: Vec::new(),
             hook_moved: Vec::new(),
+            unextrapolated: Vec::new(),
             previous: Vec::new(),
             tolerance: None,
             last_iterations: 0,
@@ -151,6 +155,24 @@ impl Solver {
                 self.symbolic = system.symbolic().or(self.symbolic.take());
             }
         }
+    }
+
+    /// Marks the vertices whose rows the accelerated solver's Chebyshev
+    /// extrapolation must leave out (`mask[v]`; an empty mask: none): rows
+    /// that carry a vertex from another vertex's position (a ring fit's
+    /// sliver anchored to its neighbour). A chain of such rows is a shift:
+    /// its iteration's modes are not the real ones the weights are built for
+    /// (see [`super::chebyshev`]), and extrapolated they grow.
+    pub fn set_unextrapolated(&mut self, mask: &[bool]) -> Result<()> {
+        if !mask.is_empty() && mask.len() != self.vertex_count {
+            return Err(Error::invalid(format!(
+                "unextrapolated vertices: a mask of {} given, the solver has {} vertices",
+                mask.len(),
+                self.vertex_count
+            )));
+        }
+        self.unextrapolated = if mask.iter().any(|&m| m) { mask.to_vec() } else { Vec::new() };
+        Ok(())
     }
 
     /// Whether the coarse-level correction is on.
@@ -407,7 +429,9 @@ impl Solver {
                     chebyshev.restart();
                 }
                 let weight = chebyshev.next_weight();
-                let sums = coarse.correct(current, next, hook_moved.then_some(&self.hook_moved[..]), &mut self.previous, weight, input);
+                let unextrapolated = (!self.unextrapolated.is_empty()).then_some(&self.unextrapolated[..]);
+                let held = hook_moved.then_some(&self.hook_moved[..]);
+                let sums = coarse.correct(current, next, held, &mut self.previous, (weight, unextrapolated), input);
                 // A residual that grew: the extrapolation overshot where the
                 // iteration is far from linear (see `chebyshev`); start again.
                 if sums.residual > last_residual {

@@ -12,7 +12,7 @@ use rayon::prelude::*;
 
 use super::bounds::{Motion, NodeBounds};
 use super::exclusion::Exclusion;
-use super::gather::{ownership, scale_of, ElementPair, Gather};
+use super::gather::{ownership, scale_of, ElementPair, Focus, Gather};
 use super::settings::SelfSettings;
 use super::tree::PatchTree;
 use crate::collide::geometry::{point_triangle_distance_squared, segment_crosses_triangle, segment_segment_distance_squared};
@@ -113,7 +113,7 @@ impl SelfCollision {
             let motion = Motion { start: &self.rest, end: &self.rest, margin: &zero };
             let exclusion = &self.exclusion;
             let accept = |a: &[u32], b: &[u32]| !exclusion.excluded(a, b);
-            let pairs = self.gather(&motion, thickness, true, None, &accept);
+            let pairs = self.gather(&motion, thickness, true, None, &accept, None);
             let close: Vec<(ElementPair, f32)> = pairs
                 .into_par_iter()
                 .filter_map(|pair| {
@@ -159,7 +159,8 @@ impl SelfCollision {
         Ok(Some(self.tree.triangles.iter().map(|t| t.iter().any(|&v| weights[v as usize] > 0.0)).collect()))
     }
 
-    /// Runs a gathering over `motion`.
+    /// Runs a gathering over `motion` (only pairs with a triangle in
+    /// `focus`, if given).
     pub(super) fn gather(
         &self,
         motion: &Motion<'_>,
@@ -167,9 +168,18 @@ impl SelfCollision {
         cull: bool,
         takes_part: Option<&[bool]>,
         accept: &(dyn Fn(&[u32], &[u32]) -> bool + Sync),
+        focus: Option<&Focus>,
     ) -> Vec<ElementPair> {
+        if focus.is_some_and(Focus::is_empty) {
+            return Vec::new();
+        }
         let bounds = NodeBounds::new(&self.tree, motion, takes_part);
-        Gather { tree: &self.tree, owns: &self.owns, bounds: &bounds, motion: *motion, reach: reach + self.rounding, cull, takes_part, accept }.run()
+        Gather { tree: &self.tree, owns: &self.owns, bounds: &bounds, motion: *motion, reach: reach + self.rounding, cull, takes_part, accept, focus }.run()
+    }
+
+    /// The triangles (tree positions) with a corner among `vertices`.
+    pub(super) fn focus_around(&self, vertices: &[bool]) -> Focus {
+        Focus::around(&self.tree, vertices)
     }
 
     /// The pairs of polygons (the mesh's indices, ascending within a pair,
@@ -179,7 +189,7 @@ impl SelfCollision {
     /// neighbours (sharing a vertex, or within the rings) are not counted;
     /// only those taking part.
     pub fn intersections(&self, positions: &[Vec3], takes_part: Option<&[bool]>) -> Result<Vec<[u32; 2]>> {
-        let crossing: Vec<[u32; 2]> = self.meeting(positions, takes_part, 0.0)?.into_iter().filter(|&(_, crossing)| crossing).map(|(pair, _)| pair).collect();
+        let crossing: Vec<[u32; 2]> = self.meeting(positions, takes_part, 0.0, None)?.into_iter().filter(|&(_, crossing)| crossing).map(|(pair, _)| pair).collect();
         Ok(self.polygon_pairs(&crossing))
     }
 
@@ -199,19 +209,22 @@ impl SelfCollision {
 
     /// The pairs of triangles (tree positions) that intersect or come
     /// within `touching` of each other at `positions`, each with whether it
-    /// intersects.
-    pub(super) fn meeting(&self, positions: &[Vec3], takes_part: Option<&[bool]>, touching: f32) -> Result<Vec<([u32; 2], bool)>> {
+    /// intersects; with a `focus`, only pairs with a triangle in it.
+    pub(super) fn meeting(&self, positions: &[Vec3], takes_part: Option<&[bool]>, touching: f32, focus: Option<&Focus>) -> Result<Vec<([u32; 2], bool)>> {
         if positions.len() != self.vertex_count {
             return Err(Error::invalid(format!("{} positions given for a skin of {} vertices", positions.len(), self.vertex_count)));
         }
         validate_positions("positions", positions)?;
+        if focus.is_some_and(Focus::is_empty) {
+            return Ok(Vec::new());
+        }
         let zero = vec![0.0; self.vertex_count];
         let motion = Motion { start: positions, end: positions, margin: &zero };
         let bounds = NodeBounds::new(&self.tree, &motion, takes_part);
         let exclusion = &self.exclusion;
         let accept = |a: &[u32], b: &[u32]| !exclusion.excluded(a, b);
         // Touching pairs are found only where the curvature test cannot rule out a contact.
-        let gather = Gather { tree: &self.tree, owns: &self.owns, bounds: &bounds, motion, reach: touching + self.rounding, cull: true, takes_part, accept: &accept };
+        let gather = Gather { tree: &self.tree, owns: &self.owns, bounds: &bounds, motion, reach: touching + self.rounding, cull: true, takes_part, accept: &accept, focus };
         let mut found: Vec<([u32; 2], bool)> = gather
             .triangle_pairs()
             .into_par_iter()

@@ -66,6 +66,39 @@ pub(super) fn ownership(tree: &PatchTree, vertex_count: usize) -> Vec<u8> {
         .collect()
 }
 
+/// Where a gathering looks: only pairs with a triangle of this set (per
+/// tree position), and the nodes holding one. What lies elsewhere was
+/// decided by an earlier gathering and has not changed since, so a re-check
+/// around a few vertices costs a refit and a traversal that drops every
+/// subtree without one, not a search of the whole skin.
+pub(super) struct Focus {
+    triangles: Vec<bool>,
+    nodes: Vec<bool>,
+}
+
+impl Focus {
+    /// The triangles with a corner among `vertices` (flags per vertex).
+    pub(super) fn around(tree: &PatchTree, vertices: &[bool]) -> Self {
+        let triangles: Vec<bool> = tree.triangles.iter().map(|t| t.iter().any(|&v| vertices[v as usize])).collect();
+        let mut nodes = vec![false; tree.nodes.len()];
+        // Index order is a preorder: children after their parent.
+        for i in (0..tree.nodes.len()).rev() {
+            let node = tree.nodes[i];
+            nodes[i] = if node.is_leaf() {
+                node.range().any(|p| triangles[p])
+            } else {
+                nodes[node.left as usize] || nodes[node.left as usize + 1]
+            };
+        }
+        Focus { triangles, nodes }
+    }
+
+    /// Whether nothing is in focus.
+    pub(super) fn is_empty(&self) -> bool {
+        self.nodes.first().is_none_or(|&n| !n)
+    }
+}
+
 /// One gathering: what it traverses and what it keeps.
 pub(super) struct Gather<'a> {
     pub tree: &'a PatchTree,
@@ -81,6 +114,8 @@ pub(super) struct Gather<'a> {
     pub takes_part: Option<&'a [bool]>,
     /// Whether two sides are tested at all (neighbours, tangles).
     pub accept: &'a (dyn Fn(&[u32], &[u32]) -> bool + Sync),
+    /// Only pairs with a triangle in focus (None: every pair).
+    pub focus: Option<&'a Focus>,
 }
 
 /// Below this many triangles a subtree is traversed on one thread.
@@ -127,7 +162,7 @@ impl Gather<'_> {
 
     fn self_test<O: Found>(&self, i: usize) -> Vec<O> {
         let node = self.tree.nodes[i];
-        if !self.bounds.active[i] || node.count < 2 {
+        if !self.bounds.active[i] || node.count < 2 || self.focus.is_some_and(|f| !f.nodes[i]) {
             return Vec::new();
         }
         if node.is_leaf() {
@@ -162,7 +197,7 @@ impl Gather<'_> {
     /// their parent, which already failed the curvature test.
     fn pair_test<O: Found>(&self, a: usize, b: usize, siblings: bool, out: &mut Vec<O>) {
         let bounds = self.bounds;
-        if !(bounds.active[a] && bounds.active[b]) {
+        if !(bounds.active[a] && bounds.active[b]) || self.focus.is_some_and(|f| !(f.nodes[a] || f.nodes[b])) {
             return;
         }
         if relative_gap(&bounds.span[a], &bounds.span[b]) > self.reach {
@@ -190,6 +225,7 @@ impl Gather<'_> {
         let (ra, rb) = (self.tree.nodes[a].range(), self.tree.nodes[b].range());
         let span = |p: usize| self.motion.span(&self.tree.triangles[p]);
         let part = |p: usize| self.takes_part.is_none_or(|flags| flags[p]);
+        let focused = |p: usize, q: usize| self.focus.is_none_or(|f| f.triangles[p] || f.triangles[q]);
         let b_spans: Vec<Span> = rb.clone().map(span).collect();
         for p in ra {
             if !part(p) {
@@ -197,7 +233,7 @@ impl Gather<'_> {
             }
             let sp = span(p);
             for (k, q) in rb.clone().enumerate() {
-                if (a == b && q <= p) || !part(q) {
+                if (a == b && q <= p) || !part(q) || !focused(p, q) {
                     continue;
                 }
                 if relative_gap(&sp, &b_spans[k]) > self.reach {

@@ -35,7 +35,7 @@ use rayon::prelude::*;
 use super::bounds::Motion;
 use super::collision::{distance, SelfCollision};
 use super::contact::{correction, first_contact, ContactParams};
-use super::gather::ElementPair;
+use super::gather::{ElementPair, Focus};
 use super::settings::{SelfSettings, SelfStats};
 use crate::mesh::validate_positions;
 use crate::{Error, Result};
@@ -58,8 +58,25 @@ impl Tangles {
     /// be put back on). Returns them with the intersecting polygon pairs
     /// ([`SelfCollision::intersections`]).
     pub fn at(collision: &SelfCollision, positions: &[Vec3], settings: &SelfSettings, takes_part: Option<&[bool]>) -> Result<(Self, Vec<[u32; 2]>)> {
+        Self::found(collision, positions, settings, takes_part, None)
+    }
+
+    /// [`Self::at`], looking only at the triangles with a corner among
+    /// `vertices` (flags per vertex): at the end of a frame, the last
+    /// tangles and the pinched vertices. Everywhere else the passes kept
+    /// every pair apart by at least its separation (only pairs with both
+    /// sides in a tangle were exempt, only pinched paths left crossing), so
+    /// nothing there intersects or touches.
+    pub fn around(collision: &SelfCollision, positions: &[Vec3], settings: &SelfSettings, takes_part: Option<&[bool]>, vertices: &[bool]) -> Result<(Self, Vec<[u32; 2]>)> {
+        if vertices.len() != collision.vertex_count {
+            return Err(Error::invalid(format!("self-collision tangles: {} vertex flags given for {} vertices", vertices.len(), collision.vertex_count)));
+        }
+        Self::found(collision, positions, settings, takes_part, Some(&collision.focus_around(vertices)))
+    }
+
+    fn found(collision: &SelfCollision, positions: &[Vec3], settings: &SelfSettings, takes_part: Option<&[bool]>, focus: Option<&Focus>) -> Result<(Self, Vec<[u32; 2]>)> {
         let touching = 0.1 * settings.thickness + 2.5 * collision.rounding;
-        let meeting = collision.meeting(positions, takes_part, touching)?;
+        let meeting = collision.meeting(positions, takes_part, touching, focus)?;
         let pairs: Vec<[u32; 2]> = meeting.iter().map(|&(pair, _)| pair).collect();
         let crossing: Vec<[u32; 2]> = meeting.iter().filter(|&&(_, crossing)| crossing).map(|&(pair, _)| pair).collect();
         Ok((Tangles::new(collision, &pairs), collision.polygon_pairs(&crossing)))
@@ -90,6 +107,11 @@ impl Tangles {
     /// Whether vertex `v` is in a tangle.
     pub fn contains(&self, v: u32) -> bool {
         self.vertices.get(v as usize).copied().unwrap_or(false)
+    }
+
+    /// Per vertex, whether it is in a tangle (empty without tangles).
+    pub fn vertex_flags(&self) -> &[bool] {
+        &self.vertices
     }
 
     fn holds(&self, corners: &[u32]) -> bool {
@@ -144,6 +166,26 @@ impl Candidates {
         let (a, b) = pair.sides();
         let room = self.distance[k] - strayed(a) - strayed(b);
         room as f64 > pass.collision.pair_separation(pair) + pass.params.tolerance + pass.collision.rounding as f64
+    }
+}
+
+/// What [`Pass::ensure`] had to do for the candidates to hold.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Gathered {
+    Nothing,
+    /// Only around some vertices (those the fail-safe put back).
+    Around,
+    /// The whole skin.
+    Whole,
+}
+
+impl SelfStats {
+    fn count(&mut self, gathered: Gathered) {
+        match gathered {
+            Gathered::Nothing => {}
+            Gathered::Around => self.gathers_around += 1,
+            Gathered::Whole => self.gathers += 1,
+        }
     }
 }
 
@@ -265,7 +307,7 @@ impl SelfCollision {
             }
         }
         if !converged {
-            stats.held = pass.hold_back_path(start, end, &mut stats.gathers);
+            stats.held = pass.hold_back_path(start, end, &mut stats);
         }
         stats.max_correction = max_correction(&requested, end);
         Ok(stats)
@@ -278,7 +320,7 @@ impl SelfCollision {
         self.check("end positions", end)?;
         let pass = self.pass(settings, tangles, takes_part)?;
         let zero = vec![0.0; self.vertex_count];
-        let pairs = pass.gather(&Motion { start, end, margin: &zero });
+        let pairs = pass.gather(&Motion { start, end, margin: &zero }, None);
         Ok(pass.crossing_corners(&pairs, start, end, None))
     }
 
@@ -302,7 +344,7 @@ impl SelfCollision {
         let pass = self.pass(settings, tangles, takes_part)?;
         let requested = after.to_vec();
         let mut stats = SelfStats::default();
-        stats.gathers += pass.ensure(candidates, before, after) as usize;
+        stats.count(pass.ensure(candidates, before, after));
         let mut moved: Option<Vec<bool>> = None;
         for _ in 0..SELF_ROUNDS {
             stats.rounds += 1;
@@ -319,8 +361,9 @@ impl SelfCollision {
                 flags[v as usize] = true;
             }
             moved = Some(flags);
-            if pass.ensure(candidates, before, after) {
-                stats.gathers += 1;
+            let gathered = pass.ensure(candidates, before, after);
+            if gathered != Gathered::Nothing {
+                stats.count(gathered);
                 moved = None;
             }
         }
@@ -393,24 +436,24 @@ impl Pass<'_> {
         move |a: &[u32], b: &[u32]| !self.collision.excluded(a, b) && (!self.tangles.holds(a) || !self.tangles.holds(b))
     }
 
-    fn gather(&self, motion: &Motion<'_>) -> Vec<ElementPair> {
+    fn gather(&self, motion: &Motion<'_>, focus: Option<&Focus>) -> Vec<ElementPair> {
         let accept = self.accept();
-        self.collision.gather(motion, self.settings.thickness, true, self.takes_part, &accept)
+        self.collision.gather(motion, self.settings.thickness, true, self.takes_part, &accept, focus)
     }
 
     /// The candidates of `start → end` with these margins; pairs that
     /// cannot come within their separation near the end are dropped.
     fn candidates(&self, start: &[Vec3], end: &[Vec3], margin: Vec<f32>) -> Candidates {
-        let pairs = self.gather(&Motion { start, end, margin: &margin });
+        let pairs = self.gather(&Motion { start, end, margin: &margin }, None);
         let distance: Vec<f32> = pairs.par_iter().map(|pair| distance(pair, end)).collect();
         Candidates { start: start.to_vec(), reference: end.to_vec(), margin, pairs, distance }
     }
 
     /// Gathers the in-loop candidates again, around `before`, if a vertex
     /// strayed beyond them; returns whether it did.
-    fn ensure(&self, candidates: &mut Option<Candidates>, before: &[Vec3], after: &[Vec3]) -> bool {
+    fn ensure(&self, candidates: &mut Option<Candidates>, before: &[Vec3], after: &[Vec3]) -> Gathered {
         if candidates.as_ref().is_some_and(|c| c.holds(&[before, after])) {
-            return false;
+            return Gathered::Nothing;
         }
         // Iterations shrink as a solve converges: four times this one's move
         // (and at least the last margin) covers most of the ones to come.
@@ -422,7 +465,7 @@ impl Pass<'_> {
             .map(|v| (4.0 * (after[v] - before[v]).length()).max(old.as_ref().map_or(0.0, |m| m[v])).max(floor))
             .collect();
         *candidates = Some(self.candidates(before, before, margin));
-        true
+        Gathered::Whole
     }
 
     /// One round: the corrections of every pair touching a moved vertex (or
@@ -484,19 +527,29 @@ impl Pass<'_> {
 
     /// The first pass's fail-safe: puts the corners of crossing pairs back at
     /// `start` until none crosses. Returns the vertices put back.
-    fn hold_back_path(&self, start: &[Vec3], end: &mut [Vec3], gathers: &mut usize) -> Vec<u32> {
+    ///
+    /// Only the first check looks at the whole skin; each later one at the
+    /// pairs with a corner among the vertices just put back. A pair with
+    /// none has the same path as at the check before, which found it clear
+    /// (or put a corner of it back, which put it in this batch).
+    fn hold_back_path(&self, start: &[Vec3], end: &mut [Vec3], stats: &mut SelfStats) -> Vec<u32> {
         let zero = vec![0.0; start.len()];
         let mut held = Vec::new();
+        let mut batch: Option<Vec<bool>> = None;
         loop {
-            let pairs = self.gather(&Motion { start, end, margin: &zero });
-            *gathers += 1;
-            let bad = self.crossing_corners(&pairs, start, end, None);
+            let focus = batch.as_deref().map(|b| self.collision.focus_around(b));
+            let pairs = self.gather(&Motion { start, end, margin: &zero }, focus.as_ref());
+            stats.count(if focus.is_some() { Gathered::Around } else { Gathered::Whole });
+            let bad = self.crossing_corners(&pairs, start, end, batch.as_deref());
             if bad.is_empty() {
                 break;
             }
+            let mut flags = vec![false; start.len()];
             for &v in &bad {
                 end[v as usize] = start[v as usize];
+                flags[v as usize] = true;
             }
+            batch = Some(flags);
             held.extend(bad);
         }
         held.sort_unstable();

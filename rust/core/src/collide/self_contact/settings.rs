@@ -62,6 +62,9 @@ pub struct SelfStats {
     /// Times the candidate pairs were gathered again (a vertex left the
     /// bounds they were gathered for).
     pub gathers: usize,
+    /// Times they were gathered again only around the vertices that left
+    /// their bounds (the rest of the list kept).
+    pub gathers_around: usize,
     /// Largest correction of one vertex.
     pub max_correction: f32,
 }
@@ -78,6 +81,7 @@ impl SelfStats {
         self.pinched.dedup();
         self.rounds += other.rounds;
         self.gathers += other.gathers;
+        self.gathers_around += other.gathers_around;
         self.max_correction = self.max_correction.max(other.max_correction);
     }
 }

@@ -226,7 +226,7 @@ fn the_in_loop_pass_reuses_its_candidates_and_holds_back_what_it_cannot_clear() 
         before = after;
     }
     assert!(total.contacts > 0);
-    assert!(total.gathers < 10, "every pass gathered again: {total:?}");
+    assert!(total.gathers < 10, "every pass gathered the whole skin again: {total:?}");
 }
 
 /// A random motion of two small sheets towards and through each other.
@@ -263,4 +263,53 @@ proptest! {
             prop_assert!((*p - *s).length() < 2.0);
         }
     }
+}
+
+#[test]
+fn a_gathering_around_some_vertices_lists_exactly_the_whole_gatherings_pairs_that_touch_them() {
+    use super::bounds::Motion;
+    let mesh = two_sheets(8, 0.012);
+    let collision = bound(&mesh, &SETTINGS);
+    let half = mesh.positions.len() / 2;
+    // The upper sheet's middle sags onto the lower one.
+    let mut end = mesh.positions.clone();
+    for p in &mut end[half..] {
+        p.z -= 0.02 * (1.0 - 2.0 * p.truncate().length()).max(0.0);
+    }
+    let margin = vec![0.002; end.len()];
+    let motion = Motion { start: &mesh.positions, end: &end, margin: &margin };
+    let accept = |a: &[u32], b: &[u32]| !collision.excluded(a, b);
+    let whole = collision.gather(&motion, SETTINGS.thickness, true, None, &accept, None);
+    // Around a few vertices of each sheet, near the middle and at a corner.
+    let mut flags = vec![false; end.len()];
+    for v in [half / 2, half / 2 + 1, 0, half + half / 2, end.len() - 1] {
+        flags[v] = true;
+    }
+    let touches = |pair: &super::gather::ElementPair| pair.corners.iter().any(|&v| flags[v as usize]);
+    let mut expected: Vec<_> = whole.iter().copied().filter(touches).collect();
+    let mut found: Vec<_> = collision.gather(&motion, SETTINGS.thickness, true, None, &accept, Some(&collision.focus_around(&flags))).into_iter().filter(touches).collect();
+    assert!(!expected.is_empty(), "the sag brings the middle within reach");
+    expected.sort_unstable();
+    found.sort_unstable();
+    assert_eq!(found, expected);
+    // Nothing in focus: nothing to list.
+    let none = collision.focus_around(&vec![false; end.len()]);
+    assert!(collision.gather(&motion, SETTINGS.thickness, true, None, &accept, Some(&none)).is_empty());
+}
+
+#[test]
+fn tangles_found_around_the_last_ones_are_those_found_over_the_whole_skin() {
+    // The upper sheet's middle pushed through the lower one: a tangle.
+    let mesh = two_sheets(8, 0.05);
+    let collision = bound(&mesh, &SETTINGS);
+    let half = mesh.positions.len() / 2;
+    let mut crossed = mesh.positions.clone();
+    for p in &mut crossed[half..] {
+        p.z -= 0.2 * (1.0 - 2.0 * p.truncate().length()).max(0.0);
+    }
+    let (whole, pairs) = Tangles::at(&collision, &crossed, &SETTINGS, None).unwrap();
+    assert!(!pairs.is_empty());
+    let (around, around_pairs) = Tangles::around(&collision, &crossed, &SETTINGS, None, whole.vertex_flags()).unwrap();
+    assert_eq!((around.vertex_flags(), &around_pairs), (whole.vertex_flags(), &pairs));
+    assert!(Tangles::around(&collision, &crossed, &SETTINGS, None, &[true]).is_err(), "flags of another skin");
 }
