@@ -79,8 +79,8 @@ class TEGUMENT_NT_uv_warp(bpy.types.ShaderNodeCustomGroup):
     )
     iterations: IntProperty(
         name="Iterations", default=tegument.DEFAULTS.warp_iterations, min=1, max=200,
-        description="Multigrid cycles per frame (the first frame of a bake runs one more on every grid level). "
-        "Each brings the warp closer to its converged shape; more cost time and never change the look",
+        description="Solver iterations on the finest grid level (coarser levels run more). More bring the warp "
+        "closer to its converged shape at a higher cost, most visibly in animation",
     )
     orientation: FloatProperty(
         name="Orientation", default=tegument.DEFAULTS.orientation, min=0.0, max=1.0, subtype="FACTOR",

@@ -1,6 +1,6 @@
 //! UV warp convergence (issue 28), the cascade solver of `main` before the
-//! multigrid ("old": `Variant::Cascade`) against the multigrid solver
-//! ("new", the default) in one run, on the benchmark cylinder of
+//! multigrid ("old": `Variant::Cascade`, the product's default) against the
+//! multigrid solver ("new", selectable, 1 cycle a frame) in one run, on the benchmark cylinder of
 //! `benches/warp.rs` (256 × 128 quads, square scales over 25 % of the chart)
 //! at its strongest bend (curvature 0.5: the +X side squashed to half),
 //! default settings but for the iteration count (old: iterations per level;
@@ -16,7 +16,7 @@
 //!    rigid stretch error, fold-overs and the convergence error
 //!    RMS|r_k − r_∞| / RMS|r_∞ − identity| over the redirection texture's
 //!    texels inside the chart;
-//! 3. fold-overs of the new solver's cold solves at every iteration count
+//! 3. fold-overs of the default solver's (the cascade's) cold solves at every iteration count
 //!    1..64 at 2048² and 4096², on this cylinder and on the tests' squares
 //!    scene, before the end-of-solve repair (which then has nothing to do)
 //!    and after;
@@ -59,18 +59,17 @@ fn pose(m: &UvPolyMesh, frame: usize) -> Vec<glam::Vec3> {
     bend(&m.positions, 2, 0, 0.0, 0.0, 0.5 * (0.6 + 0.04 * frame as f32))
 }
 
-/// The old solver's default iteration count (per level); the new one's is
-/// `WarpSettings::default().iterations` (cycles).
+/// The old solver's default iteration count (per level, the product's
+/// default); the new one's cycles a frame.
 const OLD_DEFAULT: u32 = 4;
+const NEW_DEFAULT: u32 = 1;
 
 fn warp(m: &UvPolyMesh, n: usize, old: bool, warm: bool) -> UvWarp {
     let rig = scales_map(n, n, 24);
-    let iterations = if old { OLD_DEFAULT } else { WarpSettings::default().iterations };
+    let iterations = if old { OLD_DEFAULT } else { NEW_DEFAULT };
     let settings = WarpSettings { warm_start: warm, iterations, ..Default::default() };
     let mut w = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &rig, mask: None }], settings).expect("warp");
-    if old {
-        w.tiles[0].solver.set_variant(Variant::Cascade);
-    }
+    w.set_variant(if old { Variant::Cascade } else { Variant::Multigrid });
     w
 }
 
@@ -195,7 +194,7 @@ fn main() {
                 ));
             }
         }
-        // 3. Fold-overs of the new solver's cold solves, every count 1..=64,
+        // 3. Fold-overs of the default solver's cold solves, every count 1..=64,
         //    on the benchmark cylinder and on the tests' squares scene
         //    (`warp::tests::squares_cylinder`: 64 × 32 quads, two rigid squares
         //    on the squashed and the stretched side, full bend).
@@ -220,9 +219,9 @@ fn main() {
                     raw += (passes > 0 || scale < 1.0) as usize;
                     after += q.foldovers;
                     worst = worst.max(q.stretch_warped.mean);
-                    eprintln!("  {n}² {scene} new k={k}: rigid stretch {:.4}, folds {}, repair ({passes}, {scale}), {:.0} s so far", q.stretch_warped.mean, q.foldovers, t.elapsed().as_secs_f64());
+                    eprintln!("  {n}² {scene} default k={k}: rigid stretch {:.4}, folds {}, repair ({passes}, {scale}), {:.0} s so far", q.stretch_warped.mean, q.foldovers, t.elapsed().as_secs_f64());
                 }
-                let note = format!("iteration counts 1..{max}, new solver; {:.0} s", t.elapsed().as_secs_f64());
+                let note = format!("iteration counts 1..{max}, default solver (cascade); {:.0} s", t.elapsed().as_secs_f64());
                 report.add(&case, "cold solves that needed the fold repair", raw as f64, "", threads, &note);
                 report.add(&case, "fold-overs, summed over the cold solves", after as f64, "", threads, &note);
                 report.add(&case, "worst rigid stretch over the cold solves", worst, "", threads, &note);
@@ -248,7 +247,7 @@ fn main() {
                 (frames, w.tiles[0].validity().to_vec(), ms, q.stretch_warped.mean, q.foldovers)
             };
             let (reference, valid, ms64, stretch64, folds64) = bake(64);
-            let default = WarpSettings::default().iterations as usize;
+            let default = NEW_DEFAULT as usize;
             for k in [default, 2 * default, 4 * default, 8 * default] {
                 let (frames, _, ms, stretch, folds) = bake(k);
                 let d: Vec<f64> = frames.iter().zip(&reference).map(|(a, b)| convergence_error(a, b, &valid, n)).collect();

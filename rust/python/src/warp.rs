@@ -40,9 +40,8 @@ use crate::convert::{float_array_arg, float_grid_arg, int_array_arg, positions_a
 /// :meth:`displacement`, :meth:`metrics`) are one array or report for one
 /// tile: ``udim`` names it, and may be left out when the warp has one tile.
 ///
-/// ``iterations``: multigrid cycles per solve (a solve from the identity runs
-/// one more on every level); more converge further to the same warp.
-/// ``orientation``: fraction in [0, 1] by which rigid segments turn back
+/// ``iterations``: PBD iterations on the finest level (coarser levels run
+/// more). ``orientation``: fraction in [0, 1] by which rigid segments turn back
 /// to their rest direction per iteration. ``smoothing``: the global smoothing
 /// factor of rigid regions, in [0, 1]. ``warm_start``: start each solve from the
 /// previous one (temporal coherence); ``False`` solves every frame from the

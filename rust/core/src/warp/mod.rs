@@ -66,12 +66,14 @@ pub(crate) const RELAXATION: f32 = 0.5;
 /// Solver settings.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WarpSettings {
-    /// Multigrid cycles per frame (see `solver/multigrid.rs`): a warm solve
-    /// runs this many cycles from the previous frame's warp, a cold one (from
-    /// the identity) solves each level from the coarsest up with one cycle
-    /// more than this. Each cycle brings the warp closer to the finest
-    /// level's fixed point, the converged warp; more cycles never move it
-    /// away from it.
+    /// The default solver ([`solver::Variant::Cascade`]): PBD iterations on
+    /// the finest level. A cold solve (from the identity) runs
+    /// `iterations · 2^l` on level `l` (at most 96, or `iterations` if
+    /// larger); a warm solve runs `iterations` on the levels down to 256²
+    /// only (the coarser ones hold little change of a warm-started warp).
+    /// With [`solver::Variant::Multigrid`]: cycles per frame (a cold solve
+    /// runs one more on every level from the coarsest up); each brings the
+    /// warp closer to the finest level's fixed point.
     pub iterations: u32,
     /// Fraction in [0, 1] by which each projected segment is rotated back
     /// towards its rest direction (times its rigidity).
@@ -93,7 +95,7 @@ pub struct WarpSettings {
 
 impl Default for WarpSettings {
     fn default() -> Self {
-        WarpSettings { iterations: 1, orientation: 0.05, smoothing: 0.1, warm_start: true, memory_limit: DEFAULT_MEMORY_LIMIT, sample_warped: false }
+        WarpSettings { iterations: 4, orientation: 0.05, smoothing: 0.1, warm_start: true, memory_limit: DEFAULT_MEMORY_LIMIT, sample_warped: false }
     }
 }
 
@@ -273,6 +275,15 @@ impl UvWarp {
         }
         self.solved = true;
         Ok(())
+    }
+
+    /// Chooses the solver of every tile (benchmarks and tests compare them);
+    /// the next solve starts from the identity.
+    #[doc(hidden)]
+    pub fn set_variant(&mut self, variant: solver::Variant) {
+        for tile in &mut self.tiles {
+            tile.solver.set_variant(variant);
+        }
     }
 
     /// Continues the last solve until it has converged: the converged warp

@@ -27,14 +27,14 @@
 //!    node to the bounding box of its 8 neighbours, written to a second buffer
 //!    (Jacobi, deterministic).
 //!
-//! The default solver runs full-approximation-scheme multigrid cycles over
-//! the levels (`multigrid.rs`), converging to the finest level's fixed
-//! point. The earlier cascade (kept as [`Variant::Cascade`] and
-//! [`Variant::Legacy`]) goes coarse to fine once; a level's change is
+//! The default solver ([`Variant::Cascade`]) goes coarse to fine once; a level's change is
 //! prolonged bilinearly to the next finer level (times that level's mask). Warm starts restrict the
 //! previous frame's fine warp to every level first. Fold-overs left on the
 //! finest level are repaired at the end (local relaxation, then a global
 //! scale towards the identity, which is always fold-free).
+//! [`Variant::Multigrid`] runs full-approximation-scheme multigrid cycles
+//! over the levels instead (`multigrid.rs`), converging to the finest
+//! level's fixed point; selectable, not yet the default (see [`Variant`]).
 
 //!
 //! Files: this one drives the hierarchy (levels, restriction, prolongation,
@@ -170,6 +170,9 @@ struct Steps {
     areas: bool,
     /// Chebyshev acceleration.
     chebyshev: bool,
+    /// The fold prevention settles cells at its limit (the multigrid's
+    /// iteration, see [`keep_areas`]) rather than only unfolding them.
+    settle: bool,
 }
 
 /// `n` iterations of a level: `one` runs one plain iteration (the fast or
@@ -183,7 +186,7 @@ fn drive(lv: &mut Level, n: usize, steps: Steps, mut one: impl FnMut(&mut Level)
         for _ in 0..n {
             one(lv);
             if steps.areas {
-                keep_areas(lv, AREA_PASSES);
+                keep_areas(lv, AREA_PASSES, steps.settle);
             }
         }
         return;
@@ -222,7 +225,7 @@ fn drive(lv: &mut Level, n: usize, steps: Steps, mut one: impl FnMut(&mut Level)
             ry.copy_from_slice(&lv.dy);
             extrapolate(o, &mut lv.dx, &qx);
             extrapolate(o, &mut lv.dy, &qy);
-            keep_areas(lv, AREA_PASSES);
+            keep_areas(lv, AREA_PASSES, steps.settle);
             if count_folds(&lv.dx, &lv.dy, lv.w, lv.h, 0.0) > 0 {
                 lv.dx.copy_from_slice(&rx);
                 lv.dy.copy_from_slice(&ry);
@@ -233,7 +236,7 @@ fn drive(lv: &mut Level, n: usize, steps: Steps, mut one: impl FnMut(&mut Level)
         }
         since += 1;
         if steps.areas {
-            keep_areas(lv, AREA_PASSES);
+            keep_areas(lv, AREA_PASSES, steps.settle);
         }
     }
 }
@@ -298,11 +301,15 @@ pub struct Solver {
 pub enum Variant {
     /// Full-approximation-scheme multigrid cycles ([`multigrid`]): converges
     /// to the finest level's fixed point. `iterations` = cycles per frame.
-    #[default]
+    /// Not the default yet (issue 28): a cycle removes only 15–40 % of the
+    /// error on rigid features, so one cycle a frame lags and alternates
+    /// from frame to frame, and the cycles a frame that converge cost 3–4 ×
+    /// the frame budget (docs/performance.md).
     Multigrid,
     /// The coarse-to-fine cascade of the first half of issue 28 (fold
     /// prevention in every iteration, Chebyshev acceleration of cold solves
-    /// on levels of 512² and larger; `iterations` per level).
+    /// on levels of 512² and larger; `iterations` per level): the product's.
+    #[default]
     Cascade,
     /// The cascade as it was before issue 28 (no fold prevention, no acceleration).
     Legacy,
@@ -449,7 +456,7 @@ impl Solver {
             // Old solver: neither. Warm solves: no acceleration (they start
             // next to their solution, and their frame time is the budget).
             // Levels below [`CHEBYSHEV_SIDE`]: no acceleration either.
-            let steps = Steps { areas: !legacy, chebyshev: !legacy && !warm && lv.w.min(lv.h) >= CHEBYSHEV_SIDE };
+            let steps = Steps { areas: !legacy, chebyshev: !legacy && !warm && lv.w.min(lv.h) >= CHEBYSHEV_SIDE, settle: false };
             if l == 0 {
                 if reference {
                     drive(lv, n, steps, |lv| iterate_reference(lv, Indexed(ids, &self.tri_chart), &self.go_tri, gd_tri, 1, s));
@@ -607,7 +614,7 @@ impl Solver {
         if n == 0 {
             return 0.0;
         }
-        let steps = Steps { areas: true, chebyshev: false };
+        let steps = Steps { areas: true, chebyshev: false, settle: true };
         drive(lv, n - 1, steps, |lv| iterate(lv, ByTriangle { ids, records: &records }, 1, s, avx2));
         let (bx, by) = (lv.dx.clone(), lv.dy.clone());
         drive(lv, 1, steps, |lv| iterate(lv, ByTriangle { ids, records: &records }, 1, s, avx2));
