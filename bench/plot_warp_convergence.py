@@ -2,10 +2,11 @@
 
 Reads bench/results/warp_convergence_curves.json (written by
 `cargo bench -p tegument-core --bench warp_convergence`: per grid and solver, the cold solves'
-iteration counts, wall times, rigid stretch errors and convergence errors against the solver's
-own converged warp) and draws docs/images/uv-warp-convergence.png: convergence error (left) and
-rigid stretch error (right) against wall time, log scales, one colour per grid, old dashed, new
-solid, the default 4 iterations marked.
+iteration counts, wall times, rigid stretch errors and convergence errors against the converged
+warp, the finest level's fixed point) and draws docs/images/uv-warp-convergence.png: convergence
+error (left) and rigid stretch error (right) against wall time, log scales, one colour per grid,
+old (the cascade: iterations per level) dashed, new (multigrid: cycles) solid, each solver's
+default count marked.
 
     .venv/bin/python bench/plot_warp_convergence.py [--results bench/results/warp_convergence_curves.json] [--out docs/images/uv-warp-convergence.png]
 """
@@ -22,7 +23,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-COLOURS = {1024: "tab:blue", 2048: "tab:orange", 4096: "tab:green"}
+COLOURS = {256: "tab:purple", 1024: "tab:blue", 2048: "tab:orange", 4096: "tab:green"}
 
 
 def main() -> None:
@@ -40,7 +41,7 @@ def main() -> None:
         left.plot(seconds, c["convergence_error"], style, marker="o", markersize=3, color=colour, label=label)
         right.plot(seconds, c["rigid_stretch"], style, marker="o", markersize=3, color=colour, label=label)
         right.axhline(c["converged_rigid_stretch"], color=colour, linestyle=style, linewidth=0.6, alpha=0.6)
-        at = c["iterations"].index(4)
+        at = c["iterations"].index(c.get("default", 4))
         for axis, values in ((left, c["convergence_error"]), (right, c["rigid_stretch"])):
             axis.plot([seconds[at]], [values[at]], marker="s", markersize=8, markerfacecolor="none", color=colour)
         for k, x, y in zip(c["iterations"], seconds, c["convergence_error"]):
@@ -48,13 +49,13 @@ def main() -> None:
                 left.annotate(str(k), (x, y), textcoords="offset points", xytext=(3, 3), fontsize=7, color=colour)
     left.set(xscale="log", yscale="log", xlabel="cold solve wall time (s, 2 threads, shared machine)",
              ylabel="convergence error  RMS|r_k − r_∞| / RMS|r_∞ − id|",
-             title="Convergence error (labels: iterations; square: default 4)")
+             title="Convergence error (labels: iterations or cycles; square: default)")
     right.set(xscale="log", xlabel="cold solve wall time (s)", ylabel="rigid stretch error (mean)",
-              title="Rigid stretch error; thin lines: each solver's converged warp")
+              title="Rigid stretch error; thin lines: the converged warp")
     for axis in (left, right):
         axis.grid(True, which="both", alpha=0.3)
     right.legend(fontsize=8)
-    fig.suptitle("UV warp, cold solves of the benchmark cylinder at its strongest bend: old solver (dashed) and new (solid)")
+    fig.suptitle("UV warp, cold solves of the benchmark cylinder at its strongest bend: cascade (dashed) and multigrid (solid)")
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=110)

@@ -6,7 +6,10 @@
 //!
 //! `cargo bench -p tegument-core --bench warp` (set `TEGUMENT_WARP_SIZES=1024,2048`
 //! to choose sizes, `TEGUMENT_WARP_THREADS=2` for the pool size,
-//! `TEGUMENT_WARP_FRAMES` for the number of warm frames, default 10).
+//! `TEGUMENT_WARP_FRAMES` for the number of warm frames, default 10;
+//! `TEGUMENT_WARP_VARIANT=multigrid` runs the multigrid solver (1 cycle a
+//! frame) instead of the default cascade, `TEGUMENT_WARP_ITERATIONS` another
+//! count than the variant's default).
 
 mod common;
 
@@ -50,9 +53,18 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// over the warm frames of the whole frame and of each stage.
 fn run_case(n: usize) -> Vec<(&'static str, f64)> {
     let (m, rig) = scene(n);
-    let settings = WarpSettings { iterations: 4, ..Default::default() };
+    // `TEGUMENT_WARP_VARIANT=multigrid`: the multigrid solver (1 cycle a
+    // frame by default) instead of the product's cascade, for comparisons
+    // in one build.
+    let multigrid = std::env::var("TEGUMENT_WARP_VARIANT").is_ok_and(|v| v == "multigrid");
+    // `TEGUMENT_WARP_ITERATIONS`: another count than the variant's default.
+    let count = std::env::var("TEGUMENT_WARP_ITERATIONS").ok().and_then(|v| v.parse().ok());
+    let settings = WarpSettings { iterations: count.unwrap_or(if multigrid { 1 } else { WarpSettings::default().iterations }), ..Default::default() };
     let t = Instant::now();
     let mut warp = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &rig, mask: None }], settings).expect("warp");
+    if multigrid {
+        warp.set_variant(tegument_core::warp::solver::Variant::Multigrid);
+    }
     let build = t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
     warp.solve(&pose(&m, 0)).expect("solve");

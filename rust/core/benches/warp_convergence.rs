@@ -1,36 +1,43 @@
-//! UV warp convergence (issue 28), the old solver against the new one in
-//! one run, on the benchmark cylinder of `benches/warp.rs` (256 × 128 quads,
-//! square scales over 25 % of the chart) at its strongest bend (curvature
-//! 0.5: the +X side squashed to half), default settings but for the
-//! iteration count:
+//! UV warp convergence (issue 28), the cascade solver of `main` before the
+//! multigrid ("old": `Variant::Cascade`, the product's default) against the
+//! multigrid solver ("new", selectable, 1 cycle a frame) in one run, on the benchmark cylinder of
+//! `benches/warp.rs` (256 × 128 quads, square scales over 25 % of the chart)
+//! at its strongest bend (curvature 0.5: the +X side squashed to half),
+//! default settings but for the iteration count (old: iterations per level;
+//! new: multigrid cycles):
 //!
 //! 1. warm frame times, old and new frames taken in turn (the machine is
 //!    shared: only a comparison in one run means anything), 1024² and 2048²;
-//! 2. cold solves (from the identity) by iteration count, each solver
-//!    against its own converged warp `x_∞` (the same solve continued on the
-//!    finest level until no node moves more than 1e-7 of the grid size in
-//!    an iteration, or a cap): time, rigid stretch error, fold-overs and the
-//!    convergence error RMS|r_k − r_∞| / RMS|r_∞ − identity| over the
-//!    redirection texture's texels inside the chart;
-//! 3. fold-overs of the new solver's cold solves at every iteration count
-//!    1..64 at 2048² and 4096², before the end-of-solve repair (which then
-//!    has nothing to do) and after;
+//! 2. cold solves (from the identity) by iteration count, both against the
+//!    same converged warp `x_∞`: the finest level's fixed point, reached by
+//!    multigrid cycles until a cycle moves no node by more than 1e-7 of the
+//!    grid size, then checked with the finest level's own iteration (the
+//!    largest change in the last of 200 plain iterations is recorded): time,
+//!    rigid stretch error, fold-overs and the convergence error
+//!    RMS|r_k − r_∞| / RMS|r_∞ − identity| over the redirection texture's
+//!    texels inside the chart;
+//! 3. fold-overs of the default solver's (the cascade's) cold solves at every iteration count
+//!    1..64 at 2048² and 4096², on this cylinder and on the tests' squares
+//!    scene, before the end-of-solve repair (which then has nothing to do)
+//!    and after;
 //! 4. bakes that differ only in iteration count: frames 0..10 of the warm
-//!    benchmark at 4, 8 and 16 iterations against 64, the largest
-//!    convergence-style difference per frame (issue 28 asks at most 5 %).
+//!    benchmark (frame 0 cold) at 1, 2, 4 and 8 cycles against 64, the
+//!    largest convergence-style difference per frame (issue 28 asks at most
+//!    5 %), new solver.
 //!
 //! Rows go to `bench/results/warp_convergence.json`, the curves to
 //! `bench/results/warp_convergence_curves.json` (drawn by
 //! `bench/plot_warp_convergence.py`). Environment: `TEGUMENT_WARP_THREADS`
 //! (2), `TEGUMENT_WARP_FRAME_SIZES` (1024,2048), `TEGUMENT_WARP_CONV_SIZES`
-//! (1024,2048), `TEGUMENT_WARP_FOLD_SIZES` (2048,4096), `TEGUMENT_WARP_FOLD_MAX`
-//! (64), `TEGUMENT_WARP_BAKE_SIZES` (1024), `TEGUMENT_WARP_CONVERGE_CAP` (finest iterations for `x_∞`, 1500).
+//! (256,1024,2048), `TEGUMENT_WARP_FOLD_SIZES` (2048,4096), `TEGUMENT_WARP_FOLD_MAX`
+//! (64), `TEGUMENT_WARP_BAKE_SIZES` (256,1024), `TEGUMENT_WARP_CONVERGE_CAP` (most cycles for `x_∞`, 400).
 
 mod common;
 
 use std::time::Instant;
 
-use tegument_core::warp::fixtures::{bend, scales_map, uv_cylinder, UvPolyMesh};
+use tegument_core::warp::fixtures::{bend, rectangles, scales_map, uv_cylinder, UvPolyMesh};
+use tegument_core::warp::solver::Variant;
 use tegument_core::warp::{TileMaps, UvWarp, WarpSettings};
 
 const ITERATIONS: [usize; 12] = [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64];
@@ -52,20 +59,38 @@ fn pose(m: &UvPolyMesh, frame: usize) -> Vec<glam::Vec3> {
     bend(&m.positions, 2, 0, 0.0, 0.0, 0.5 * (0.6 + 0.04 * frame as f32))
 }
 
-fn warp(m: &UvPolyMesh, n: usize, legacy: bool, warm: bool) -> UvWarp {
+/// The old solver's default iteration count (per level, the product's
+/// default); the new one's cycles a frame.
+const OLD_DEFAULT: u32 = 4;
+const NEW_DEFAULT: u32 = 1;
+
+fn warp(m: &UvPolyMesh, n: usize, old: bool, warm: bool) -> UvWarp {
     let rig = scales_map(n, n, 24);
-    let settings = WarpSettings { warm_start: warm, ..Default::default() };
+    let iterations = if old { OLD_DEFAULT } else { NEW_DEFAULT };
+    let settings = WarpSettings { warm_start: warm, iterations, ..Default::default() };
     let mut w = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &rig, mask: None }], settings).expect("warp");
-    w.tiles[0].solver.legacy = legacy;
+    w.set_variant(if old { Variant::Cascade } else { Variant::Multigrid });
     w
 }
 
-fn name(legacy: bool) -> &'static str {
-    if legacy {
+fn name(old: bool) -> &'static str {
+    if old {
         "old"
     } else {
         "new"
     }
+}
+
+/// `x_∞` of the strongest bend at grid `n`: the multigrid solve continued
+/// until converged (module documentation), its redirection, rigid stretch,
+/// and what the convergence reached.
+fn converged(m: &UvPolyMesh, n: usize, pose: &[glam::Vec3], cap: usize) -> (Vec<f32>, f64, tegument_core::warp::Convergence, f64) {
+    let mut w = warp(m, n, false, false);
+    let t = Instant::now();
+    w.solve(pose).expect("solve");
+    let c = w.converge(pose, 1e-7 * n as f32, cap, 200).expect("converge");
+    let q = &w.metrics(pose).expect("metrics")[0];
+    (w.tiles[0].redirection.clone(), q.stretch_warped.mean, c, t.elapsed().as_secs_f64())
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -93,7 +118,7 @@ fn json_list(v: &[f64]) -> String {
 
 fn main() {
     let threads = env_num("TEGUMENT_WARP_THREADS", 2);
-    let cap = env_num("TEGUMENT_WARP_CONVERGE_CAP", 1500);
+    let cap = env_num("TEGUMENT_WARP_CONVERGE_CAP", 400);
     let mut report = common::Report::new("warp_convergence");
     let mut curves: Vec<String> = Vec::new();
     let m = mesh();
@@ -121,17 +146,22 @@ fn main() {
             for (k, w) in warps.iter().enumerate() {
                 let q = &w.metrics(&strongest).expect("metrics")[0];
                 let legacy = k == 0;
+                let count = w.settings.iterations;
                 let target = if n == 1024 { "target <= 40 ms" } else { "target <= 160 ms" };
                 report.add(&case, &format!("frame (warm), {} solver", name(legacy)), median(times[k].clone()), "ms", threads, &format!("{target}; median of 10, frames of both solvers in turn"));
-                report.add(&case, &format!("first frame (cold, 4 iterations), {} solver", name(legacy)), first[k], "ms", threads, "");
+                report.add(&case, &format!("first frame (cold, {count} iterations), {} solver", name(legacy)), first[k], "ms", threads, "");
                 report.add(&case, &format!("rigid stretch after 10 warm frames, {} solver", name(legacy)), q.stretch_warped.mean, "", threads, &format!("folds {}", q.foldovers));
             }
         }
-        // 2. Cold solves by iteration count against each solver's own x_∞.
-        for n in env_list("TEGUMENT_WARP_CONV_SIZES", "1024,2048") {
+        // 2. Cold solves by iteration count against the finest level's fixed point.
+        for n in env_list("TEGUMENT_WARP_CONV_SIZES", "256,1024,2048") {
             let case = format!("{n}x{n} cylinder, cold, strongest bend");
-            for legacy in [true, false] {
-                let mut w = warp(&m, n, legacy, false);
+            let (inf, conv, reached, secs) = converged(&m, n, &strongest, cap);
+            eprintln!("  {n}² x_∞: {} cycles ({secs:.0} s), last cycle's change {:.2e}, plain iteration's {:.2e} texel, rigid stretch {conv:.4}", reached.cycles, reached.cycle_change, reached.iteration_change);
+            report.add(&case, "rigid stretch, converged", conv, "", threads, &format!("x_inf: {} multigrid cycles, last cycle moved {:.1e} texel, the 200th plain finest iteration {:.1e} (tolerance {:.1e})", reached.cycles, reached.cycle_change, reached.iteration_change, 1e-7 * n as f64));
+            for old in [true, false] {
+                let mut w = warp(&m, n, old, false);
+                let default = w.settings.iterations as usize;
                 let valid = w.tiles[0].validity().to_vec();
                 let mut runs = Vec::new();
                 for &k in &ITERATIONS {
@@ -141,61 +171,66 @@ fn main() {
                     let ms = t.elapsed().as_secs_f64() * 1e3;
                     let q = &w.metrics(&strongest).expect("metrics")[0];
                     let (passes, scale) = w.tiles[0].solver.last_repair;
-                    eprintln!("  {n}² {} k={k}: {ms:.0} ms, rigid stretch {:.4}, folds {} (repair {passes} passes, scale {scale})", name(legacy), q.stretch_warped.mean, q.foldovers);
-                    runs.push((k, ms, q.stretch_warped.mean, passes > 0 || scale < 1.0, w.tiles[0].redirection.clone()));
+                    let e = convergence_error(&w.tiles[0].redirection, &inf, &valid, n);
+                    eprintln!("  {n}² {} k={k}: {ms:.0} ms, rigid stretch {:.4}, convergence error {e:.3}, folds {} (repair {passes} passes, scale {scale})", name(old), q.stretch_warped.mean, q.foldovers);
+                    runs.push((k, ms, q.stretch_warped.mean, passes > 0 || scale < 1.0, e));
                 }
-                // x_∞: the 64-iteration solve continued on the finest level.
-                w.settings.iterations = 64;
-                w.solve(&strongest).expect("solve");
-                let t = Instant::now();
-                let (done, change) = w.converge(&strongest, 1e-7 * n as f32, cap).expect("converge");
-                let q = &w.metrics(&strongest).expect("metrics")[0];
-                let conv = q.stretch_warped.mean;
-                eprintln!("  {n}² {} x_∞: {done} more iterations ({:.0} s), last change {change:.2e} texel, rigid stretch {conv:.4}", name(legacy), t.elapsed().as_secs_f64());
-                let inf = w.tiles[0].redirection.clone();
-                let errors: Vec<f64> = runs.iter().map(|r| convergence_error(&r.4, &inf, &valid, n)).collect();
-                let who = name(legacy);
-                report.add(&case, &format!("rigid stretch, converged, {who} solver"), conv, "", threads, &format!("x_inf: +{done} finest iterations, last change {change:.1e} texel (tolerance {:.1e})", 1e-7 * n as f64));
-                for (r, e) in runs.iter().zip(&errors) {
-                    if [1, 4, 8, 16, 64].contains(&r.0) {
-                        report.add(&case, &format!("{} iterations, {who} solver: rigid stretch", r.0), r.2, "", threads, &format!("{:.0} ms; convergence error {e:.3}; {:+.1} % of converged; repair needed: {}", r.1, 100.0 * (r.2 / conv - 1.0), r.3));
+                let who = name(old);
+                for r in &runs {
+                    if [1, 2, 4, 8, 16, 64].contains(&r.0) {
+                        let tag = if r.0 == default { " (default)" } else { "" };
+                        report.add(&case, &format!("{} iterations{tag}, {who} solver: rigid stretch", r.0), r.2, "", threads, &format!("{:.0} ms; convergence error {:.3}; {:+.1} % of converged; repair needed: {}", r.1, r.4, 100.0 * (r.2 / conv - 1.0), r.3));
                     }
                 }
                 curves.push(format!(
-                    "  {{\"grid\": {n}, \"solver\": \"{who}\", \"iterations\": {}, \"ms\": {}, \"rigid_stretch\": {}, \"convergence_error\": {}, \"repaired\": {}, \"converged_rigid_stretch\": {conv}, \"converge_iterations\": {done}, \"converge_last_change\": {change}}}",
+                    "  {{\"grid\": {n}, \"solver\": \"{who}\", \"default\": {default}, \"iterations\": {}, \"ms\": {}, \"rigid_stretch\": {}, \"convergence_error\": {}, \"repaired\": {}, \"converged_rigid_stretch\": {conv}, \"converge_cycles\": {}, \"converge_last_change\": {}}}",
                     json_list(&runs.iter().map(|r| r.0 as f64).collect::<Vec<_>>()),
                     json_list(&runs.iter().map(|r| r.1).collect::<Vec<_>>()),
                     json_list(&runs.iter().map(|r| r.2).collect::<Vec<_>>()),
-                    json_list(&errors),
+                    json_list(&runs.iter().map(|r| r.4).collect::<Vec<_>>()),
                     json_list(&runs.iter().map(|r| r.3 as u8 as f64).collect::<Vec<_>>()),
+                    reached.cycles,
+                    reached.iteration_change,
                 ));
             }
         }
-        // 3. Fold-overs of the new solver's cold solves, every count 1..=64.
+        // 3. Fold-overs of the default solver's cold solves, every count 1..=64,
+        //    on the benchmark cylinder and on the tests' squares scene
+        //    (`warp::tests::squares_cylinder`: 64 × 32 quads, two rigid squares
+        //    on the squashed and the stretched side, full bend).
         let max = env_num("TEGUMENT_WARP_FOLD_MAX", 64);
+        let squares = uv_cylinder(64, 32, 1.0, std::f32::consts::TAU, 0.1);
+        let squares_bent = bend(&squares.positions, 2, 0, 0.0, 0.0, 0.5);
         for n in env_list("TEGUMENT_WARP_FOLD_SIZES", "2048,4096") {
-            let case = format!("{n}x{n} cylinder, cold, strongest bend");
-            let mut w = warp(&m, n, false, false);
-            let (mut raw, mut after, mut worst) = (0usize, 0usize, 0.0f64);
-            let t = Instant::now();
-            for k in 1..=max {
-                w.settings.iterations = k as u32;
-                w.solve(&strongest).expect("solve");
-                let q = &w.metrics(&strongest).expect("metrics")[0];
-                let (passes, scale) = w.tiles[0].solver.last_repair;
-                raw += (passes > 0 || scale < 1.0) as usize;
-                after += q.foldovers;
-                worst = worst.max(q.stretch_warped.mean);
-                eprintln!("  {n}² new k={k}: rigid stretch {:.4}, folds {}, repair ({passes}, {scale})", q.stretch_warped.mean, q.foldovers);
+            let s = 0.06;
+            let squares_rig = rectangles(n, n, &[(0.7 - s, 0.5 - s, 0.7 + s, 0.5 + s), (0.3 - s, 0.5 - s, 0.3 + s, 0.5 + s)]);
+            let scenes: [(&str, &UvPolyMesh, &[glam::Vec3], Vec<f32>); 2] = [("cylinder", &m, &strongest, scales_map(n, n, 24)), ("squares", &squares, &squares_bent, squares_rig)];
+            for (scene, mesh, def, rig) in scenes {
+                let case = format!("{n}x{n} {scene}, cold, strongest bend");
+                let settings = WarpSettings { warm_start: false, ..Default::default() };
+                let mut w = UvWarp::new(mesh.input(), &mesh.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &rig, mask: None }], settings).expect("warp");
+                let (mut raw, mut after, mut worst) = (0usize, 0usize, 0.0f64);
+                let t = Instant::now();
+                for k in 1..=max {
+                    w.settings.iterations = k as u32;
+                    w.solve(def).expect("solve");
+                    let q = &w.metrics(def).expect("metrics")[0];
+                    let (passes, scale) = w.tiles[0].solver.last_repair;
+                    raw += (passes > 0 || scale < 1.0) as usize;
+                    after += q.foldovers;
+                    worst = worst.max(q.stretch_warped.mean);
+                    eprintln!("  {n}² {scene} default k={k}: rigid stretch {:.4}, folds {}, repair ({passes}, {scale}), {:.0} s so far", q.stretch_warped.mean, q.foldovers, t.elapsed().as_secs_f64());
+                }
+                let note = format!("iteration counts 1..{max}, default solver (cascade); {:.0} s", t.elapsed().as_secs_f64());
+                report.add(&case, "cold solves that needed the fold repair", raw as f64, "", threads, &note);
+                report.add(&case, "fold-overs, summed over the cold solves", after as f64, "", threads, &note);
+                report.add(&case, "worst rigid stretch over the cold solves", worst, "", threads, &note);
             }
-            let note = format!("iteration counts 1..{max}, new solver; {:.0} s", t.elapsed().as_secs_f64());
-            report.add(&case, "cold solves that needed the fold repair", raw as f64, "", threads, &note);
-            report.add(&case, "fold-overs, summed over the cold solves", after as f64, "", threads, &note);
-            report.add(&case, "worst rigid stretch over the cold solves", worst, "", threads, &note);
         }
         // 4. Bakes that differ only in iteration count (issue 28: at most 5 %
-        //    apart beyond the default): frames 0..=10, warm, against 64 iterations.
-        for n in env_list("TEGUMENT_WARP_BAKE_SIZES", "1024") {
+        //    apart beyond the default): frames 0..=10 (0 cold, the others
+        //    warm), against 64 cycles, new solver.
+        for n in env_list("TEGUMENT_WARP_BAKE_SIZES", "256,1024") {
             let case = format!("{n}x{n} cylinder, bake of frames 0-10 (warm)");
             let bake = |k: usize| {
                 let mut w = warp(&m, n, false, true);
@@ -212,10 +247,11 @@ fn main() {
                 (frames, w.tiles[0].validity().to_vec(), ms, q.stretch_warped.mean, q.foldovers)
             };
             let (reference, valid, ms64, stretch64, folds64) = bake(64);
-            for k in [4usize, 8, 16] {
+            let default = NEW_DEFAULT as usize;
+            for k in [default, 2 * default, 4 * default, 8 * default] {
                 let (frames, _, ms, stretch, folds) = bake(k);
                 let d: Vec<f64> = frames.iter().zip(&reference).map(|(a, b)| convergence_error(a, b, &valid, n)).collect();
-                eprintln!("  {n}² bake {k} vs 64 iterations, per frame: {d:.3?}");
+                eprintln!("  {n}² bake {k} vs 64 cycles, per frame: {d:.3?}");
                 let (first, last) = (d[0], d[d.len() - 1]);
                 let worst = d.iter().cloned().fold(0.0, f64::max);
                 report.add(&case, &format!("{k} iterations against 64: largest difference per frame"), worst, "", threads, &format!("target <= 0.05; frame 0 (cold) {first:.3}, frame 10 {last:.3}; {ms:.0} ms per frame; last frame rigid stretch {stretch:.4}, folds {folds}"));

@@ -51,8 +51,9 @@ pub use solver::Solver;
 pub use tiles::{udim_offset, UvMesh};
 
 /// Bytes per texel of a tile's state, all levels and buffers counted
-/// (finest level ≈ 32 B, coarser levels ≈ 50 B × 1/3, construction temporaries).
-pub const BYTES_PER_TEXEL: u64 = 56;
+/// (finest level ≈ 40 B with the multigrid's saved iterate, coarser levels
+/// ≈ 66 B × 1/3 with its forcing, construction temporaries).
+pub const BYTES_PER_TEXEL: u64 = 70;
 /// Default memory limit: enough for 4096² tiles, not for 16384².
 pub const DEFAULT_MEMORY_LIMIT: u64 = 3 << 30;
 
@@ -65,10 +66,14 @@ pub(crate) const RELAXATION: f32 = 0.5;
 /// Solver settings.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WarpSettings {
-    /// PBD iterations on the finest level. A cold solve (from the identity)
-    /// runs `iterations · 2^l` on level `l` (at most 96, or `iterations` if
+    /// The default solver ([`solver::Variant::Cascade`]): PBD iterations on
+    /// the finest level. A cold solve (from the identity) runs
+    /// `iterations · 2^l` on level `l` (at most 96, or `iterations` if
     /// larger); a warm solve runs `iterations` on the levels down to 256²
     /// only (the coarser ones hold little change of a warm-started warp).
+    /// With [`solver::Variant::Multigrid`]: cycles per frame (a cold solve
+    /// runs one more on every level from the coarsest up); each brings the
+    /// warp closer to the finest level's fixed point.
     pub iterations: u32,
     /// Fraction in [0, 1] by which each projected segment is rotated back
     /// towards its rest direction (times its rigidity).
@@ -174,6 +179,18 @@ impl TileWarp {
     }
 }
 
+/// What [`UvWarp::converge`] reached (the largest over the tiles).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Convergence {
+    /// Multigrid cycles run.
+    pub cycles: usize,
+    /// The largest change of a node (texels) in the last cycle.
+    pub cycle_change: f32,
+    /// The largest change of a node (texels) in the last of the finest
+    /// level's plain iterations that followed.
+    pub iteration_change: f32,
+}
+
 /// A UV warp of one mesh: one grid per UDIM tile its UVs touch.
 #[derive(Debug, Clone)]
 pub struct UvWarp {
@@ -260,35 +277,54 @@ impl UvWarp {
         Ok(())
     }
 
-    /// Continues the last solve on the finest level, `iterations` at a time,
-    /// until no node moves more than `tolerance` texels in one iteration or
-    /// `max_iterations` have run, then repairs folds and inverts: the
-    /// converged warp `x_∞` the convergence error is measured against.
-    /// Returns the iterations run and the largest change of a node in the
-    /// last of them. For benchmarks and tests.
+    /// Chooses the solver of every tile (benchmarks and tests compare them);
+    /// the next solve starts from the identity.
     #[doc(hidden)]
-    pub fn converge(&mut self, deformed: &[Vec3], tolerance: f32, max_iterations: usize) -> Result<(usize, f32)> {
-        self.mesh.check_positions("deformed positions", deformed)?;
-        let (mut run, mut last) = (0, 0.0f32);
+    pub fn set_variant(&mut self, variant: solver::Variant) {
         for tile in &mut self.tiles {
-            let gd = tile.layout.triangle_metrics(&self.mesh, deformed);
-            let (mut done, mut change) = (0, 0.0f32);
-            while done < max_iterations {
-                let step = 16.min(max_iterations - done);
-                change = tile.solver.iterate_finest(&tile.layout.ids, &gd, step, &self.settings);
-                done += step;
-                if change < tolerance {
-                    break;
-                }
+            tile.solver.set_variant(variant);
+        }
+    }
+
+    /// Continues the last solve until it has converged: the converged warp
+    /// `x_∞` convergence errors are measured against (issue 28: positions
+    /// change by less than `tolerance` texels in an iteration). Runs
+    /// multigrid cycles (at most `max_cycles`) until a cycle moves no node by
+    /// more than `tolerance`, then checks the finest level's own iteration:
+    /// `check` plain iterations, of which the last must move no node by more
+    /// than `tolerance` either (a fixed point of the cycles that the finest
+    /// level would leave is not `x_∞`). Repairs folds (none expected) and
+    /// inverts. Needs the [`solver::Variant::Multigrid`] solver. For
+    /// benchmarks and tests.
+    #[doc(hidden)]
+    pub fn converge(&mut self, deformed: &[Vec3], tolerance: f32, max_cycles: usize, check: usize) -> Result<Convergence> {
+        self.mesh.check_positions("deformed positions", deformed)?;
+        let mut out = Convergence::default();
+        let settings = WarpSettings { iterations: 1, ..self.settings.clone() };
+        for tile in &mut self.tiles {
+            if tile.solver.variant() != solver::Variant::Multigrid {
+                return Err(Error::invalid("converge needs the multigrid solver"));
             }
+            let gd = tile.layout.triangle_metrics(&self.mesh, deformed);
+            let ids = &tile.layout.ids;
+            let (mut cycles, mut change) = (0, f32::INFINITY);
+            while cycles < max_cycles && change >= tolerance {
+                let (bx, by) = (tile.solver.levels[0].dx.clone(), tile.solver.levels[0].dy.clone());
+                tile.solver.solve(ids, &gd, true, &settings);
+                let lv = &tile.solver.levels[0];
+                change = lv.dx.iter().zip(&bx).chain(lv.dy.iter().zip(&by)).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+                cycles += 1;
+            }
+            let plain = tile.solver.iterate_finest_plain(ids, &gd, check, &settings);
+            out.cycles = out.cycles.max(cycles);
+            out.cycle_change = out.cycle_change.max(change);
+            out.iteration_change = out.iteration_change.max(plain);
             tile.solver.repair();
             let (w, h) = (self.width, self.height);
             let lv = &tile.solver.levels[0];
             invert::invert(&lv.dx, &lv.dy, w, h, udim_offset(tile.layout.udim), &mut tile.redirection);
-            run = run.max(done);
-            last = last.max(change);
         }
-        Ok((run, last))
+        Ok(out)
     }
 
     /// Forgets the previous frame: the next solve starts from the identity.

@@ -281,7 +281,7 @@ fn exr_round_trip_keeps_values_rows_and_metadata() {
         assert_eq!(data[3 * i + 1], t.redirection[2 * i + 1]);
         assert_eq!(data[3 * i + 2], t.layout.covered[i] as f32);
     }
-    assert!(meta.contains(&("iterations".to_string(), "8".to_string())), "{meta:?}");
+    assert!(meta.contains(&("iterations".to_string(), warp.settings.iterations.to_string())), "{meta:?}");
     assert!(meta.iter().any(|(k, _)| k == "smoothing"));
     // No temporary file left behind; NaN refused without touching the old file.
     assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
@@ -600,12 +600,12 @@ fn fast_kernels_match_the_reference_kernels() {
 /// The benchmark's scene (`benches/warp.rs`): 256 × 128 quads, square scales
 /// over 25 % of the chart, at its strongest bend (the +X side squashed to
 /// half), default settings solved from the identity.
-fn benchmark_cylinder(n: usize, legacy: bool) -> (Vec<Vec3>, UvWarp) {
+fn benchmark_cylinder(n: usize, variant: solver::Variant) -> (Vec<Vec3>, UvWarp) {
     let m = super::fixtures::uv_cylinder(256, 128, 1.0, std::f32::consts::TAU, 0.05);
     let rig = super::fixtures::scales_map(n, n, 24);
     let settings = WarpSettings { warm_start: false, ..Default::default() };
     let mut warp = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &rig, mask: None }], settings).unwrap();
-    warp.tiles[0].solver.legacy = legacy;
+    warp.tiles[0].solver.set_variant(variant);
     (bend(&m.positions, 2, 0, 0.0, 0.0, 0.5), warp)
 }
 
@@ -649,10 +649,13 @@ fn cold_fold_failures(def: &[Vec3], warp: &mut UvWarp, counts: impl IntoIterator
 /// benchmark's scene, recorded by `make bench`).
 #[test]
 fn cold_solves_never_fold() {
-    let (def, mut warp) = benchmark_cylinder(1024, false);
+    let (def, mut warp) = benchmark_cylinder(1024, solver::Variant::Cascade);
     let mut failures = cold_fold_failures(&def, &mut warp, 1..=64);
-    let (def, mut warp) = benchmark_cylinder(2048, false);
+    let (def, mut warp) = benchmark_cylinder(2048, solver::Variant::Cascade);
     failures.extend(cold_fold_failures(&def, &mut warp, [4, 8, 32]));
+    // The multigrid (selectable, not the default): a few cycle counts.
+    let (def, mut warp) = benchmark_cylinder(1024, solver::Variant::Multigrid);
+    failures.extend(cold_fold_failures(&def, &mut warp, [1, 2, 4, 8]));
     let (def, mut warp) = squares_cylinder(2048);
     failures.extend(cold_fold_failures(&def, &mut warp, [4, 8, 13, 32]));
     // Four area passes per iteration left a folded cell here (and at 2048²
@@ -662,7 +665,7 @@ fn cold_solves_never_fold() {
     assert!(failures.is_empty(), "{failures:#?}");
     // The old solver at 32 iterations: its iterations fold and the repair
     // shrinks the whole warp (the fixture does exercise the folds).
-    let (def, mut old) = benchmark_cylinder(1024, true);
+    let (def, mut old) = benchmark_cylinder(1024, solver::Variant::Legacy);
     old.settings.iterations = 32;
     old.solve(&def).unwrap();
     let met = &old.metrics(&def).unwrap()[0];
@@ -674,7 +677,7 @@ fn cold_solves_never_fold() {
 fn cold_solves_never_fold_full_sweep() {
     let mut failures = Vec::new();
     for n in [2048, 4096] {
-        let (def, mut warp) = benchmark_cylinder(n, false);
+        let (def, mut warp) = benchmark_cylinder(n, solver::Variant::Cascade);
         failures.extend(cold_fold_failures(&def, &mut warp, 1..=64));
         let (def, mut warp) = squares_cylinder(n);
         failures.extend(cold_fold_failures(&def, &mut warp, 1..=64));
@@ -682,25 +685,79 @@ fn cold_solves_never_fold_full_sweep() {
     assert!(failures.is_empty(), "{failures:#?}");
 }
 
-/// At default settings (4 iterations, the node's default 1024² grid) a cold
-/// solve's rigid stretch error is within 10 % of the converged warp's (the
-/// same solve continued on the finest level for 500 more iterations; the
-/// `warp_convergence` benchmark continues further).
+/// The converged warp `x_∞` of a solve: continued until a multigrid cycle
+/// moves no node by more than 1e-7 of the grid size, and checked with the
+/// finest level's own iteration. Returns what it reached.
+fn converge_fully(warp: &mut UvWarp, def: &[Vec3]) -> Convergence {
+    let n = warp.width;
+    warp.set_variant(solver::Variant::Multigrid);
+    warp.settings.iterations = 1;
+    warp.solve(def).unwrap();
+    warp.converge(def, 1e-7 * n as f32, 600, 50).unwrap()
+}
+
+/// At default settings (the cascade, 4 iterations) a cold solve's rigid
+/// stretch error is within 10 % of the converged warp's `x_∞` (the finest
+/// level's fixed point, reached with the multigrid) at the node's default
+/// 1024²; the multigrid's single cycle is, at 256² and 1024². The cascade
+/// at 256² is not (+73 %: below 512² it is not accelerated), and at 2048²
+/// neither (+17 %, the `warp_convergence` benchmark).
 #[test]
 fn cold_default_solve_is_within_ten_percent_of_converged() {
-    let n = 1024;
-    let (def, mut warp) = benchmark_cylinder(n, false);
-    assert_eq!(warp.settings.iterations, WarpSettings::default().iterations);
-    warp.solve(&def).unwrap();
-    let cold = warp.metrics(&def).unwrap()[0].stretch_warped.mean;
-    warp.settings.iterations = 64;
-    warp.solve(&def).unwrap();
-    warp.converge(&def, 1e-7 * n as f32, 500).unwrap();
-    let met = &warp.metrics(&def).unwrap()[0];
-    let converged = met.stretch_warped.mean;
-    eprintln!("rigid stretch: cold default {cold:.4}, converged {converged:.4} (identity {:.4})", met.stretch_identity.mean);
-    assert_eq!(met.foldovers, 0, "{met:?}");
-    assert!((cold / converged - 1.0).abs() <= 0.10, "cold {cold:.4} against converged {converged:.4}");
+    for n in [256, 1024] {
+        let (def, mut warp) = benchmark_cylinder(n, solver::Variant::Cascade);
+        assert_eq!(warp.settings.iterations, WarpSettings::default().iterations);
+        warp.solve(&def).unwrap();
+        let cascade = warp.metrics(&def).unwrap()[0].stretch_warped.mean;
+        warp.set_variant(solver::Variant::Multigrid);
+        warp.settings.iterations = 1;
+        warp.solve(&def).unwrap();
+        let cycle = warp.metrics(&def).unwrap()[0].stretch_warped.mean;
+        let reached = converge_fully(&mut warp, &def);
+        let met = &warp.metrics(&def).unwrap()[0];
+        let converged = met.stretch_warped.mean;
+        eprintln!("{n}²: rigid stretch cold, cascade default {cascade:.4}, multigrid 1 cycle {cycle:.4}, converged {converged:.4} (identity {:.4}); {reached:?}", met.stretch_identity.mean);
+        // The issue's tolerance is 1e-7 of the grid size per iteration; at
+        // this bend a few hundred skin cells sit at the fold-prevention
+        // limit and keep nodes moving by 2–4e-4 texel a cycle at 256² (the
+        // rigid stretch no longer changes in its fourth digit), so x_inf is
+        // known to 1e-3 texel there (docs/performance.md).
+        assert!(reached.cycle_change < 1e-3, "{n}²: x_inf not reached: {reached:?}");
+        assert_eq!(met.foldovers, 0, "{met:?}");
+        assert!((cycle / converged - 1.0).abs() <= 0.10, "{n}²: multigrid {cycle:.4} against converged {converged:.4}");
+        if n == 1024 {
+            assert!((cascade / converged - 1.0).abs() <= 0.10, "{n}²: cascade {cascade:.4} against converged {converged:.4}");
+        }
+    }
+}
+
+/// More multigrid cycles converge to the finest level's own fixed point:
+/// the warp after each further cycle is closer to `x_∞` than the one
+/// before (the cascade's cold solves ended 1.2 × the warp's size away from
+/// it at 1024², and more iterations did not bring them closer), and `x_∞`
+/// is a fixed point of the finest level's iteration (its plain iterations
+/// barely move it). Mild bend, where no cell sits at the fold-prevention
+/// limit (see docs/performance.md for the strongest one).
+#[test]
+fn more_cycles_converge_to_the_finest_fixed_point() {
+    let n = 256;
+    let (_, mut warp) = benchmark_cylinder(n, solver::Variant::Multigrid);
+    let m = super::fixtures::uv_cylinder(256, 128, 1.0, std::f32::consts::TAU, 0.05);
+    let def = bend(&m.positions, 2, 0, 0.0, 0.0, 0.3);
+    let valid = warp.tiles[0].validity().to_vec();
+    let mut solves = Vec::new();
+    for k in [1, 2, 4, 8, 16] {
+        warp.settings.iterations = k;
+        warp.solve(&def).unwrap();
+        solves.push(warp.tiles[0].redirection.clone());
+    }
+    let reached = converge_fully(&mut warp, &def);
+    assert!(reached.cycle_change < 1e-7 * n as f32 && reached.iteration_change < 1e-7 * n as f32, "{reached:?}");
+    let inf = warp.tiles[0].redirection.clone();
+    let errors: Vec<f64> = solves.iter().map(|r| redirection_difference(r, &inf, &valid, n)).collect();
+    eprintln!("convergence error at 1, 2, 4, 8, 16 cycles: {errors:.4?}; {reached:?}");
+    assert!(errors.windows(2).all(|e| e[1] < e[0]), "{errors:?}");
+    assert!(errors[4] < 0.25 * errors[0], "{errors:?}");
 }
 
 /// RMS|a − b| ÷ RMS|b − identity| over the texels inside the chart: the
@@ -717,17 +774,63 @@ fn redirection_difference(a: &[f32], b: &[f32], valid: &[u8], n: usize) -> f64 {
     (num / den.max(1e-300)).sqrt()
 }
 
-/// Issue 28: bakes that differ only in an iteration count at or beyond the
-/// default differ by at most 5 % (convergence error of the shorter bake's
-/// frames against the longer one's). The benchmark cylinder's warm bake,
-/// frames 0..=10 of `benches/warp.rs`, at 256² (the same gaps show at 1024²,
-/// see docs/performance.md).
+/// Issue 28, the multigrid (selectable, not the default): bakes that differ
+/// only in the cycle count differ by at most 5 % (convergence error of each
+/// frame against the same bake at 64 cycles a frame): the benchmark
+/// cylinder's moving bend, frames 0..=10 of `benches/warp.rs`, at 256².
 ///
-/// Not met yet: 4 against 64 iterations differ by 0.26–0.31 per frame at 256²
-/// (0.10–0.23 at 1024²), 16 against 64 by 0.09–0.18. Warm solves run
-/// `iterations` on the levels down to 256² only and lag behind the motion,
-/// and continued iterations keep moving the scales along a slow mode the
-/// cascade without a coarse-grid correction does not settle.
+/// Holds for warm bakes at 4 cycles a frame or more from frame 2 on. **Not
+/// for 1 (or 2) cycles a frame, nor for any bake's first, cold
+/// frame:** a cycle removes only 15–25 % of the distance to the converged
+/// warp on this scene, so warm frames of a moving bend fall behind (about
+/// 0.10 at 1 cycle), and the frame time allows one cycle at 1024²; a cold
+/// frame stops where its cycles left it. Settling cold solves to a
+/// tolerance fixed the first frame here but not on Spot (docs/performance.md).
+/// The last assertion pins one cycle a frame where it was measured.
+#[test]
+fn multigrid_bakes_that_differ_in_the_count_agree_where_measured() {
+    let n = 256;
+    let m = super::fixtures::uv_cylinder(256, 128, 1.0, std::f32::consts::TAU, 0.05);
+    let rig = super::fixtures::scales_map(n, n, 24);
+    let pose = |f: usize| bend(&m.positions, 2, 0, 0.0, 0.0, 0.5 * (0.6 + 0.04 * f as f32));
+    let bake = |k: u32, warm_start: bool, frames: &[usize]| {
+        let settings = WarpSettings { iterations: k, warm_start, ..Default::default() };
+        let mut warp = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &rig, mask: None }], settings).unwrap();
+        warp.set_variant(solver::Variant::Multigrid);
+        let out: Vec<Vec<f32>> = frames
+            .iter()
+            .map(|&f| {
+                warp.solve(&pose(f)).unwrap();
+                assert_eq!(warp.metrics(&pose(f)).unwrap()[0].foldovers, 0, "{k} cycles, frame {f}");
+                warp.tiles[0].redirection.clone()
+            })
+            .collect();
+        (out, warp.tiles[0].validity().to_vec())
+    };
+    let differences = |a: &[Vec<f32>], b: &[Vec<f32>], valid: &[u8]| -> Vec<f64> { a.iter().zip(b).map(|(a, b)| redirection_difference(a, b, valid, n)).collect() };
+    let one = 1;
+    // Warm bakes.
+    let all: Vec<usize> = (0..=10).collect();
+    let (reference, valid) = bake(64, true, &all);
+    let d = differences(&bake(4, true, &all).0, &reference, &valid);
+    eprintln!("warm bake, 4 cycles a frame against 64: {d:.3?}");
+    assert!(d[2..].iter().all(|&d| d <= 0.05), "warm bake, 4 cycles a frame against 64: {d:.3?}");
+    let d = differences(&bake(one, true, &all).0, &reference, &valid);
+    eprintln!("warm bake, 1 cycle a frame against 64: {d:.3?}");
+    assert!(d.iter().all(|&d| d <= 0.30), "the 1-cycle warm bake is further behind than measured: {d:.3?}");
+}
+
+/// Issue 28: bakes at the default (the cascade) that differ only in an
+/// iteration count at or beyond the default differ by at most 5 %
+/// (convergence error of the shorter bake's frames against the longer
+/// one's). The benchmark cylinder's warm bake, frames 0..=10 of
+/// `benches/warp.rs`, at 256².
+///
+/// Not met: 4 against 64 iterations differ by 0.26–0.31 per frame at 256²
+/// (0.10–0.23 at 1024²), 16 against 64 by 0.09–0.18. The cascade has no
+/// coarse-grid correction, so it never reaches the finest level's fixed
+/// point; the multigrid does, but at a cost the frame budget does not
+/// allow yet (`multigrid_bakes_that_differ_in_the_count_agree_where_measured`).
 #[test]
 #[ignore = "fails today: the UV warp half of issue 28 is unfinished (see the doc comment)"]
 fn bakes_beyond_the_default_iteration_count_agree_within_five_percent() {

@@ -96,8 +96,18 @@ fn project_area(lv: &mut Level, nodes: [usize; 3], offsets: [(f32, f32); 3], tar
     }
 }
 
-/// Most passes of [`keep_areas`] while a cell is still folded (not just thin).
+/// Most passes of [`keep_areas`] while a cell is still folded (or, settling,
+/// below [`SETTLED`] of the limit).
 const UNFOLD_PASSES: usize = 64;
+/// After its first passes, a settling [`keep_areas`] (the multigrid's) goes
+/// on while a cell is below this fraction of [`MIN_AREA`]; the cascade's
+/// stops as soon as nothing is folded, as before issue 28's multigrid.
+/// Stopping as soon as nothing was folded left
+/// cells just under the limit, which the next iteration's regularisation
+/// pushed further and the constraint back: the iteration never settled
+/// (on the benchmark cylinder's strongest bend at 256², nodes kept moving
+/// by 5e-4 texel an iteration, 20 times the convergence tolerance).
+const SETTLED: f32 = 0.999;
 
 /// The fold-prevention constraint, run at the end of every iteration of
 /// every level: the grid triangles of cells whose doubled area fell below
@@ -107,8 +117,9 @@ const UNFOLD_PASSES: usize = 64;
 /// squares scene at 4096² four passes left one folded cell in the skin,
 /// which the end-of-solve repair could only flatten, rigid stretch 0.09 →
 /// 0.37). Returns the cells that needed it. Deterministic (sequential over
-/// a sorted list).
-pub(super) fn keep_areas(lv: &mut Level, passes: usize) -> usize {
+/// a sorted list). `settle`: go on past `passes` until every cell is at
+/// [`SETTLED`] of the limit, not just unfolded (see there).
+pub(super) fn keep_areas(lv: &mut Level, passes: usize, settle: bool) -> usize {
     let (w, h) = (lv.w, lv.h);
     let min_area = MIN_AREA;
     let mut bad = cells_below(&lv.dx, &lv.dy, w, h, min_area);
@@ -117,7 +128,8 @@ pub(super) fn keep_areas(lv: &mut Level, passes: usize) -> usize {
         if bad.is_empty() {
             break;
         }
-        if pass >= passes && !bad.iter().any(|&c| cell_dets(&lv.dx, &lv.dy, w, c % w, c / w).iter().any(|&d| d <= 0.0)) {
+        let unsettled = |d: f32| if settle { d < SETTLED * min_area } else { d <= 0.0 };
+        if pass >= passes && !bad.iter().any(|&c| cell_dets(&lv.dx, &lv.dy, w, c % w, c / w).iter().any(|&d| unsettled(d))) {
             break;
         }
         for &c in &bad {

@@ -27,20 +27,24 @@
 //!    node to the bounding box of its 8 neighbours, written to a second buffer
 //!    (Jacobi, deterministic).
 //!
-//! Levels go coarse to fine; a level's change is prolonged bilinearly to the
-//! next finer level (times that level's mask). Warm starts restrict the
+//! The default solver ([`Variant::Cascade`]) goes coarse to fine once; a level's change is
+//! prolonged bilinearly to the next finer level (times that level's mask). Warm starts restrict the
 //! previous frame's fine warp to every level first. Fold-overs left on the
 //! finest level are repaired at the end (local relaxation, then a global
 //! scale towards the identity, which is always fold-free).
+//! [`Variant::Multigrid`] runs full-approximation-scheme multigrid cycles
+//! over the levels instead (`multigrid.rs`), converging to the finest
+//! level's fixed point; selectable, not yet the default (see [`Variant`]).
 
 //!
 //! Files: this one drives the hierarchy (levels, restriction, prolongation,
-//! the fast sweeps of [`super::sweep`]); `reference.rs` is the reference
+//! the fast sweeps of [`super::sweep`]); `multigrid.rs` the cycles; `reference.rs` is the reference
 //! path, one constraint at a time, which the sweeps must match bit for bit
 //! and which serves `sample_warped`; `folds.rs` counts and repairs
 //! fold-overs.
 
 mod folds;
+mod multigrid;
 mod reference;
 
 use rayon::prelude::*;
@@ -82,6 +86,12 @@ pub struct Level {
     /// [`prolong`]); kept between frames so that no frame pays for fresh pages.
     prolong_dx: Vec<f32>,
     prolong_dy: Vec<f32>,
+    /// Multigrid: the forcing of a coarse level in a cycle, and the iterate
+    /// before the residual step (see [`multigrid`]); empty until used.
+    fx: Vec<f32>,
+    fy: Vec<f32>,
+    ox: Vec<f32>,
+    oy: Vec<f32>,
 }
 
 impl Level {
@@ -104,6 +114,10 @@ impl Level {
             start_y: Vec::new(),
             prolong_dx: Vec::new(),
             prolong_dy: Vec::new(),
+            fx: Vec::new(),
+            fy: Vec::new(),
+            ox: Vec::new(),
+            oy: Vec::new(),
         }
     }
 }
@@ -156,6 +170,9 @@ struct Steps {
     areas: bool,
     /// Chebyshev acceleration.
     chebyshev: bool,
+    /// The fold prevention settles cells at its limit (the multigrid's
+    /// iteration, see [`keep_areas`]) rather than only unfolding them.
+    settle: bool,
 }
 
 /// `n` iterations of a level: `one` runs one plain iteration (the fast or
@@ -169,7 +186,7 @@ fn drive(lv: &mut Level, n: usize, steps: Steps, mut one: impl FnMut(&mut Level)
         for _ in 0..n {
             one(lv);
             if steps.areas {
-                keep_areas(lv, AREA_PASSES);
+                keep_areas(lv, AREA_PASSES, steps.settle);
             }
         }
         return;
@@ -208,7 +225,7 @@ fn drive(lv: &mut Level, n: usize, steps: Steps, mut one: impl FnMut(&mut Level)
             ry.copy_from_slice(&lv.dy);
             extrapolate(o, &mut lv.dx, &qx);
             extrapolate(o, &mut lv.dy, &qy);
-            keep_areas(lv, AREA_PASSES);
+            keep_areas(lv, AREA_PASSES, steps.settle);
             if count_folds(&lv.dx, &lv.dy, lv.w, lv.h, 0.0) > 0 {
                 lv.dx.copy_from_slice(&rx);
                 lv.dy.copy_from_slice(&ry);
@@ -219,7 +236,7 @@ fn drive(lv: &mut Level, n: usize, steps: Steps, mut one: impl FnMut(&mut Level)
         }
         since += 1;
         if steps.areas {
-            keep_areas(lv, AREA_PASSES);
+            keep_areas(lv, AREA_PASSES, steps.settle);
         }
     }
 }
@@ -274,11 +291,46 @@ pub struct Solver {
     records: Vec<TriRecord>,
     /// Run the reference kernels (tests compare them with the fast ones).
     pub(crate) reference: bool,
-    /// The solver as it was before issue 28 (no fold prevention in the
-    /// iterations, the old cold schedule): kept for the convergence
-    /// benchmark's old-against-new comparison in one run.
-    #[doc(hidden)]
-    pub legacy: bool,
+    /// Which solver runs (see [`Variant`]; set with [`Solver::set_variant`]).
+    variant: Variant,
+}
+
+/// The solvers: the product's, and the earlier ones kept so that one
+/// benchmark run compares them (issue 28).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Variant {
+    /// Full-approximation-scheme multigrid cycles ([`multigrid`]): converges
+    /// to the finest level's fixed point. `iterations` = cycles per frame.
+    /// Not the default yet (issue 28): a cycle removes only 15–40 % of the
+    /// error on rigid features, so one cycle a frame lags and alternates
+    /// from frame to frame, and the cycles a frame that converge cost 3–4 ×
+    /// the frame budget (docs/performance.md).
+    Multigrid,
+    /// The coarse-to-fine cascade of the first half of issue 28 (fold
+    /// prevention in every iteration, Chebyshev acceleration of cold solves
+    /// on levels of 512² and larger; `iterations` per level): the product's.
+    #[default]
+    Cascade,
+    /// The cascade as it was before issue 28 (no fold prevention, no acceleration).
+    Legacy,
+}
+
+/// Whether two variants build the same coarse masks.
+fn coarse_kind(variant: Variant) -> bool {
+    variant == Variant::Multigrid
+}
+
+/// The mask of the next coarser level. The cascades erode it (seed eq. 8:
+/// a coarse constraint must not pull across a fixed border); the multigrid
+/// fixes a coarse node only where one of its four finer nodes is fixed:
+/// erosion took about 2^l texels along the chart borders away from level
+/// `l`'s corrections, and the first cycle then left 0.77 of the error
+/// instead of 0.38 on the benchmark cylinder at 256².
+fn coarse_mask(fine: &[u8], w: usize, h: usize, variant: Variant) -> Vec<u8> {
+    match variant {
+        Variant::Multigrid => maps::reduce_min(fine, w, h),
+        Variant::Cascade | Variant::Legacy => maps::reduce_min(&maps::erode3(fine, w, h), w, h),
+    }
 }
 
 impl Solver {
@@ -291,7 +343,7 @@ impl Solver {
         while lw / 2 >= COARSEST && lh / 2 >= COARSEST {
             r = maps::reduce_mean(&maps::gaussian3(&r, lw, lh), lw, lh);
             let prev = levels.last().expect("at least the finest level");
-            let m = maps::reduce_min(&maps::erode3(&prev.mask, lw, lh), lw, lh);
+            let m = coarse_mask(&prev.mask, lw, lh, Variant::default());
             let go = if levels.len() == 1 { maps::reduce_metric(&go_tri, Some(ids), lw, lh) } else { maps::reduce_metric(&prev.go, None, lw, lh) };
             lw /= 2;
             lh /= 2;
@@ -301,7 +353,27 @@ impl Solver {
             level.start_y = vec![0.0; lw * lh];
             levels.push(level);
         }
-        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, records: Vec::new(), reference: false, legacy: false }
+        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, records: Vec::new(), reference: false, variant: Variant::default() }
+    }
+
+    /// Chooses the solver (benchmarks and tests compare them); rebuilds the
+    /// coarse levels' masks, which differ between the multigrid and the cascades.
+    #[doc(hidden)]
+    pub fn set_variant(&mut self, variant: Variant) {
+        if coarse_kind(variant) != coarse_kind(self.variant) {
+            for l in 1..self.levels.len() {
+                let (fine, coarse) = self.levels.split_at_mut(l);
+                let (f, c) = (&fine[l - 1], &mut coarse[0]);
+                c.mask = coarse_mask(&f.mask, f.w, f.h, variant);
+                c.active = sweep::ActiveSpans::new(c.w, c.h, &c.rig, &c.mask);
+            }
+        }
+        self.variant = variant;
+        self.reset();
+    }
+
+    pub fn variant(&self) -> Variant {
+        self.variant
     }
 
     /// Back to the identity warp.
@@ -322,6 +394,11 @@ impl Solver {
         if !warm {
             self.reset();
         }
+        if self.variant == Variant::Multigrid {
+            self.solve_multigrid(ids, gd_tri, warm, s);
+            return;
+        }
+        let legacy = self.variant == Variant::Legacy;
         let prepare = std::time::Instant::now();
         // A warm solve corrects last frame's warp for a small change of the
         // surface: the levels down to [`WARM_COARSEST`] carry that change (the
@@ -379,7 +456,7 @@ impl Solver {
             // Old solver: neither. Warm solves: no acceleration (they start
             // next to their solution, and their frame time is the budget).
             // Levels below [`CHEBYSHEV_SIDE`]: no acceleration either.
-            let steps = Steps { areas: !self.legacy, chebyshev: !self.legacy && !warm && lv.w.min(lv.h) >= CHEBYSHEV_SIDE };
+            let steps = Steps { areas: !legacy, chebyshev: !legacy && !warm && lv.w.min(lv.h) >= CHEBYSHEV_SIDE, settle: false };
             if l == 0 {
                 if reference {
                     drive(lv, n, steps, |lv| iterate_reference(lv, Indexed(ids, &self.tri_chart), &self.go_tri, gd_tri, 1, s));
@@ -406,33 +483,145 @@ impl Solver {
         // benchmark's cold solves), not for thin ones, which it would
         // flatten: relaxing them towards their neighbours folds others.
         let lv = &mut self.levels[0];
-        self.last_repair = if !self.legacy && count_folds(&lv.dx, &lv.dy, lv.w, lv.h, 0.0) == 0 { (0, 1.0) } else { repair_folds(lv) };
+        self.last_repair = if !legacy && count_folds(&lv.dx, &lv.dy, lv.w, lv.h, 0.0) == 0 { (0, 1.0) } else { repair_folds(lv) };
         self.last_level_ms[self.levels.len()] = started.elapsed().as_secs_f64() * 1e3;
     }
 }
 
+/// The plain iteration of each level, for [`multigrid`].
+struct LevelSteps<'a> {
+    ids: &'a [u32],
+    records: &'a [TriRecord],
+    go_tri: &'a [[f32; 3]],
+    gd_tri: &'a [[f32; 3]],
+    tri_chart: &'a [u32],
+    s: &'a WarpSettings,
+    avx2: bool,
+    reference: bool,
+    /// Iterations and wall time (ms) per level, for the report.
+    counts: Vec<std::cell::Cell<usize>>,
+    ms: Vec<std::cell::Cell<f64>>,
+}
+
+impl multigrid::Smoother for LevelSteps<'_> {
+    fn step(&self, lv: &mut Level, l: usize) {
+        let started = std::time::Instant::now();
+        self.step_untimed(lv, l);
+        self.counts[l].set(self.counts[l].get() + 1);
+        self.ms[l].set(self.ms[l].get() + started.elapsed().as_secs_f64() * 1e3);
+    }
+}
+
+impl LevelSteps<'_> {
+    fn step_untimed(&self, lv: &mut Level, l: usize) {
+        let s = self.s;
+        if l == 0 {
+            if self.reference {
+                iterate_reference(lv, Indexed(self.ids, self.tri_chart), self.go_tri, self.gd_tri, 1, s);
+            } else {
+                iterate(lv, ByTriangle { ids: self.ids, records: self.records }, 1, s, self.avx2);
+            }
+        } else {
+            let (go, gd) = (std::mem::take(&mut lv.go), std::mem::take(&mut lv.gd));
+            if self.reference {
+                iterate_reference(lv, Direct, &go, &gd, 1, s);
+            } else {
+                iterate(lv, ByTexel { go: &go, gd: &gd }, 1, s, self.avx2);
+            }
+            lv.go = go;
+            lv.gd = gd;
+        }
+    }
+}
+
 impl Solver {
-    /// `n` more iterations of the finest level from the current warp, without
-    /// the fold repair; returns the largest change of a node (texels) in the
-    /// last of them. For measuring convergence: the converged warp `x_∞` of
-    /// a solve is that solve continued until this change is tiny.
+    /// The [`Variant::Multigrid`] solve. Warm: `iterations` cycles from the
+    /// previous frame's warp. Cold (from the identity): full multigrid, each
+    /// level from the coarsest up starting from the next coarser level's
+    /// solution and running `iterations + 1` cycles (a solve from scratch has
+    /// the whole warp to find, a warm frame only its change).
+    fn solve_multigrid(&mut self, ids: &[u32], gd_tri: &[[f32; 3]], warm: bool, s: &WarpSettings) {
+        let prepare = std::time::Instant::now();
+        for l in 1..self.levels.len() {
+            let (fine, coarse) = self.levels.split_at_mut(l);
+            let (f, c) = (&fine[l - 1], &mut coarse[0]);
+            if l == 1 {
+                maps::reduce_metric_into(gd_tri, Some(ids), f.w, f.h, &mut c.gd);
+            } else {
+                maps::reduce_metric_into(&f.gd, None, f.w, f.h, &mut c.gd);
+            }
+        }
+        let mut records = std::mem::take(&mut self.records);
+        self.go_tri.par_iter().zip(gd_tri).map(|(&o, &d)| sweep::tri_record(o, d)).collect_into_vec(&mut records);
+        let levels = self.levels.len();
+        self.last_prepare_ms = prepare.elapsed().as_secs_f64() * 1e3;
+        let steps = LevelSteps {
+            ids,
+            records: &records,
+            go_tri: &self.go_tri,
+            gd_tri,
+            tri_chart: &self.tri_chart,
+            s,
+            avx2: sweep::has_avx2(),
+            reference: s.sample_warped || self.reference,
+            counts: vec![std::cell::Cell::new(0); levels],
+            ms: vec![std::cell::Cell::new(0.0); levels],
+        };
+        let bottom = levels - 1;
+        let cycles = s.iterations as usize;
+        if warm {
+            for _ in 0..cycles {
+                multigrid::cycle(&mut self.levels, 0, bottom, false, &steps);
+            }
+        } else {
+            for l in (0..=bottom).rev() {
+                if l == bottom {
+                    multigrid::smooth(&mut self.levels[l], l, multigrid::COARSEST_ITERATIONS, false, &steps);
+                } else {
+                    let (fine, coarse) = self.levels.split_at_mut(l + 1);
+                    prolong(&coarse[0], &mut fine[l]);
+                    for _ in 0..cycles + 1 {
+                        multigrid::cycle(&mut self.levels, l, bottom, false, &steps);
+                    }
+                }
+                if l > 0 {
+                    // The identity is where this level started: the next finer
+                    // level receives its whole warp.
+                    let lv = &mut self.levels[l];
+                    multigrid::resize(&mut lv.start_x, lv.w * lv.h);
+                    multigrid::resize(&mut lv.start_y, lv.w * lv.h);
+                    lv.start_x.fill(0.0);
+                    lv.start_y.fill(0.0);
+                }
+            }
+        }
+        self.last_iterations = steps.counts.iter().map(|c| c.get()).collect();
+        self.last_level_ms = steps.ms.iter().map(|c| c.get()).collect();
+        self.records = records;
+        let started = std::time::Instant::now();
+        let lv = &mut self.levels[0];
+        self.last_repair = if count_folds(&lv.dx, &lv.dy, lv.w, lv.h, 0.0) == 0 { (0, 1.0) } else { repair_folds(lv) };
+        self.last_level_ms.push(started.elapsed().as_secs_f64() * 1e3);
+    }
+
+    /// `n` plain iterations of the finest level (fold prevention included,
+    /// no acceleration); returns the largest change of a node in the last.
     #[doc(hidden)]
-    pub fn iterate_finest(&mut self, ids: &[u32], gd_tri: &[[f32; 3]], n: usize, s: &WarpSettings) -> f32 {
+    pub fn iterate_finest_plain(&mut self, ids: &[u32], gd_tri: &[[f32; 3]], n: usize, s: &WarpSettings) -> f32 {
         let records: Vec<TriRecord> = self.go_tri.par_iter().zip(gd_tri).map(|(&o, &d)| sweep::tri_record(o, d)).collect();
         let avx2 = sweep::has_avx2();
-        let legacy = self.legacy;
         let lv = &mut self.levels[0];
         if n == 0 {
             return 0.0;
         }
-        let steps = Steps { areas: !legacy, chebyshev: !legacy };
+        let steps = Steps { areas: true, chebyshev: false, settle: true };
         drive(lv, n - 1, steps, |lv| iterate(lv, ByTriangle { ids, records: &records }, 1, s, avx2));
         let (bx, by) = (lv.dx.clone(), lv.dy.clone());
         drive(lv, 1, steps, |lv| iterate(lv, ByTriangle { ids, records: &records }, 1, s, avx2));
         lv.dx.par_iter().zip(&bx).chain(lv.dy.par_iter().zip(&by)).map(|(a, b)| (a - b).abs()).reduce(|| 0.0, f32::max)
     }
 
-    /// The end-of-solve fold repair on its own (see [`Solver::iterate_finest`]).
+    /// The end-of-solve fold repair on its own (see [`Solver::iterate_finest_plain`]).
     #[doc(hidden)]
     pub fn repair(&mut self) -> (usize, f32) {
         repair_folds(&mut self.levels[0])
