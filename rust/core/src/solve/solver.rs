@@ -398,7 +398,7 @@ impl Solver {
         }
         let mut hook_moved = false;
         let mut stop = match (self.tolerance, &self.coarse) {
-            (Some(tolerance), Some(_)) => Some(stopping::Rule::new(tolerance)),
+            (Some(tolerance), Some(_)) => Some(stopping::Rule::new(tolerance, self.vertex_count)),
             _ => None,
         };
         // With a stopping rule the count is a limit, counted in work on small meshes.
