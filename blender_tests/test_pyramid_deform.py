@@ -115,16 +115,17 @@ def test_round_trip_matches_the_wheel(limb, capfd):
     assert attribute_names(obj.data) == attributes
 
 
-def test_the_default_bake_is_the_converged_look_and_more_iterations_change_it_little(tmp_path, capfd):
+@pytest.mark.parametrize("segments, rings", [(64, 96), (12, 16)], ids=["6k vertices", "206 vertices"])
+def test_the_default_bake_is_the_converged_look_and_more_iterations_change_it_little(tmp_path, capfd, segments, rings):
     """Issue 28, on the add-on's default path: the default bake (Converge: the accelerated solver,
     stopping at its tolerance within ``tegument.DEFAULTS.accelerated_iterations``, bake frames from
     the last one's result) is within 5 % of the converged solve of the same settings at every frame;
     a bake that differs only by four times the iterations differs from it by at most 5 % too; plain
-    iterations (Converge off) are much further. A 6k-vertex limb at closeness 0.01: on meshes of a
-    thousand vertices or two the coarse levels do less (docs/pyramid-deform.md)."""
+    iterations (Converge off) are much further. Limbs at closeness 0.01: 6k vertices, and 206, where
+    the coarse levels do little and the iteration limit counts in work (docs/pyramid-deform.md)."""
     import tegument
 
-    obj, _ = saved_limb(tmp_path, segments=64, rings=96)
+    obj, _ = saved_limb(tmp_path, segments=segments, rings=rings)
     assert bpy.ops.tegument.deform_add() == {"FINISHED"}
     settings = obj.tegument
     assert settings.converge and settings.iterations == tegument.DEFAULTS.accelerated_iterations, "the defaults"
@@ -159,7 +160,9 @@ def test_the_default_bake_is_the_converged_look_and_more_iterations_change_it_li
     assert errors["plain"] > 4 * errors["default"], errors
     # Plain iterations run their count; Converge's warm frames stop at the tolerance, well before its limit.
     assert taken["plain"] == [tegument.DEFAULTS.iterations] * 6, taken
-    assert len(taken["default"]) == 6 and max(taken["default"][1:]) < tegument.DEFAULTS.accelerated_iterations, taken
+    assert len(taken["default"]) == 6, taken
+    if len(rest) >= 4096:  # smaller meshes count their limit in work: more iterations than the setting
+        assert max(taken["default"][1:]) < tegument.DEFAULTS.accelerated_iterations, taken
 
 
 def test_a_moved_turned_and_scaled_rig_bakes_in_world_space_and_caches_object_space(limb):
