@@ -161,11 +161,13 @@ impl Solver {
     }
 
     /// Marks the vertices whose rows the accelerated solver's Chebyshev
-    /// extrapolation must leave out (`mask[v]`; an empty mask: none): rows
-    /// that carry a vertex from another vertex's position (a ring fit's
-    /// sliver anchored to its neighbour). A chain of such rows is a shift:
-    /// its iteration's modes are not the real ones the weights are built for
-    /// (see [`super::chebyshev`]), and extrapolated they grow.
+    /// extrapolation and coarse correction must leave out (`mask[v]`; an
+    /// empty mask: none): rows that carry a vertex from another vertex's
+    /// position (a ring fit's sliver anchored to its neighbour). A chain of
+    /// such rows is a shift: its iteration's modes are not the real ones the
+    /// weights are built for (see [`super::chebyshev`]), and extrapolated or
+    /// corrected they grow. They keep the plain step, which carries their
+    /// anchor's correction to them.
     pub fn set_unextrapolated(&mut self, mask: &[bool]) -> Result<()> {
         if !mask.is_empty() && mask.len() != self.vertex_count {
             return Err(Error::invalid(format!(
