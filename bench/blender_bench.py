@@ -307,36 +307,41 @@ def character(bpy, np, rows, threads, workdir, both_solvers: bool = False) -> No
         pinned = character_demo.pinned_count(obj)  # the bind's warning (obj.tegument.bind_warnings)
         obj.tegument.frame_start, obj.tegument.frame_end = character_demo.POSE_FRAMES
 
-        def tegument_bake():
-            """The bake's frame times (the first left out: it factorises) and iterations a frame."""
+        import tegument
+
+        default_settings = (obj.tegument.converge, obj.tegument.iterations)
+        other_settings = ((False, tegument.DEFAULTS.iterations) if default_settings[0]
+                          else (True, tegument.DEFAULTS.accelerated_iterations))
+
+        def tegument_bake(settings):
+            """A bake with ``(converge, iterations)``: its frame times (the first left out: it
+            factorises), iterations a frame and the job; the default settings are restored."""
+            obj.tegument.converge, obj.tegument.iterations = settings
             job = bake.BakeJob(bpy.context, obj, range(character_demo.POSE_FRAMES[0], last + 1))
             while not job.finished:
                 job.step()
             job.commit()
+            obj.tegument.converge, obj.tegument.iterations = default_settings
             return [1000 * t for t in job.times[1:]], job.iterations_used[1:], job
 
-        default_settings = (obj.tegument.converge, obj.tegument.iterations)
         # With --character-both the other solver setting is baked too, before and after the
-        # default's bake, so that both are measured over the same minutes as Corrective Smooth.
-        other_settings = (not default_settings[0], 12 if not default_settings[0] else 10)
-        other_times, other_iterations = [], []
-        if both_solvers:
-            obj.tegument.converge, obj.tegument.iterations = other_settings
-            times, used, _ = tegument_bake()
-            other_times += times
-            other_iterations += used
-            obj.tegument.converge, obj.tegument.iterations = default_settings
-        times, used, job = tegument_bake()
-        corrective_times += corrective_smooth()[0]
-        if both_solvers:
-            obj.tegument.converge, obj.tegument.iterations = other_settings
-            more, more_used, _ = tegument_bake()
-            other_times += more
-            other_iterations += more_used
-            obj.tegument.converge, obj.tegument.iterations = default_settings
-            times_again, used_again, job = tegument_bake()  # the cache the figures below read
-            times += times_again
-            used += used_again
+        # default's bake, so that both are measured over the same minutes as Corrective Smooth;
+        # the default's last bake leaves the cache the figures below read.
+        rounds = [other_settings, default_settings, "corrective", other_settings, default_settings] if both_solvers \
+            else [default_settings, "corrective"]
+        times, used, other_times, other_iterations = [], [], [], []
+        for settings in rounds:
+            if settings == "corrective":
+                corrective_times += corrective_smooth()[0]
+                continue
+            frame_times_ms, iterations, job_of_round = tegument_bake(settings)
+            if settings == default_settings:
+                times += frame_times_ms
+                used += iterations
+                job = job_of_round
+            else:
+                other_times += frame_times_ms
+                other_iterations += iterations
         times.sort()
         tegument_frame = times[len(times) // 2]
         corrective = sorted(corrective_times)[len(corrective_times) // 2]
