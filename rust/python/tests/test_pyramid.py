@@ -172,9 +172,10 @@ def test_a_tolerance_stops_converged_solves_and_warm_solves_start_from_the_last_
     cold_iterations = deformer.last_iterations
     assert cold_iterations <= tegument.DEFAULTS.accelerated_iterations
     assert rms(cold, converged) <= 0.05 * scale
-    # The same frame again, warm: it starts where the last solve ended and stops at once.
+    # The same frame again, warm: it starts where the last solve ended and stops early (on this
+    # 408-vertex tube after a few steps: below 4,096 vertices the rule asks for a smaller step).
     warm = deformer.solve(lbs, iterations=50, warm=True)
-    assert deformer.last_iterations == 2 < cold_iterations
+    assert 2 <= deformer.last_iterations <= 4 < cold_iterations
     assert rms(warm, converged) <= 0.05 * scale
     # After a reset the warm solve has nothing to start from: it is a cold one.
     deformer.reset()

@@ -44,6 +44,14 @@ pub const MIN_CLOSENESS: f32 = 1e-8;
 /// formulations (the diagonal formulation normalises it away).
 pub const PINNED_CLOSENESS: f32 = 1e4;
 
+/// Whether the add-on's bakes use the accelerated solver
+/// ([`PyramidDeformer::set_accelerated`] with [`CONVERGE_TOLERANCE`], at most
+/// [`ACCELERATED_ITERATIONS`], warm bake frames) unless the user turns
+/// Converge off (issue 28: the iteration count is an accuracy knob, not a
+/// look). The core's and the wheel's deformers stay plain until asked: their
+/// callers choose the iteration count.
+pub const DEFAULT_CONVERGE: bool = true;
+
 /// The add-on's Converge iteration limit: the accelerated solver
 /// ([`PyramidDeformer::set_accelerated`]) with [`CONVERGE_TOLERANCE`] stops
 /// before it once converged (issue 28, MakeHuman character in its hard pose
