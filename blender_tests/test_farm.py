@@ -149,27 +149,33 @@ def run_job(tasks: list[dict], *, die_once: dict[str, int] | None = None, slots:
     codes: dict[str, list[int]] = {t["name"]: [] for t in tasks}
     logs: dict[str, list[str]] = {t["name"]: [] for t in tasks}
     deadline = time.monotonic() + 600
-    while waiting or running:
-        assert time.monotonic() < deadline, f"the job did not finish; running: {list(running)}"
-        for task in list(waiting):
-            if len(running) >= slots:
-                break
-            if all(d in finished for d in task["dependencies"]):
-                (command,) = task["commands"]
-                running[task["name"]] = start(command, die_once.pop(task["name"], None))
-                waiting.remove(task)
-        for name, process in list(running.items()):
-            if process.poll() is None:
-                continue
-            del running[name]
-            logs[name].append(process.stdout.read())
-            codes[name].append(process.returncode)
-            if process.returncode == 0:
-                finished.add(name)
-            else:
-                assert len(codes[name]) < 3, f"task {name} failed twice:\n" + "\n---\n".join(logs[name])
-                waiting.insert(0, next(t for t in tasks if t["name"] == name))
-        time.sleep(0.05)
+    try:
+        while waiting or running:
+            assert time.monotonic() < deadline, f"the job did not finish; running: {list(running)}"
+            for task in list(waiting):
+                if len(running) >= slots:
+                    break
+                if all(d in finished for d in task["dependencies"]):
+                    (command,) = task["commands"]
+                    running[task["name"]] = start(command, die_once.pop(task["name"], None))
+                    waiting.remove(task)
+            for name, process in list(running.items()):
+                if process.poll() is None:
+                    continue
+                del running[name]
+                logs[name].append(process.stdout.read())
+                codes[name].append(process.returncode)
+                if process.returncode == 0:
+                    finished.add(name)
+                else:
+                    assert len(codes[name]) < 3, f"task {name} failed twice:\n" + "\n---\n".join(logs[name])
+                    waiting.insert(0, next(t for t in tasks if t["name"] == name))
+            time.sleep(0.05)
+    finally:
+        # A failed assertion must not leave Blender processes running on after the test.
+        for process in running.values():
+            process.kill()
+            process.wait()
     return codes
 
 

@@ -316,17 +316,30 @@ def test_topology_change_upstream_is_refused_and_keeps_the_cache(limb, capfd):
 
 
 def test_bake_frame_and_live_playback(limb):
+    """Bake Frame and live playback write the frames a whole bake writes: each frame is solved
+    from the one before it, so the frames they fill in one by one must match the bake's."""
     obj, _ = limb
     bpy.ops.tegument.deform_add()
     scene = bpy.context.scene
+    assert bpy.ops.tegument.bake() == {"FINISHED"}
+    whole = read_pc2(bpy.path.abspath(obj.tegument.cache_path))[0]
+    assert whole.shape[0] == 6
+    obj.tegument.cache_path = "//frame_by_frame.pc2"
+    path = bpy.path.abspath(obj.tegument.cache_path)
+
     scene.frame_set(3)
     assert bpy.ops.tegument.bake_frame() == {"FINISHED"}
-    path = bpy.path.abspath(obj.tegument.cache_path)
-    assert read_pc2(path)[0].shape[0] == 3  # frames 1-3: the missing ones before it were solved too
+    frames = read_pc2(path)[0]
+    assert frames.shape[0] == 3  # frames 1-3: the missing ones before it were solved too
+    np.testing.assert_allclose(frames, whole[:3], atol=1e-6)
 
     obj.tegument.live = True
     scene.frame_set(4)
-    assert read_pc2(path)[0].shape[0] == 4
+    frames = read_pc2(path)[0]
+    assert frames.shape[0] == 4
+    np.testing.assert_allclose(frames[3], whole[3], atol=1e-6)
+    shown = np.array([v.co[:] for v in obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).data.vertices])
+    np.testing.assert_allclose(shown, whole[3], atol=1e-5)  # what the viewport shows is the cache's frame
     scene.frame_set(6)  # a jump: the cache stays as it is
     assert read_pc2(path)[0].shape[0] == 4
 

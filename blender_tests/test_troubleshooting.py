@@ -1,7 +1,8 @@
 """docs/troubleshooting.md lists every message a user can see.
 
 The messages are read from the code: in the add-on, what is raised, reported as an error or a
-warning, printed on standard error or added to a bake's warnings; in the Rust core and bindings,
+warning, shown in a panel with the error or warning icon, printed on standard error or added to
+a bake's warnings; in the Rust core and bindings,
 the error messages the wheel can raise. Each must appear in the page by the start of its longest
 fixed part (the text between placeholders; the page may shorten a long tail to "…"). A message added to the code without a line in the page fails
 here, naming it. Pure Python (no Blender); it sits here because `make test` runs this folder.
@@ -85,6 +86,9 @@ def addon_messages() -> list[tuple[str, list[str | None]]]:
                     message = args[1]
                 elif name == "poll_message_set" and args:
                     message = args[0]
+                elif name == "label" and any(k.arg == "icon" and shown_level(k.value) for k in node.keywords):
+                    # A panel line that can carry the error or warning icon is a message too.
+                    message = next((k.value for k in node.keywords if k.arg == "text"), None)
                 elif name == "append" and args and isinstance(node.func.value, (ast.Name, ast.Attribute)):
                     owner = node.func.value.id if isinstance(node.func.value, ast.Name) else node.func.value.attr
                     if owner in ("warnings", "notes"):

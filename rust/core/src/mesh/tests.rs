@@ -175,13 +175,44 @@ proptest! {
         prop_assert_eq!(topology.edges().len(), nx * (ny + 1) + ny * (nx + 1));
     }
 
-    /// Random index arrays never panic: they build or they are refused.
+    /// Random index arrays never panic: they are refused exactly when they are not a mesh of
+    /// these ten vertices, with a message, and what builds is the mesh that was given.
     #[test]
     fn random_arrays_never_panic(
         corners in proptest::collection::vec(-3i32..12, 0..40),
         sizes in proptest::collection::vec(-1i32..6, 0..12),
+        consistent in proptest::bool::ANY,
     ) {
+        // Half the cases are index arrays that fit together, so that the accepting side is
+        // exercised too: sizes of at least 3, as many corners as they ask, every index in range.
+        let (corners, sizes) = if consistent {
+            let sizes: Vec<i32> = sizes.iter().map(|s| 3 + s.rem_euclid(3)).collect();
+            let count = sizes.iter().sum::<i32>() as usize;
+            let corners: Vec<i32> = (0..count).map(|i| corners.get(i).map_or(i as i32, |&c| c).rem_euclid(10)).collect();
+            (corners, sizes)
+        } else {
+            (corners, sizes)
+        };
         let positions: Vec<Vec3> = (0..10).map(|i| Vec3::new(i as f32, (i * i) as f32, 1.0)).collect();
-        let _ = Topology::build(MeshInput { positions: &positions, corner_verts: &corners, polygon_sizes: &sizes });
+        let is_a_mesh = sizes.iter().all(|&s| s >= 3)
+            && sizes.iter().sum::<i32>() as usize == corners.len()
+            && corners.iter().all(|&c| (0..10).contains(&c));
+        match Topology::build(MeshInput { positions: &positions, corner_verts: &corners, polygon_sizes: &sizes }) {
+            Ok(topology) => {
+                prop_assert!(is_a_mesh, "accepted corners {:?} with sizes {:?}", corners, sizes);
+                prop_assert_eq!(topology.vertex_count(), 10);
+                prop_assert_eq!(topology.polygon_count(), sizes.len());
+                let given: Vec<u32> = corners.iter().map(|&c| c as u32).collect();
+                prop_assert_eq!(topology.corner_verts(), &given[..]);
+                for &[a, b] in topology.edges() {
+                    prop_assert!(a < 10 && b < 10 && a != b);
+                    prop_assert!(topology.one_ring(a as usize).contains(&b));
+                }
+            }
+            Err(error) => {
+                prop_assert!(!is_a_mesh, "refused a valid mesh: {}", error);
+                prop_assert!(!error.to_string().is_empty());
+            }
+        }
     }
 }
