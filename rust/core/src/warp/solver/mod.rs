@@ -44,6 +44,7 @@
 //! fold-overs.
 
 mod folds;
+pub mod galerkin;
 mod multigrid;
 mod reference;
 
