@@ -286,6 +286,15 @@ impl UvWarp {
         }
     }
 
+    /// Multigrid only: the finest cycles use the linear Galerkin coarse
+    /// correction (see `solver::Solver::set_linear_correction`).
+    #[doc(hidden)]
+    pub fn set_linear_correction(&mut self, on: bool) {
+        for tile in &mut self.tiles {
+            tile.solver.set_linear_correction(on);
+        }
+    }
+
     /// Continues the last solve until it has converged: the converged warp
     /// `x_∞` convergence errors are measured against (issue 28: positions
     /// change by less than `tolerance` texels in an iteration). Runs

@@ -134,7 +134,7 @@ impl GridOperator {
 pub fn interpolation(op: &GridOperator) -> (Csr, usize, usize) {
     let (w, h, k) = (op.w, op.h, op.comps);
     let (cw, ch) = (w.div_ceil(2), h.div_ceil(2));
-    let fine = |i: isize, j: isize, c: usize| ((j as usize * w + i as usize) * k + c);
+    let fine = |i: isize, j: isize, c: usize| (j as usize * w + i as usize) * k + c;
     let inside = |i: isize, j: isize| i >= 0 && j >= 0 && (i as usize) < w && (j as usize) < h;
     let mut rows: Vec<Vec<(u32, f64)>> = vec![Vec::new(); w * h * k];
     // The couplings of unknown `p` to its own component's nodes, offset by (di, dj).
@@ -228,6 +228,7 @@ fn blend(rows: &[Vec<(u32, f64)>], terms: impl Iterator<Item = (usize, f64)>) ->
 
 /// The hierarchy of a grid operator: Galerkin levels down to one solved by
 /// a dense LU factorisation (faer).
+#[derive(Debug, Clone)]
 pub struct Hierarchy {
     ops: Vec<Csr>,
     /// `ps[l]`: level `l + 1` → level `l`; `rs[l]` its transpose.

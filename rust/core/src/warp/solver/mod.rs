@@ -45,6 +45,7 @@
 
 mod folds;
 pub mod galerkin;
+mod linearised;
 mod multigrid;
 mod reference;
 
@@ -294,6 +295,12 @@ pub struct Solver {
     pub(crate) reference: bool,
     /// Which solver runs (see [`Variant`]; set with [`Solver::set_variant`]).
     variant: Variant,
+    /// The multigrid's finest cycles use the linear Galerkin coarse
+    /// correction ([`linearised`]) instead of the FAS coarse levels; it is
+    /// built at the first solve after it is switched on or the solver is
+    /// rebuilt, and kept for the bake (rigidity and mask do not change).
+    linear: bool,
+    correction: Option<linearised::Correction>,
 }
 
 /// The solvers: the product's, and the earlier ones kept so that one
@@ -354,7 +361,7 @@ impl Solver {
             level.start_y = vec![0.0; lw * lh];
             levels.push(level);
         }
-        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, records: Vec::new(), reference: false, variant: Variant::default() }
+        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, records: Vec::new(), reference: false, variant: Variant::default(), linear: false, correction: None }
     }
 
     /// Chooses the solver (benchmarks and tests compare them); rebuilds the
@@ -371,6 +378,22 @@ impl Solver {
         }
         self.variant = variant;
         self.reset();
+    }
+
+    /// Multigrid only: whether the finest level's cycles use the linear
+    /// Galerkin coarse correction ([`linearised`]); switching drops a
+    /// correction built before.
+    #[doc(hidden)]
+    pub fn set_linear_correction(&mut self, on: bool) {
+        self.linear = on;
+        self.correction = None;
+    }
+
+    /// Probe and construction time of the linear correction (ms) and its
+    /// levels' nonzeros, once built.
+    #[doc(hidden)]
+    pub fn linear_correction_cost(&self) -> Option<(f64, f64, Vec<usize>)> {
+        self.correction.as_ref().map(|c| (c.probe_ms, c.build_ms, c.nonzeros()))
     }
 
     pub fn variant(&self) -> Variant {
@@ -570,9 +593,18 @@ impl Solver {
         };
         let bottom = levels - 1;
         let cycles = s.iterations as usize;
+        let linear = self.linear;
+        let correction = &mut self.correction;
+        let mut finest_cycle = |levels: &mut [Level]| {
+            // The FAS cycle where the linear correction is off or was not kept.
+            let kept = linear && correction.get_or_insert_with(|| linearised::Correction::new(&mut levels[0], &steps)).cycle(&mut levels[0], &steps);
+            if !kept {
+                multigrid::cycle(levels, 0, bottom, false, &steps);
+            }
+        };
         if warm {
             for _ in 0..cycles {
-                multigrid::cycle(&mut self.levels, 0, bottom, false, &steps);
+                finest_cycle(&mut self.levels);
             }
         } else {
             for l in (0..=bottom).rev() {
@@ -582,7 +614,11 @@ impl Solver {
                     let (fine, coarse) = self.levels.split_at_mut(l + 1);
                     prolong(&coarse[0], &mut fine[l]);
                     for _ in 0..cycles + 1 {
-                        multigrid::cycle(&mut self.levels, l, bottom, false, &steps);
+                        if l == 0 {
+                            finest_cycle(&mut self.levels);
+                        } else {
+                            multigrid::cycle(&mut self.levels, l, bottom, false, &steps);
+                        }
                     }
                 }
                 if l > 0 {
