@@ -38,7 +38,10 @@
 
 //!
 //! Files: this one drives the hierarchy (levels, restriction, prolongation,
-//! the fast sweeps of [`super::sweep`]); `multigrid.rs` the cycles; `reference.rs` is the reference
+//! the fast sweeps of [`super::sweep`]); `multigrid.rs` the cycles;
+//! `linearised.rs` the multigrid's optional linear coarse correction (the
+//! finest iteration probed once per bake), coarsened by `galerkin.rs`
+//! (Galerkin operators, operator-dependent interpolation, issue 28); `reference.rs` is the reference
 //! path, one constraint at a time, which the sweeps must match bit for bit
 //! and which serves `sample_warped`; `folds.rs` counts and repairs
 //! fold-overs.
