@@ -8,8 +8,8 @@ For each size, in a fresh Blender process (so that peak memory is that size's ow
 - then three rounds, each of *Corrective Smooth* (10 iterations) on top of the armature, the same
   frames, whole frame, with Tegument's modifier left out; and 16 frames of *Tegument*'s bake job
   (``BakeJob.step``: evaluate the stack above Tegument, read, solve at the add-on's default settings
-  (10 plain iterations), write the PC2
-  frame), whole frame, with its breakdown by phase as the job records it
+  (``--converge``: the accelerated solver, at most ``tegument.DEFAULTS.accelerated_iterations``, warm
+  frames; ``--plain``: 10 plain iterations), write the PC2 frame), whole frame, with its breakdown by phase as the job records it
   (``BakeJob.phase_seconds``). The medians over all rounds are compared, and each round's ratio
   is reported beside them: both deformers are measured in the same minutes.
 
@@ -58,7 +58,7 @@ def peak_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def one_size(name: str, zip_path: str, converge: bool = False) -> dict:
+def one_size(name: str, zip_path: str, solver: str | None = None) -> dict:
     user = tempfile.mkdtemp(prefix="tegument-scaling-user-")
     os.environ["BLENDER_USER_RESOURCES"] = user
     import bpy
@@ -107,8 +107,11 @@ def one_size(name: str, zip_path: str, converge: bool = False) -> dict:
     before_mib, before_peak = rss_mib(), peak_mib()
     started = time.perf_counter()
     assert bpy.ops.tegument.deform_add() == {"FINISHED"}
-    if converge:
+    if solver == "plain":
+        limb.tegument.converge, limb.tegument.iterations = False, tegument.DEFAULTS.iterations
+    elif solver == "converge":
         limb.tegument.converge, limb.tegument.iterations = True, tegument.DEFAULTS.accelerated_iterations
+    converge = limb.tegument.converge
     job = bake.BakeJob(bpy.context, limb, range(1, 1 + ROUNDS * JOB_FRAMES))
     bind_s = time.perf_counter() - started
     bind_peak = max(peak_mib() - before_mib, 0.0)
@@ -190,18 +193,21 @@ def main() -> int:
     parser.add_argument("--zip", default=os.environ.get("TEGUMENT_EXTENSION_ZIP"))
     parser.add_argument("--out", type=pathlib.Path, default=ROOT / "bench" / "results")
     parser.add_argument("--sizes", default=",".join(SIZES), help=f"comma-separated, of {', '.join(SIZES)}")
-    parser.add_argument("--converge", action="store_true",
-                        help="bake with Converge on (the accelerated solver at its iteration limit, warm frames)")
+    solver = parser.add_mutually_exclusive_group()
+    solver.add_argument("--plain", action="store_const", dest="solver", const="plain",
+                        help="bake with Converge off (10 plain iterations) instead of the add-on's defaults")
+    solver.add_argument("--converge", action="store_const", dest="solver", const="converge",
+                        help="bake with Converge on (at most tegument.DEFAULTS.accelerated_iterations)")
     parser.add_argument("--one", help=argparse.SUPPRESS)  # internal: measure one size, print JSON
     args = parser.parse_args()
     if args.one:
-        print("RESULT " + json.dumps(one_size(args.one, args.zip, args.converge)), flush=True)
+        print("RESULT " + json.dumps(one_size(args.one, args.zip, args.solver)), flush=True)
         return 0
     rows = []
     for name in args.sizes.split(","):
         if name not in SIZES:
             parser.error(f"unknown size {name!r}; known: {', '.join(SIZES)}")
-        command = [sys.executable, __file__, "--one", name, "--zip", str(args.zip)] + (["--converge"] if args.converge else [])
+        command = [sys.executable, __file__, "--one", name, "--zip", str(args.zip)] + ([f"--{args.solver}"] if args.solver else [])
         done = subprocess.run(command, capture_output=True, text=True)
         lines = [line for line in done.stdout.splitlines() if line.startswith("RESULT ")]
         if done.returncode != 0 or not lines:

@@ -78,6 +78,8 @@ def main() -> int:
     parser.add_argument("--collide-frames", type=int, default=8)
     parser.add_argument("--cases", default="collisions,character,self_collision",
                         help="comma-separated, of collisions, character, self_collision")
+    parser.add_argument("--character-both", action="store_true",
+                        help="bake the character with Converge on and off, alternating, each against Corrective Smooth in the same run")
     args = parser.parse_args()
     user = tempfile.mkdtemp(prefix="tegument-bench-user-")
     os.environ["BLENDER_USER_RESOURCES"] = user
@@ -100,7 +102,7 @@ def main() -> int:
     if "collisions" in cases:
         collisions(bpy, np, rows, threads, workdir, args.collide_grid, args.collide_frames)
     if "character" in cases:
-        character(bpy, np, rows, threads, workdir)
+        character(bpy, np, rows, threads, workdir, args.character_both)
     if "self_collision" in cases:
         self_collision(bpy, np, rows, threads, workdir)
 
@@ -248,7 +250,7 @@ CHARACTER_CASES = {
 }
 
 
-def character(bpy, np, rows, threads, workdir) -> None:
+def character(bpy, np, rows, threads, workdir, both_solvers: bool = False) -> None:
     """The hard-posed MakeHuman character (demo/character_demo.py), welded, after a glTF round
     trip and with a Subdivision Surface between the Armature and Tegument: per frame, the armature alone, Corrective Smooth (10 it.) and Tegument's bake; then at the
     pose's last frame what bind pinned, the spike maximum and the self-intersecting face pairs of
@@ -304,18 +306,58 @@ def character(bpy, np, rows, threads, workdir) -> None:
         assert bpy.ops.tegument.deform_add() == {"FINISHED"}
         pinned = character_demo.pinned_count(obj)  # the bind's warning (obj.tegument.bind_warnings)
         obj.tegument.frame_start, obj.tegument.frame_end = character_demo.POSE_FRAMES
-        job = bake.BakeJob(bpy.context, obj, range(character_demo.POSE_FRAMES[0], last + 1))
-        while not job.finished:
-            job.step()
-        job.commit()
-        times = sorted(1000 * t for t in job.times[1:])
+
+        import tegument
+
+        default_settings = (obj.tegument.converge, obj.tegument.iterations)
+        other_settings = ((False, tegument.DEFAULTS.iterations) if default_settings[0]
+                          else (True, tegument.DEFAULTS.accelerated_iterations))
+
+        def tegument_bake(settings):
+            """A bake with ``(converge, iterations)``: its frame times (the first left out: it
+            factorises), iterations a frame and the job; the default settings are restored."""
+            obj.tegument.converge, obj.tegument.iterations = settings
+            job = bake.BakeJob(bpy.context, obj, range(character_demo.POSE_FRAMES[0], last + 1))
+            while not job.finished:
+                job.step()
+            job.commit()
+            obj.tegument.converge, obj.tegument.iterations = default_settings
+            return [1000 * t for t in job.times[1:]], job.iterations_used[1:], job
+
+        # With --character-both the other solver setting is baked too, before and after the
+        # default's bake, so that both are measured over the same minutes as Corrective Smooth;
+        # the default's last bake leaves the cache the figures below read.
+        rounds = [other_settings, default_settings, "corrective", other_settings, default_settings] if both_solvers \
+            else [default_settings, "corrective"]
+        times, used, other_times, other_iterations = [], [], [], []
+        for settings in rounds:
+            if settings == "corrective":
+                corrective_times += corrective_smooth()[0]
+                continue
+            frame_times_ms, iterations, job_of_round = tegument_bake(settings)
+            if settings == default_settings:
+                times += frame_times_ms
+                used += iterations
+                job = job_of_round
+            else:
+                other_times += frame_times_ms
+                other_iterations += iterations
+        times.sort()
         tegument_frame = times[len(times) // 2]
-        corrective_times += corrective_smooth()[0]
         corrective = sorted(corrective_times)[len(corrective_times) // 2]
         rows.add(case, "Corrective Smooth (10 it.): frame", corrective, "ms", threads,
                  "armature + Corrective Smooth, whole frame, before and after Tegument's bake")
         rows.add(case, f"Tegument ({obj.tegument.iterations} it.): frame", tegument_frame, "ms", threads, "input evaluation + solve + cache write")
         rows.add(case, "Tegument frame / Corrective Smooth frame", tegument_frame / corrective, "x", threads)
+        rows.add(case, "Tegument: iterations a frame", sum(used) / len(used), "", threads,
+                 f"Converge {'on' if default_settings[0] else 'off'}, mean over the bake's frames after the first")
+        if both_solvers:
+            label = f"Converge {'on' if other_settings[0] else 'off'}, {other_settings[1]} it."
+            other_times.sort()
+            other = other_times[len(other_times) // 2]
+            rows.add(case, f"Tegument ({label}): frame", other, "ms", threads, "the other solver setting, same minutes")
+            rows.add(case, f"Tegument ({label}) frame / Corrective Smooth frame", other / corrective, "x", threads)
+            rows.add(case, f"Tegument ({label}): iterations a frame", sum(other_iterations) / len(other_iterations), "", threads)
         rows.add(case, "pinned by bind", pinned, "", threads, "vertices that follow the input")
         rows.add(case, "split vertices", int((groups != np.arange(len(groups))).sum()), "", threads, "coincident with another at rest")
         cache = character_demo.read_cache(obj)

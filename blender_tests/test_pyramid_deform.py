@@ -115,45 +115,56 @@ def test_round_trip_matches_the_wheel(limb, capfd):
     assert attribute_names(obj.data) == attributes
 
 
-def test_converge_bakes_the_converged_look_in_few_iterations(tmp_path, capfd):
-    """Issue 28: with Converge (the accelerated solver, stopping at its tolerance within
-    ``tegument.DEFAULTS.accelerated_iterations``, bake frames from the last one's result) every
-    frame is within 5 % of the converged solve of the same settings; the default, 10 plain
-    iterations, is much further. A 6k-vertex limb at closeness 0.01: on meshes of a
-    thousand vertices or two the coarse levels do less (docs/pyramid-deform.md)."""
+@pytest.mark.parametrize("segments, rings", [(64, 96), (12, 16)], ids=["6k vertices", "206 vertices"])
+def test_a_converge_bake_is_the_converged_look_and_more_iterations_change_it_little(tmp_path, capfd, segments, rings):
+    """Issue 28, through the add-on's operators: a Converge bake (the accelerated solver,
+    stopping at its tolerance within ``tegument.DEFAULTS.accelerated_iterations``, bake frames from
+    the last one's result) is within 5 % of the converged solve of the same settings at every frame;
+    a bake that differs only by four times the iterations differs from it by at most 5 % too; plain
+    iterations (Converge off) are much further. Limbs at closeness 0.01: 6k vertices, and 206, where
+    the coarse levels do little and the iteration limit counts in work (docs/pyramid-deform.md)."""
     import tegument
 
-    obj, _ = saved_limb(tmp_path, segments=64, rings=96)
+    obj, _ = saved_limb(tmp_path, segments=segments, rings=rings)
     assert bpy.ops.tegument.deform_add() == {"FINISHED"}
     settings = obj.tegument
+    # The add-on's defaults follow tegument.DEFAULTS (Converge opt-in for now: docs/pyramid-deform.md).
+    assert settings.converge == tegument.DEFAULTS.converge
+    assert settings.iterations == (tegument.DEFAULTS.accelerated_iterations if tegument.DEFAULTS.converge
+                                   else tegument.DEFAULTS.iterations)
     settings.closeness = 0.01
     rest, corners, sizes = mesh_arrays(obj)
     reference = tegument.PyramidDeformer(rest, corners, sizes, scale_safe=settings.scale_safe)
     reference.accelerated = True
     m_inv = np.linalg.inv(np.array(obj.matrix_world))
-    errors, taken = {}, {}
-    assert not settings.converge and settings.iterations == tegument.DEFAULTS.iterations, "the defaults"
-    for converge, iterations in ((False, tegument.DEFAULTS.iterations), (True, tegument.DEFAULTS.accelerated_iterations)):
+    to_local = lambda world: world @ m_inv[:3, :3].T + m_inv[:3, 3]  # noqa: E731
+    rms = lambda a, b: float(np.sqrt(((a - b) ** 2).sum(1).mean()))  # noqa: E731
+    checked = (2, 4, 6)
+    converged = {f: to_local(reference.solve(upstream(obj, f), iterations=400, closeness=settings.closeness)) for f in checked}
+    displacement = {f: rms(converged[f], to_local(upstream(obj, f))) for f in checked}
+    runs = {
+        "converge": (True, tegument.DEFAULTS.accelerated_iterations),
+        "4x iterations": (True, 4 * tegument.DEFAULTS.accelerated_iterations),
+        "plain": (False, tegument.DEFAULTS.iterations),
+    }
+    baked, errors, taken = {}, {}, {}
+    for name, (converge, iterations) in runs.items():
         settings.converge, settings.iterations = converge, iterations
         capfd.readouterr()
         assert bpy.ops.tegument.bake() == {"FINISHED"}
         # The progress lines say how many iterations each frame took.
-        taken[converge] = [int(k) for k in re.findall(r"ms, (\d+) it\., ETA", capfd.readouterr().out)]
-        frames, _ = read_pc2(bpy.path.abspath(settings.cache_path))
-        worst = 0.0
-        for frame in (2, 4, 6):
-            source = upstream(obj, frame)
-            converged = reference.solve(source, iterations=400, closeness=settings.closeness)
-            converged_local = converged @ m_inv[:3, :3].T + m_inv[:3, 3]
-            source_local = source @ m_inv[:3, :3].T + m_inv[:3, 3]
-            rms = lambda a, b: float(np.sqrt(((a - b) ** 2).sum(1).mean()))  # noqa: E731
-            worst = max(worst, rms(frames[frame - 1], converged_local) / rms(converged_local, source_local))
-        errors[converge] = worst
-    assert errors[True] <= 0.05, errors
-    assert errors[False] > 4 * errors[True], errors
+        taken[name] = [int(k) for k in re.findall(r"ms, (\d+) it\., ETA", capfd.readouterr().out)]
+        baked[name], _ = read_pc2(bpy.path.abspath(settings.cache_path))
+        errors[name] = max(rms(baked[name][f - 1], converged[f]) / displacement[f] for f in checked)
+    assert errors["converge"] <= 0.05, errors
+    more = max(rms(baked["converge"][f - 1], baked["4x iterations"][f - 1]) / displacement[f] for f in checked)
+    assert more <= 0.05, f"the Converge bake and one with 4x the iterations differ by {more:.3f} of the displacement"
+    assert errors["plain"] > 4 * errors["converge"], errors
     # Plain iterations run their count; Converge's warm frames stop at the tolerance, well before its limit.
-    assert taken[False] == [tegument.DEFAULTS.iterations] * 6, taken
-    assert len(taken[True]) == 6 and max(taken[True][1:]) < tegument.DEFAULTS.accelerated_iterations, taken
+    assert taken["plain"] == [tegument.DEFAULTS.iterations] * 6, taken
+    assert len(taken["converge"]) == 6, taken
+    if len(rest) >= 4096:  # smaller meshes count their limit in work: more iterations than the setting
+        assert max(taken["converge"][1:]) < tegument.DEFAULTS.accelerated_iterations, taken
 
 
 def test_a_moved_turned_and_scaled_rig_bakes_in_world_space_and_caches_object_space(limb):

@@ -675,6 +675,7 @@ fn _defaults<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
     let self_settings = SelfSettings::default();
     let warp = WarpSettings::default();
     d.set_item("iterations", step.iterations)?;
+    d.set_item("converge", tegument_core::pyramid::DEFAULT_CONVERGE)?;
     d.set_item("accelerated_iterations", tegument_core::pyramid::ACCELERATED_ITERATIONS)?;
     d.set_item("tolerance", decimal(tegument_core::pyramid::CONVERGE_TOLERANCE))?;
     d.set_item("closeness", decimal(tegument_core::pyramid::DEFAULT_CLOSENESS))?;

@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 import pathlib
 import sys
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -54,3 +56,38 @@ def shared_data(*parts: str) -> pathlib.Path:
             pytest.fail(message + " (required under CI)")
         pytest.skip(message)
     return path
+
+
+def ticks_of_another_thread_during(call) -> int:
+    """How many times another Python thread ran while ``call`` ran.
+
+    Python is told not to switch threads on its own for the duration (a switch interval of
+    an hour), and the other thread hands the GIL back after every tick: so it can tick only
+    while ``call`` lets go of the GIL. A call that holds the GIL throughout sees exactly 0,
+    on any machine under any load; one that releases it sees at least 1 once the operating
+    system runs that thread, which a call of a tenth of a second or more leaves time for.
+    Counts, not rates: nothing here depends on how fast the machine is.
+    """
+    ticks = 0
+    started, done = threading.Event(), threading.Event()
+
+    def count():
+        nonlocal ticks
+        started.set()
+        while not done.is_set():
+            ticks += 1
+            time.sleep(0)  # releases the GIL: the caller's thread can always take it back
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(3600.0)
+    counter = threading.Thread(target=count)
+    try:
+        counter.start()
+        started.wait()
+        first = ticks  # this thread holds the GIL from here to the call
+        call()
+        return ticks - first
+    finally:
+        done.set()
+        counter.join()
+        sys.setswitchinterval(interval)

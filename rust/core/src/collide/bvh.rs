@@ -259,15 +259,23 @@ impl BoxTree {
         if root <= 0.0 {
             return 1.0;
         }
-        let total: f64 = bvh
+        // Fixed chunks summed in order: the same cost, and so the same rebuild
+        // decision, on any thread count (a parallel sum's order is not fixed).
+        const CHUNK: usize = 4096;
+        let partial: Vec<f64> = bvh
             .nodes
-            .par_iter()
-            .map(|n| {
-                let a = Bounds::from_aabb(n.aabb()).half_area();
-                if n.is_leaf() { a * n.prim_count as f64 } else { a }
+            .par_chunks(CHUNK)
+            .map(|chunk| {
+                chunk
+                    .iter()
+                    .map(|n| {
+                        let a = Bounds::from_aabb(n.aabb()).half_area();
+                        if n.is_leaf() { a * n.prim_count as f64 } else { a }
+                    })
+                    .sum::<f64>()
             })
-            .sum();
-        total / root
+            .collect();
+        partial.iter().sum::<f64>() / root
     }
 
     /// Cost now divided by the cost right after the last build.
@@ -542,6 +550,22 @@ mod tests {
         assert!(tree.update_some(&[(boxes.len() as u32, changed[0].1)]).is_err());
         let bad = Bounds { min: Vec3::ONE, max: Vec3::ZERO };
         assert!(tree.update_some(&[(0, bad)]).is_err());
+    }
+
+    /// The cost that decides a rebuild is the same on any thread count,
+    /// to the bit: the rebuild decision, and so the tree, never depends on it.
+    #[test]
+    fn the_cost_is_the_same_on_any_thread_count() {
+        let boxes = grid_boxes(120, 0.37); // 14,400 boxes: several chunks of nodes
+        let tree = BoxTree::build(&boxes).unwrap();
+        let on = |threads: usize| {
+            rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| tree.sah_cost())
+        };
+        let one = on(1);
+        assert!(one.is_finite() && one > 1.0);
+        for threads in [2, 3, 8] {
+            assert_eq!(on(threads).to_bits(), one.to_bits(), "{threads} threads");
+        }
     }
 
     fn grid_boxes(n: usize, offset: f32) -> Vec<Bounds> {

@@ -39,7 +39,7 @@ pub use constraint::{PyramidLaplacian, PyramidTargets};
 pub use ring_fit::RingFit;
 pub use deformer::{
     mean_residual, Closeness, DeformerOptions, Formulation, PyramidDeformer, ACCELERATED_ITERATIONS, CONVERGE_TOLERANCE,
-    DEFAULT_CLOSENESS,
+    DEFAULT_CLOSENESS, DEFAULT_CONVERGE,
     MAX_ITERATIONS, MIN_CLOSENESS, validate_closeness,
 };
 pub use encode::{encode, Encoding, PinReason, MAX_REST_ELEVATION, MAX_VALENCE};

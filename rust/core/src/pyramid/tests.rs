@@ -808,6 +808,34 @@ fn accelerated_solver_converges_in_its_iterations_at_low_closeness() {
 }
 
 #[test]
+fn small_meshes_converge_within_their_limit_counted_in_work() {
+    // Issue 28 on the meshes where the multilevel correction has few
+    // aggregates: capped tubes of a couple of hundred and of a couple of
+    // thousand vertices bent 90° at closeness 0.01, with the add-on's
+    // Converge settings. The iteration count is a limit in work on meshes
+    // below `WORK_VERTICES` (solve::stopping), so the small one may run more
+    // iterations than the count; the larger one stops within it.
+    let limit = crate::pyramid::ACCELERATED_ITERATIONS;
+    for (around, along) in [(12, 16), (32, 48)] {
+        let mesh = capped_tube(around, along, 0.5, 4.0);
+        let input = candy_wrapper(&mesh, 4.0, 0.0, 90f32.to_radians());
+        let mut deformer = accelerated(&mesh);
+        let closeness = Closeness::Uniform(0.01);
+        let converged = deformer.solve(&input, 4000, closeness).unwrap();
+        let scale = rms_distance(&converged, &input);
+        let error = |x: Vec<Vec3>| rms_distance(&x, &converged) / scale;
+        let at_the_count = error(deformer.solve(&input, limit, closeness).unwrap());
+        deformer.set_tolerance(Some(CONVERGE_TOLERANCE)).unwrap();
+        let stopped = error(deformer.solve(&input, limit, closeness).unwrap());
+        let took = deformer.last_iterations();
+        let n = mesh.positions.len();
+        println!("{n} vertices: {at_the_count:.4} after {limit} iterations, {stopped:.4} with the tolerance after {took}");
+        assert!(stopped <= 0.05, "{n} vertices: convergence error {stopped:.4} after {took} iterations ({at_the_count:.4} after {limit})");
+        assert!(took <= crate::solve::iteration_limit(limit, n), "{n} vertices: {took} iterations");
+    }
+}
+
+#[test]
 fn accelerated_solves_stay_at_rest_on_a_finely_segmented_fan_cap() {
     // A tube whose caps are triangle fans of 1,000 segments: each rim vertex
     // is a sliver carried from its neighbour on the rim (ring_fit's anchor),

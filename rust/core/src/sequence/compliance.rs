@@ -129,6 +129,7 @@ pub(super) fn recede_from(
     goal: &[Vec3],
     fresh: bool,
 ) -> Result<Recession> {
+    let refit_started = std::time::Instant::now();
     let settings = ColliderSettings { thickness: collider.settings().thickness, static_friction: 0.0, kinetic_friction: 0.0 };
     // After every iteration the skin moves much only near the contacts: its
     // boxes are made again only where it moved (see `SKIN_SLACK`).
@@ -162,6 +163,8 @@ pub(super) fn recede_from(
     // motion.) The move is still checked by continuous collision detection,
     // which stops what the heading did not foresee.
     let clearance = settings.thickness * CLEARANCE + 1e-6;
+    let refit_ms = ms_since(refit_started);
+    let started = std::time::Instant::now();
     let start = collider.current().to_vec();
     let stiffness = collider.compliance().map(|k| k.stiffness.clone()).unwrap_or_default();
     let normals = vertex_normals(goal, collider.triangles());
@@ -245,13 +248,25 @@ pub(super) fn recede_from(
             }
         })
         .collect();
+    let heading_ms = ms_since(started);
     let mut end = heading;
+    let started = std::time::Instant::now();
     let stats = set.resolve_path(&start, &mut end, own, &params)?;
     // A move that cannot be made free of contacts is not made: the collider
     // stays where it was, which is collision-free.
     let start = if stats.pinched.is_empty() { end } else { start };
     collider.set_positions(&start, &start)?;
-    Ok(Recession { contacts: stats.vertex_contacts + stats.edge_contacts + stats.collider_vertex_contacts, refitted })
+    Ok(Recession {
+        contacts: stats.vertex_contacts + stats.edge_contacts + stats.collider_vertex_contacts,
+        refitted,
+        heading_ms,
+        contacts_ms: refit_ms + ms_since(started),
+    })
+}
+
+/// Wall-clock milliseconds since `started` (for [`super::ContactWork`]).
+pub(super) fn ms_since(started: std::time::Instant) -> f64 {
+    started.elapsed().as_secs_f64() * 1e3
 }
 
 /// What one [`recede_from`] did.
@@ -260,6 +275,10 @@ pub(super) struct Recession {
     pub contacts: usize,
     /// Skin vertices whose boxes as a collider were made again.
     pub refitted: usize,
+    /// Wall-clock time spent choosing where each vertex heads.
+    pub heading_ms: f64,
+    /// Wall-clock time of the contact pass that stops them at the skin.
+    pub contacts_ms: f64,
 }
 
 /// The clearance of the skin at `positions` for a substep's in-loop passes

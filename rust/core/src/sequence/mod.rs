@@ -66,7 +66,7 @@ use crate::strain::Hierarchy;
 use crate::Result;
 
 pub use dynamics::{Dynamics, MAX_SUBSTEPS, STIFFNESS_DENSITY};
-pub use options::{SelfOptions, SelfWork, StepOptions, StepReport, StrainMode, StrainOptions};
+pub use options::{ContactWork, SelfOptions, SelfWork, StepOptions, StepReport, StrainMode, StrainOptions};
 
 use self_pass::KeptTangles;
 use step::CarriedPlanes;

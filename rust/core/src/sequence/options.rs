@@ -126,6 +126,31 @@ pub struct StepReport {
     /// Skin vertices whose boxes were made again for compliant colliders to
     /// recede from, after the solver's iterations: those that moved since.
     pub in_loop_skin_refits: usize,
+    /// Where the contact work's time went in this step (for benchmarks).
+    pub contact_work: ContactWork,
+}
+
+/// Where one step's collider and strain time went: wall-clock milliseconds
+/// per phase, summed over substeps and iterations (0 for phases that did not
+/// run). Timings, so not the same from run to run: for benchmarks and
+/// traces, never for decisions.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ContactWork {
+    /// The skin's target rows that give way to compliant colliders.
+    pub compliant_targets_ms: f64,
+    /// Compliant colliders receding before the first pass.
+    pub first_recession_ms: f64,
+    /// The first pass (last output towards the input, colliders sweeping).
+    pub first_pass_ms: f64,
+    /// The in-loop passes against the colliders, with their clearances.
+    pub in_loop_pass_ms: f64,
+    /// The unified strain passes after them.
+    pub strain_ms: f64,
+    /// Compliant colliders' in-loop recessions: where each vertex heads.
+    pub recession_heading_ms: f64,
+    /// Compliant colliders' in-loop recessions: the contact pass that stops
+    /// them at the skin (with the skin's boxes made again where it moved).
+    pub recession_contacts_ms: f64,
 }
 
 /// Where one step's self-collision time went: wall-clock milliseconds per

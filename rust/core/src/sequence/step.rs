@@ -3,7 +3,7 @@
 
 use glam::Vec3;
 
-use super::compliance::{compliant_skin, contact_targets, in_loop_clearance, recede_from};
+use super::compliance::{compliant_skin, contact_targets, in_loop_clearance, ms_since, recede_from};
 use super::dynamics::{kinetic_energy, Dynamics, MAX_SUBSTEPS};
 use super::options::{accumulate, StepOptions, StepReport, StrainMode};
 use super::self_pass::{self, SelfPass};
@@ -178,7 +178,11 @@ impl Sequence {
             }
         };
         // Where compliant colliders' goals overlap that, the skin gives way.
+        let started = std::time::Instant::now();
         let contacts = contact_targets(&target, self.deformer.closeness_weights(), colliders, goals)?;
+        if contacts.is_some() {
+            report.contact_work.compliant_targets_ms += ms_since(started);
+        }
         report.compliant_skin_vertices = report.compliant_skin_vertices.max(contacts.as_ref().map_or(0, |(_, w)| w.iter().filter(|&&w| w > 0.0).count()));
         self.set_contact_targets(contacts)?;
         // A warm start only where nothing else depends on the path from the
@@ -198,13 +202,16 @@ impl Sequence {
 
         if !colliders.is_empty() {
             // 1. Compliant vertices towards their goals, stopping at the skin.
+            let started = std::time::Instant::now();
             for &c in &compliant {
                 let goal = goals[c].as_deref().expect("compliant colliders have goals");
                 let own = compliant_skins[c].as_ref().expect("compliant");
                 let moved = recede_from(&mut self.skin_collider, &self.skin, colliders[c], own, x_n, goal, true)?;
                 report.compliant_contacts += moved.contacts;
             }
+            report.contact_work.first_recession_ms += ms_since(started);
             // 2. The skin towards its target while the colliders sweep.
+            let started = std::time::Instant::now();
             let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
             let carried = self.carried_planes.take().filter(|k| k.fits(colliders)).map(|k| k.planes);
             let first = ColliderSet::new(refs).resolve_path_carrying(x_n, &mut x, &self.skin, &ResolveParams::first_pass(), carried.as_ref())?;
@@ -214,6 +221,7 @@ impl Sequence {
             for &c in &compliant {
                 colliders[c].hold()?;
             }
+            report.contact_work.first_pass_ms += ms_since(started);
         }
         // 2b. The skin against itself along the same paths (with the colliders again where it moved skin).
         if let (Some(pass), Some(collision)) = (self_pass.as_deref_mut(), self.self_collision.as_ref()) {
@@ -248,6 +256,7 @@ impl Sequence {
         let mut clearance: Option<Clearance> = None;
         let mut in_loop = |iteration: usize, before: &[Vec3], after: &mut [Vec3]| -> Result<()> {
             if any_colliders {
+                let started = std::time::Instant::now();
                 // Compliant colliders stand still here; they recede below.
                 let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
                 if !clearance.as_ref().is_some_and(|c| c.is_valid_for(&refs, before.len())) {
@@ -261,20 +270,25 @@ impl Sequence {
                 report.held += stats.held.len();
                 suspects.extend_from_slice(&stats.pinched);
                 last_pinched = stats.pinched;
+                report.contact_work.in_loop_pass_ms += ms_since(started);
             }
             if let Some(limits) = unified {
+                let started = std::time::Instant::now();
                 // The multilevel projection only where the rounds have room to
                 // settle its large moves against the contacts: the last iteration.
                 let (rounds, levels) = if iteration >= last_iteration { (STRAIN_ROUNDS, levels) } else { (STRAIN_ROUNDS_EARLY, None) };
                 let pinched = limit_strain_with_contacts(limits, levels, colliders, after, skin, &inverse_mass, rounds, clearance.as_ref())?;
                 suspects.extend_from_slice(&pinched);
                 last_pinched.extend(pinched);
+                report.contact_work.strain_ms += ms_since(started);
             }
             for &c in &compliant {
                 let goal = goals[c].as_deref().expect("compliant colliders have goals");
                 let moved = recede_from(skin_collider, skin, colliders[c], compliant_skins[c].as_ref().expect("compliant"), after, goal, false)?;
                 report.compliant_contacts += moved.contacts;
                 report.in_loop_skin_refits += moved.refitted;
+                report.contact_work.recession_heading_ms += moved.heading_ms;
+                report.contact_work.recession_contacts_ms += moved.contacts_ms;
             }
             if let (Some(pass), Some(collision)) = (self_pass.as_deref_mut(), self_collision) {
                 let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();

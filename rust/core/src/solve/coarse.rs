@@ -352,7 +352,12 @@ impl Coarse {
     /// `P e₁`, `e₁` from one V-cycle on `A₁ e₁ = ω Pᵀ M (g − x)`, extrapolated
     /// from the iterate before, `previous + weight · (that − previous)`
     /// (see [`super::chebyshev`]; weight 1 = none), except at the vertices
-    /// `extrapolation.1` marks; `previous` then holds `x`.
+    /// `extrapolation.1` marks, which get neither the extrapolation nor the
+    /// correction (rows that carry a vertex from its neighbour: the next
+    /// plain step carries the correction of the neighbour to them; corrected
+    /// themselves, a chain of them, a fan cap's rim, passed a wave along the
+    /// rim that grew ~8 % an iteration on the 5M bake tube's warm frames);
+    /// `previous` then holds `x`.
     /// Returns the squared norms of the residual (`g − x` before all that),
     /// of the accelerated step and of the new iterate's offset from `input`.
     ///
@@ -430,12 +435,13 @@ impl Coarse {
                     let a = a as usize;
                     let plain = *gi - *xi;
                     residual += plain.length_squared();
-                    let correction = if free[a] { error[a] } else { Vec3::ZERO };
+                    let carried = left_out.is_some_and(|mask| mask[k]);
+                    let correction = if free[a] && !carried { error[a] } else { Vec3::ZERO };
                     let corrected = *xi + plain * RELAXATION + correction;
                     // Weight 1 exactly: `p + (c − p)` can differ from `c` in
                     // the last bit, which would make a solve depend on the
                     // solve before it (the previous iterate it left behind).
-                    let next = if extrapolate && !left_out.is_some_and(|mask| mask[k]) {
+                    let next = if extrapolate && !carried {
                         *pi + (corrected - *pi) * weight
                     } else {
                         corrected

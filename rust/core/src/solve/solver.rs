@@ -118,7 +118,9 @@ impl Solver {
     /// error it has left, estimated from its last steps, is within the
     /// tolerance (`None`: always run the count). See [`stopping`]. Plain
     /// iterations converge too slowly for the estimate to hold: those solves
-    /// run their count. With a hook the rule measures the iterate the hook
+    /// run their count. With a tolerance the count is a limit, and on meshes
+    /// below [`stopping::WORK_VERTICES`] vertices a limit in work (see
+    /// [`stopping::limit`]). With a hook the rule measures the iterate the hook
     /// left, so a solve stops where the hook's guarantees hold (contacts
     /// resolved after every iteration).
     pub fn set_tolerance(&mut self, tolerance: Option<Tolerance>) -> Result<()> {
@@ -139,7 +141,8 @@ impl Solver {
         self.tolerance
     }
 
-    /// Iterations the last solve ran (its count, or fewer with a tolerance).
+    /// Iterations the last solve ran (its count; with a tolerance fewer, or
+    /// on a small mesh up to [`stopping::limit`]).
     pub fn last_iterations(&self) -> usize {
         self.last_iterations
     }
@@ -158,11 +161,13 @@ impl Solver {
     }
 
     /// Marks the vertices whose rows the accelerated solver's Chebyshev
-    /// extrapolation must leave out (`mask[v]`; an empty mask: none): rows
-    /// that carry a vertex from another vertex's position (a ring fit's
-    /// sliver anchored to its neighbour). A chain of such rows is a shift:
-    /// its iteration's modes are not the real ones the weights are built for
-    /// (see [`super::chebyshev`]), and extrapolated they grow.
+    /// extrapolation and coarse correction must leave out (`mask[v]`; an
+    /// empty mask: none): rows that carry a vertex from another vertex's
+    /// position (a ring fit's sliver anchored to its neighbour). A chain of
+    /// such rows is a shift: its iteration's modes are not the real ones the
+    /// weights are built for (see [`super::chebyshev`]), and extrapolated or
+    /// corrected they grow. They keep the plain step, which carries their
+    /// anchor's correction to them.
     pub fn set_unextrapolated(&mut self, mask: &[bool]) -> Result<()> {
         if !mask.is_empty() && mask.len() != self.vertex_count {
             return Err(Error::invalid(format!(
@@ -395,13 +400,18 @@ impl Solver {
         }
         let mut hook_moved = false;
         let mut stop = match (self.tolerance, &self.coarse) {
-            (Some(tolerance), Some(_)) => Some(stopping::Rule::new(tolerance)),
+            (Some(tolerance), Some(_)) => Some(stopping::Rule::new(tolerance, self.vertex_count)),
             _ => None,
         };
-        self.last_iterations = iterations;
+        // With a stopping rule the count is a limit, counted in work on small meshes.
+        let limit = match stop {
+            Some(_) => stopping::limit(iterations, self.vertex_count),
+            None => iterations,
+        };
+        self.last_iterations = limit;
         // Ping-pong between the caller's buffer and our own, copying at most once.
         let mut in_work = false;
-        for iteration in 0..iterations {
+        for iteration in 0..limit {
             let (current, next): (&[Vec3], &mut [Vec3]) = if in_work {
                 (&self.work, &mut *positions)
             } else {

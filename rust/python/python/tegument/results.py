@@ -220,7 +220,11 @@ class Defaults(_Report):
     """
 
     iterations: int
-    """``PyramidDeformer.solve``/``step``: solver iterations per frame."""
+    """``PyramidDeformer.solve``/``step``: solver iterations per frame (plain iterations)."""
+    converge: bool
+    """Whether the add-on's Pyramid Deform bakes use the accelerated solver (its Converge setting):
+    ``PyramidDeformer.accelerated`` with :attr:`tolerance`, at most :attr:`accelerated_iterations`,
+    each bake frame warm-started from the last. ``PyramidDeformer`` itself stays plain until asked."""
     accelerated_iterations: int
     """The add-on's Converge iteration limit: the accelerated solver (``PyramidDeformer.accelerated``)
     with :attr:`tolerance` stops before it once converged."""
