@@ -46,6 +46,7 @@
 //! and which serves `sample_warped`; `folds.rs` counts and repairs
 //! fold-overs.
 
+mod anderson;
 mod folds;
 pub mod galerkin;
 mod linearised;
@@ -304,6 +305,12 @@ pub struct Solver {
     /// rebuilt, and kept for the bake (rigidity and mask do not change).
     linear: bool,
     correction: Option<linearised::Correction>,
+    /// The multigrid's finest cycles accelerated by Anderson's method
+    /// ([`anderson`]); `None`: plain cycles.
+    anderson: Option<anderson::Anderson>,
+    /// Keep the Anderson history from one warm frame to the next (the cycle
+    /// map changes little between frames) rather than only within a frame.
+    anderson_across_frames: bool,
 }
 
 /// The solvers: the product's, and the earlier ones kept so that one
@@ -364,7 +371,7 @@ impl Solver {
             level.start_y = vec![0.0; lw * lh];
             levels.push(level);
         }
-        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, records: Vec::new(), reference: false, variant: Variant::default(), linear: false, correction: None }
+        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, records: Vec::new(), reference: false, variant: Variant::default(), linear: false, correction: None, anderson: None, anderson_across_frames: false }
     }
 
     /// Chooses the solver (benchmarks and tests compare them); rebuilds the
@@ -390,6 +397,21 @@ impl Solver {
     pub fn set_linear_correction(&mut self, on: bool) {
         self.linear = on;
         self.correction = None;
+    }
+
+    /// Multigrid only: Anderson acceleration of the finest cycles with a
+    /// history of `depth` cycles (0: off); `across_frames` keeps the history
+    /// between warm frames.
+    #[doc(hidden)]
+    pub fn set_anderson(&mut self, depth: usize, across_frames: bool) {
+        self.anderson = (depth > 0).then(|| anderson::Anderson::new(depth));
+        self.anderson_across_frames = across_frames;
+    }
+
+    /// Anderson steps taken accelerated and rejected (plain image kept) so far.
+    #[doc(hidden)]
+    pub fn anderson_counts(&self) -> Option<(usize, usize)> {
+        self.anderson.as_ref().map(|a| (a.accepted, a.rejected))
     }
 
     /// Probe and construction time of the linear correction (ms) and its
@@ -598,11 +620,23 @@ impl Solver {
         let cycles = s.iterations as usize;
         let linear = self.linear;
         let correction = &mut self.correction;
+        let anderson = &mut self.anderson;
+        if let Some(a) = anderson.as_mut() {
+            if !warm || !self.anderson_across_frames {
+                a.restart();
+            }
+        }
         let mut finest_cycle = |levels: &mut [Level]| {
+            if let Some(a) = anderson.as_mut() {
+                a.before(&levels[0]);
+            }
             // The FAS cycle where the linear correction is off or was not kept.
             let kept = linear && correction.get_or_insert_with(|| linearised::Correction::new(&mut levels[0], &steps)).cycle(&mut levels[0], &steps);
             if !kept {
                 multigrid::cycle(levels, 0, bottom, false, &steps);
+            }
+            if let Some(a) = anderson.as_mut() {
+                a.after(&mut levels[0]);
             }
         };
         if warm {
