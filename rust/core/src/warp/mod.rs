@@ -286,15 +286,6 @@ impl UvWarp {
         }
     }
 
-    /// Multigrid only: the finest cycles use the linear Galerkin coarse
-    /// correction (see `solver::Solver::set_linear_correction`).
-    #[doc(hidden)]
-    pub fn set_linear_correction(&mut self, on: bool) {
-        for tile in &mut self.tiles {
-            tile.solver.set_linear_correction(on);
-        }
-    }
-
     /// Multigrid only: Anderson acceleration of the finest cycles (see
     /// `solver::Solver::set_anderson`).
     #[doc(hidden)]

@@ -875,20 +875,16 @@ fn displacement_error(warp: &UvWarp, inf: &(Vec<f32>, Vec<f32>)) -> f64 {
 #[derive(Debug, Clone, Copy)]
 struct CycleKind {
     label: &'static str,
-    /// The linear Galerkin coarse correction.
-    linear: bool,
     /// Anderson acceleration's depth (0: off).
     anderson: usize,
 }
 
-const FAS: CycleKind = CycleKind { label: "FAS", linear: false, anderson: 0 };
-const LINEAR: CycleKind = CycleKind { label: "linear Galerkin", linear: true, anderson: 0 };
+const FAS: CycleKind = CycleKind { label: "FAS", anderson: 0 };
 
 /// Per-cycle error of the multigrid's finest cycles of each kind, from the
 /// same cold start, on a scene: for each kind, the errors after the cold
 /// solve and after 1..=cycles warm cycles.
 fn cycle_errors_of(def: &[Vec3], warp: &mut UvWarp, cycles: usize, kinds: &[CycleKind]) -> Vec<Vec<f64>> {
-    warp.set_linear_correction(false);
     warp.set_anderson(0, false);
     let reached = converge_fully(warp, def);
     eprintln!("x_inf: {reached:?}");
@@ -896,7 +892,6 @@ fn cycle_errors_of(def: &[Vec3], warp: &mut UvWarp, cycles: usize, kinds: &[Cycl
     let mut out = Vec::new();
     for kind in kinds {
         warp.set_variant(solver::Variant::Multigrid);
-        warp.set_linear_correction(kind.linear);
         // The warm cycles below solve the same pose: the history carries over.
         warp.set_anderson(kind.anderson, true);
         warp.settings.iterations = 1;
@@ -915,18 +910,11 @@ fn cycle_errors_of(def: &[Vec3], warp: &mut UvWarp, cycles: usize, kinds: &[Cycl
         let met = &warp.metrics(def).unwrap()[0];
         let factor = (errors[cycles] / errors[0]).powf(1.0 / cycles as f64);
         let solver = &warp.tiles[0].solver;
-        eprintln!("{}²: {} (Anderson {}) cold {cold_ms:.0} ms, warm cycle {per_cycle_ms:.1} ms, errors {errors:.4?}, {factor:.3} a cycle, folds {}, rigid stretch {:.4}, round trip {:.2}, linear cost {:?}, Anderson accepted/rejected {:?}", warp.width, kind.label, kind.anderson, met.foldovers, met.stretch_warped.mean, met.round_trip_max, solver.linear_correction_cost().map(|c| (c.0, c.1)), solver.anderson_counts());
+        eprintln!("{}²: {} (Anderson {}) cold {cold_ms:.0} ms, warm cycle {per_cycle_ms:.1} ms, errors {errors:.4?}, {factor:.3} a cycle, folds {}, rigid stretch {:.4}, round trip {:.2}, Anderson accepted/rejected {:?}", warp.width, kind.label, kind.anderson, met.foldovers, met.stretch_warped.mean, met.round_trip_max, solver.anderson_counts());
         out.push(errors);
     }
     warp.set_anderson(0, false);
     out
-}
-
-/// [`cycle_errors_of`] for the FAS cycle and the linear Galerkin correction.
-fn cycle_errors(def: &[Vec3], warp: &mut UvWarp, cycles: usize) -> (Vec<f64>, Vec<f64>) {
-    let mut out = cycle_errors_of(def, warp, cycles, &[FAS, LINEAR]);
-    let linear = out.pop().unwrap();
-    (out.pop().unwrap(), linear)
 }
 
 /// Issue 28, measured (not a gate): per-cycle reduction of FAS cycles,
@@ -938,7 +926,7 @@ fn cycle_errors(def: &[Vec3], warp: &mut UvWarp, cycles: usize) -> (Vec<f64>, Ve
 fn anderson_per_cycle() {
     let n: usize = std::env::var("TEGUMENT_WARP_N").ok().and_then(|v| v.parse().ok()).unwrap_or(256);
     let cycles: usize = std::env::var("TEGUMENT_WARP_CYCLES").ok().and_then(|v| v.parse().ok()).unwrap_or(8);
-    let kinds = [FAS, CycleKind { label: "FAS", linear: false, anderson: 3 }, CycleKind { label: "FAS", linear: false, anderson: 6 }];
+    let kinds = [FAS, CycleKind { label: "FAS", anderson: 3 }, CycleKind { label: "FAS", anderson: 6 }];
     let (def, mut warp) = benchmark_cylinder(n, solver::Variant::Multigrid);
     cycle_errors_of(&def, &mut warp, cycles, &kinds);
     let (def, mut warp) = squares_cylinder(n);
@@ -953,48 +941,6 @@ fn anderson_per_cycle() {
     }
 }
 
-/// Issue 28, measured (not a gate): per-cycle reduction of the FAS and the
-/// linear Galerkin multigrid on the benchmark cylinder, the squares scene
-/// and Spot at 256² (`cargo test --release -p tegument-core --lib
-/// linear_correction_per_cycle -- --ignored --nocapture`).
-#[test]
-#[ignore = "a measurement: prints per-cycle reductions (release, about a minute)"]
-fn linear_correction_per_cycle() {
-    let n: usize = std::env::var("TEGUMENT_WARP_N").ok().and_then(|v| v.parse().ok()).unwrap_or(256);
-    let (def, mut warp) = benchmark_cylinder(n, solver::Variant::Multigrid);
-    cycle_errors(&def, &mut warp, 6);
-    let (def, mut warp) = squares_cylinder(n);
-    cycle_errors(&def, &mut warp, 6);
-    let dir = spot_dir();
-    if dir.join("spot_triangulated.obj").exists() {
-        let m = read_obj(&dir.join("spot_triangulated.obj"));
-        let r = spot_rigidity(&dir, n);
-        let mut warp = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &r, mask: None }], settings(false)).unwrap();
-        let def = bend(&m.positions, 2, 1, 0.0, -0.7, 0.5);
-        cycle_errors(&def, &mut warp, 6);
-    }
-}
-
-/// Issue 28: the multigrid's linear Galerkin coarse correction (selectable,
-/// not the default) converges faster than its FAS coarse levels where its
-/// linearisation holds (the squares scene at 256²: 0.51 a cycle against
-/// 0.81, docs/performance.md), and where it does not (the benchmark
-/// cylinder's strongest bend) its guard falls back to the FAS cycle: no
-/// fold, the warp still does its job.
-#[test]
-fn linear_galerkin_correction_beats_the_fas_cycle_where_it_holds() {
-    let (def, mut warp) = squares_cylinder(256);
-    let (fas, linear) = cycle_errors(&def, &mut warp, 6);
-    let factor = |e: &[f64]| (e[6] / e[0]).powf(1.0 / 6.0);
-    assert!(factor(&linear) <= 0.6 && factor(&linear) < factor(&fas), "FAS {fas:.4?}, linear {linear:.4?}");
-    assert!(linear[6] < 0.5 * fas[6], "FAS {fas:.4?}, linear {linear:.4?}");
-    assert!(linear.windows(2).all(|e| e[1] < e[0]), "{linear:.4?}");
-    let (def, mut warp) = benchmark_cylinder(256, solver::Variant::Multigrid);
-    warp.set_linear_correction(true);
-    let failures = cold_fold_failures(&def, &mut warp, [1, 4]);
-    assert!(failures.is_empty(), "{failures:#?}");
-}
-
 /// Issue 28, gate of the Anderson acceleration (selectable, not the
 /// default): on the squares scene at 256² its cycles reduce the error
 /// faster than plain FAS cycles (measured 0.54 a cycle against 0.82,
@@ -1003,7 +949,7 @@ fn linear_galerkin_correction_beats_the_fas_cycle_where_it_holds() {
 /// to the converged warp than the plain cycles after 6 cycles, without a fold.
 #[test]
 fn anderson_accelerated_cycles_beat_plain_fas_cycles() {
-    let anderson = CycleKind { label: "FAS", linear: false, anderson: 3 };
+    let anderson = CycleKind { label: "FAS", anderson: 3 };
     let factor = |e: &[f64]| (e[6] / e[0]).powf(1.0 / 6.0);
     let (def, mut warp) = squares_cylinder(256);
     let out = cycle_errors_of(&def, &mut warp, 6, &[FAS, anderson]);

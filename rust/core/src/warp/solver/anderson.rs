@@ -89,7 +89,7 @@ impl Anderson {
         }
         let (x, g) = (&self.x, &self.g);
         let norm2 = chunked_sum(n, |r| r.map(|i| ((g[i] - x[i]) as f64).powi(2)).sum());
-        if self.started && !(norm2 < self.last_norm2) {
+        if self.started && (norm2.is_nan() || norm2 >= self.last_norm2) {
             // The residual grew: the combination overshot (or the frame
             // changed the map too much). Start again from this plain image.
             (self.len, self.started) = (0, false);

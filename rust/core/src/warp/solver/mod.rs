@@ -39,17 +39,14 @@
 //!
 //! Files: this one drives the hierarchy (levels, restriction, prolongation,
 //! the fast sweeps of [`super::sweep`]); `multigrid.rs` the cycles;
-//! `linearised.rs` the multigrid's optional linear coarse correction (the
-//! finest iteration probed once per bake), coarsened by `galerkin.rs`
-//! (Galerkin operators, operator-dependent interpolation, issue 28); `reference.rs` is the reference
+//! `anderson.rs` the multigrid's optional Anderson acceleration of its
+//! finest cycles (issue 28); `reference.rs` is the reference
 //! path, one constraint at a time, which the sweeps must match bit for bit
 //! and which serves `sample_warped`; `folds.rs` counts and repairs
 //! fold-overs.
 
 mod anderson;
 mod folds;
-pub mod galerkin;
-mod linearised;
 mod multigrid;
 mod reference;
 
@@ -299,12 +296,6 @@ pub struct Solver {
     pub(crate) reference: bool,
     /// Which solver runs (see [`Variant`]; set with [`Solver::set_variant`]).
     variant: Variant,
-    /// The multigrid's finest cycles use the linear Galerkin coarse
-    /// correction ([`linearised`]) instead of the FAS coarse levels; it is
-    /// built at the first solve after it is switched on or the solver is
-    /// rebuilt, and kept for the bake (rigidity and mask do not change).
-    linear: bool,
-    correction: Option<linearised::Correction>,
     /// The multigrid's finest cycles accelerated by Anderson's method
     /// ([`anderson`]); `None`: plain cycles.
     anderson: Option<anderson::Anderson>,
@@ -371,7 +362,7 @@ impl Solver {
             level.start_y = vec![0.0; lw * lh];
             levels.push(level);
         }
-        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, records: Vec::new(), reference: false, variant: Variant::default(), linear: false, correction: None, anderson: None, anderson_across_frames: false }
+        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, records: Vec::new(), reference: false, variant: Variant::default(), anderson: None, anderson_across_frames: false }
     }
 
     /// Chooses the solver (benchmarks and tests compare them); rebuilds the
@@ -390,15 +381,6 @@ impl Solver {
         self.reset();
     }
 
-    /// Multigrid only: whether the finest level's cycles use the linear
-    /// Galerkin coarse correction ([`linearised`]); switching drops a
-    /// correction built before.
-    #[doc(hidden)]
-    pub fn set_linear_correction(&mut self, on: bool) {
-        self.linear = on;
-        self.correction = None;
-    }
-
     /// Multigrid only: Anderson acceleration of the finest cycles with a
     /// history of `depth` cycles (0: off); `across_frames` keeps the history
     /// between warm frames.
@@ -412,13 +394,6 @@ impl Solver {
     #[doc(hidden)]
     pub fn anderson_counts(&self) -> Option<(usize, usize)> {
         self.anderson.as_ref().map(|a| (a.accepted, a.rejected))
-    }
-
-    /// Probe and construction time of the linear correction (ms) and its
-    /// levels' nonzeros, once built.
-    #[doc(hidden)]
-    pub fn linear_correction_cost(&self) -> Option<(f64, f64, Vec<usize>)> {
-        self.correction.as_ref().map(|c| (c.probe_ms, c.build_ms, c.nonzeros()))
     }
 
     pub fn variant(&self) -> Variant {
@@ -618,8 +593,6 @@ impl Solver {
         };
         let bottom = levels - 1;
         let cycles = s.iterations as usize;
-        let linear = self.linear;
-        let correction = &mut self.correction;
         let anderson = &mut self.anderson;
         if let Some(a) = anderson.as_mut() {
             if !warm || !self.anderson_across_frames {
@@ -630,11 +603,7 @@ impl Solver {
             if let Some(a) = anderson.as_mut() {
                 a.before(&levels[0]);
             }
-            // The FAS cycle where the linear correction is off or was not kept.
-            let kept = linear && correction.get_or_insert_with(|| linearised::Correction::new(&mut levels[0], &steps)).cycle(&mut levels[0], &steps);
-            if !kept {
-                multigrid::cycle(levels, 0, bottom, false, &steps);
-            }
+            multigrid::cycle(levels, 0, bottom, false, &steps);
             if let Some(a) = anderson.as_mut() {
                 a.after(&mut levels[0]);
             }
