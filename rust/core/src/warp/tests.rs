@@ -1042,3 +1042,38 @@ fn anderson_cycle_cost() {
         eprintln!("{n}²: {} ({} a frame) warm frame median {:.1} ms, all {t:.1?}", kinds[k].0, warps[k].1.settings.iterations, t[t.len() / 2]);
     }
 }
+
+/// Issue 28, measured (not a gate): work-counted iteration counts for small
+/// grids with the default cascade. A 256² iteration costs 1/16 of a 1024²
+/// one, so 256² could run 16 × the count in the same frame time: cold rigid
+/// stretch of the benchmark cylinder's strongest bend against its converged
+/// warp, and Spot's round trip, by count (`cargo test --release -p
+/// tegument-core --lib cascade_counts_at_256 -- --ignored --nocapture`).
+#[test]
+#[ignore = "a measurement: prints rigid stretch and round trips by count (release)"]
+fn cascade_counts_at_256() {
+    let n = 256;
+    let (def, mut warp) = benchmark_cylinder(n, solver::Variant::Multigrid);
+    converge_fully(&mut warp, &def);
+    let converged = warp.metrics(&def).unwrap()[0].stretch_warped.mean;
+    warp.set_variant(solver::Variant::Cascade);
+    for k in [4u32, 8, 16, 32, 64] {
+        warp.settings.iterations = k;
+        warp.settings.warm_start = false;
+        warp.solve(&def).unwrap();
+        let met = &warp.metrics(&def).unwrap()[0];
+        eprintln!("cylinder 256², cascade {k}: rigid stretch {:.4} against converged {converged:.4} ({:+.1} %), folds {}, round trip {:.2}", met.stretch_warped.mean, 100.0 * (met.stretch_warped.mean / converged - 1.0), met.foldovers, met.round_trip_max);
+    }
+    let dir = spot_dir();
+    if dir.join("spot_triangulated.obj").exists() {
+        let m = read_obj(&dir.join("spot_triangulated.obj"));
+        let r = spot_rigidity(&dir, n);
+        let def = bend(&m.positions, 2, 1, 0.0, -0.7, 0.5);
+        for k in [8u32, 16, 32, 64, 128] {
+            let mut warp = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &r, mask: None }], WarpSettings { iterations: k, warm_start: false, ..Default::default() }).unwrap();
+            warp.solve(&def).unwrap();
+            let met = &warp.metrics(&def).unwrap()[0];
+            eprintln!("Spot 256², cascade {k}: rigid stretch {:.4} (identity {:.4}), p95 {:.3}, folds {}, round trip {:.2}", met.stretch_warped.mean, met.stretch_identity.mean, met.stretch_warped.p95, met.foldovers, met.round_trip_max);
+        }
+    }
+}
