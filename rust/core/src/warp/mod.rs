@@ -286,6 +286,15 @@ impl UvWarp {
         }
     }
 
+    /// Multigrid only: Anderson acceleration of the finest cycles (see
+    /// `solver::Solver::set_anderson`).
+    #[doc(hidden)]
+    pub fn set_anderson(&mut self, depth: usize, across_frames: bool) {
+        for tile in &mut self.tiles {
+            tile.solver.set_anderson(depth, across_frames);
+        }
+    }
+
     /// Continues the last solve until it has converged: the converged warp
     /// `x_∞` convergence errors are measured against (issue 28: positions
     /// change by less than `tolerance` texels in an iteration). Runs

@@ -858,3 +858,222 @@ fn bakes_beyond_the_default_iteration_count_agree_within_five_percent() {
     }
     assert!(worst.iter().all(|&(_, d)| d <= 0.05), "largest difference per frame against 64 iterations: {worst:?}");
 }
+
+/// Convergence error of the finest warp against `x_∞` (displacements):
+/// RMS|x − x_∞| ÷ RMS|x_∞|.
+fn displacement_error(warp: &UvWarp, inf: &(Vec<f32>, Vec<f32>)) -> f64 {
+    let (dx, dy) = warp.tiles[0].displacement();
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for t in 0..dx.len() {
+        num += ((dx[t] - inf.0[t]) as f64).powi(2) + ((dy[t] - inf.1[t]) as f64).powi(2);
+        den += (inf.0[t] as f64).powi(2) + (inf.1[t] as f64).powi(2);
+    }
+    (num / den.max(1e-300)).sqrt()
+}
+
+/// How the multigrid's finest cycles run in [`cycle_errors_of`].
+#[derive(Debug, Clone, Copy)]
+struct CycleKind {
+    label: &'static str,
+    /// Anderson acceleration's depth (0: off).
+    anderson: usize,
+}
+
+const FAS: CycleKind = CycleKind { label: "FAS", anderson: 0 };
+
+/// Per-cycle error of the multigrid's finest cycles of each kind, from the
+/// same cold start, on a scene: for each kind, the errors after the cold
+/// solve and after 1..=cycles warm cycles.
+fn cycle_errors_of(def: &[Vec3], warp: &mut UvWarp, cycles: usize, kinds: &[CycleKind]) -> Vec<Vec<f64>> {
+    warp.set_anderson(0, false);
+    let reached = converge_fully(warp, def);
+    eprintln!("x_inf: {reached:?}");
+    let inf = { let (x, y) = warp.tiles[0].displacement(); (x.to_vec(), y.to_vec()) };
+    let mut out = Vec::new();
+    for kind in kinds {
+        warp.set_variant(solver::Variant::Multigrid);
+        // The warm cycles below solve the same pose: the history carries over.
+        warp.set_anderson(kind.anderson, true);
+        warp.settings.iterations = 1;
+        warp.settings.warm_start = false;
+        let started = std::time::Instant::now();
+        warp.solve(def).unwrap();
+        let cold_ms = started.elapsed().as_secs_f64() * 1e3;
+        let mut errors = vec![displacement_error(warp, &inf)];
+        warp.settings.warm_start = true;
+        let started = std::time::Instant::now();
+        for _ in 0..cycles {
+            warp.solve(def).unwrap();
+            errors.push(displacement_error(warp, &inf));
+        }
+        let per_cycle_ms = started.elapsed().as_secs_f64() * 1e3 / cycles as f64;
+        let met = &warp.metrics(def).unwrap()[0];
+        let factor = (errors[cycles] / errors[0]).powf(1.0 / cycles as f64);
+        let solver = &warp.tiles[0].solver;
+        eprintln!("{}²: {} (Anderson {}) cold {cold_ms:.0} ms, warm cycle {per_cycle_ms:.1} ms, errors {errors:.4?}, {factor:.3} a cycle, folds {}, rigid stretch {:.4}, round trip {:.2}, Anderson accepted/rejected {:?}", warp.width, kind.label, kind.anderson, met.foldovers, met.stretch_warped.mean, met.round_trip_max, solver.anderson_counts());
+        out.push(errors);
+    }
+    warp.set_anderson(0, false);
+    out
+}
+
+/// Issue 28, measured (not a gate): per-cycle reduction of FAS cycles,
+/// plain and Anderson-accelerated, on the benchmark cylinder, the squares
+/// scene and Spot (`TEGUMENT_WARP_N=256 cargo test --release -p
+/// tegument-core --lib anderson_per_cycle -- --ignored --nocapture`).
+#[test]
+#[ignore = "a measurement: prints per-cycle reductions (release, minutes)"]
+fn anderson_per_cycle() {
+    let n: usize = std::env::var("TEGUMENT_WARP_N").ok().and_then(|v| v.parse().ok()).unwrap_or(256);
+    let cycles: usize = std::env::var("TEGUMENT_WARP_CYCLES").ok().and_then(|v| v.parse().ok()).unwrap_or(8);
+    let kinds = [FAS, CycleKind { label: "FAS", anderson: 3 }, CycleKind { label: "FAS", anderson: 6 }];
+    let (def, mut warp) = benchmark_cylinder(n, solver::Variant::Multigrid);
+    cycle_errors_of(&def, &mut warp, cycles, &kinds);
+    let (def, mut warp) = squares_cylinder(n);
+    cycle_errors_of(&def, &mut warp, cycles, &kinds);
+    let dir = spot_dir();
+    if dir.join("spot_triangulated.obj").exists() {
+        let m = read_obj(&dir.join("spot_triangulated.obj"));
+        let r = spot_rigidity(&dir, n);
+        let mut warp = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &r, mask: None }], settings(false)).unwrap();
+        let def = bend(&m.positions, 2, 1, 0.0, -0.7, 0.5);
+        cycle_errors_of(&def, &mut warp, cycles, &kinds);
+    }
+}
+
+/// Issue 28, gate of the Anderson acceleration (selectable, not the
+/// default): on the squares scene at 256² its cycles reduce the error
+/// faster than plain FAS cycles (measured 0.54 a cycle against 0.82,
+/// docs/performance.md) and never fold; on the benchmark cylinder's
+/// strongest bend (cells at the fold-prevention limit) it still ends closer
+/// to the converged warp than the plain cycles after 6 cycles, without a fold.
+#[test]
+fn anderson_accelerated_cycles_beat_plain_fas_cycles() {
+    let anderson = CycleKind { label: "FAS", anderson: 3 };
+    let factor = |e: &[f64]| (e[6] / e[0]).powf(1.0 / 6.0);
+    let (def, mut warp) = squares_cylinder(256);
+    let out = cycle_errors_of(&def, &mut warp, 6, &[FAS, anderson]);
+    assert!(factor(&out[1]) <= 0.7 && factor(&out[1]) < factor(&out[0]), "FAS {:.4?}, Anderson {:.4?}", out[0], out[1]);
+    let (def, mut warp) = benchmark_cylinder(256, solver::Variant::Multigrid);
+    let out = cycle_errors_of(&def, &mut warp, 6, &[FAS, anderson]);
+    assert!(out[1][6] < 0.7 * out[0][6], "FAS {:.4?}, Anderson {:.4?}", out[0], out[1]);
+    warp.set_anderson(3, true);
+    let failures = cold_fold_failures(&def, &mut warp, [1, 4, 8]);
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// Issue 28, measured (not a gate): bakes of the benchmark cylinder's moving
+/// bend (frames 0..=10, frame 0 cold) at k cycles a frame, plain FAS and
+/// Anderson-accelerated (history kept across the warm frames), against the
+/// bake at 64 plain cycles a frame (`TEGUMENT_WARP_N=256 cargo test
+/// --release -p tegument-core --lib anderson_bakes -- --ignored --nocapture`).
+#[test]
+#[ignore = "a measurement: prints bake differences (release, minutes)"]
+fn anderson_bakes_against_64_cycles() {
+    let n: usize = std::env::var("TEGUMENT_WARP_N").ok().and_then(|v| v.parse().ok()).unwrap_or(256);
+    let m = super::fixtures::uv_cylinder(256, 128, 1.0, std::f32::consts::TAU, 0.05);
+    let rig = super::fixtures::scales_map(n, n, 24);
+    let pose = |f: usize| bend(&m.positions, 2, 0, 0.0, 0.0, 0.5 * (0.6 + 0.04 * f as f32));
+    let bake = |k: u32, depth: usize, across: bool| {
+        let settings = WarpSettings { iterations: k, warm_start: true, ..Default::default() };
+        let mut warp = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &rig, mask: None }], settings).unwrap();
+        warp.set_variant(solver::Variant::Multigrid);
+        warp.set_anderson(depth, across);
+        let mut ms = Vec::new();
+        let mut folds = 0;
+        let frames: Vec<Vec<f32>> = (0..=10)
+            .map(|f| {
+                let started = std::time::Instant::now();
+                warp.solve(&pose(f)).unwrap();
+                ms.push(started.elapsed().as_secs_f64() * 1e3);
+                folds += warp.metrics(&pose(f)).unwrap()[0].foldovers;
+                warp.tiles[0].redirection.clone()
+            })
+            .collect();
+        ms.sort_by(f64::total_cmp);
+        (frames, warp.tiles[0].validity().to_vec(), ms[ms.len() / 2], folds, warp.tiles[0].solver.anderson_counts())
+    };
+    let (reference, valid, ..) = bake(64, 0, false);
+    for k in [1, 2, 4, 8] {
+        for (depth, across) in [(0, false), (3, false), (3, true), (6, true)] {
+            if k == 1 && depth > 0 && !across {
+                continue;
+            }
+            let (frames, _, ms, folds, counts) = bake(k, depth, across);
+            let d: Vec<f64> = frames.iter().zip(&reference).map(|(a, b)| redirection_difference(a, b, &valid, n)).collect();
+            let worst_warm = d[1..].iter().cloned().fold(0.0, f64::max);
+            eprintln!("{n}²: {k} cycles a frame, Anderson {depth} (across frames {across}): against 64 {d:.3?}, worst warm {worst_warm:.3}, median frame {ms:.1} ms, folds {folds}, accepted/rejected {counts:?}");
+        }
+    }
+}
+
+/// Issue 28, measured (not a gate): the wall time of a warm frame of the
+/// benchmark cylinder's strongest bend, alternating in rounds between the
+/// cascade (the default), one plain FAS cycle and one Anderson-accelerated
+/// FAS cycle, medians over the rounds (`TEGUMENT_WARP_N=1024 cargo test
+/// --release -p tegument-core --lib anderson_cycle_cost -- --ignored
+/// --nocapture`; run beside `uptime`).
+#[test]
+#[ignore = "a measurement: prints frame times (release)"]
+fn anderson_cycle_cost() {
+    let n: usize = std::env::var("TEGUMENT_WARP_N").ok().and_then(|v| v.parse().ok()).unwrap_or(1024);
+    let kinds: [(&str, solver::Variant, usize); 3] = [("cascade", solver::Variant::Cascade, 0), ("FAS cycle", solver::Variant::Multigrid, 0), ("FAS cycle + Anderson 3", solver::Variant::Multigrid, 3)];
+    let mut warps: Vec<(Vec<Vec3>, UvWarp)> = kinds
+        .iter()
+        .map(|&(_, variant, depth)| {
+            let (def, mut warp) = benchmark_cylinder(n, variant);
+            warp.set_anderson(depth, false);
+            warp.settings.iterations = if variant == solver::Variant::Cascade { WarpSettings::default().iterations } else { 2 };
+            warp.settings.warm_start = true;
+            warp.solve(&def).unwrap();
+            (def, warp)
+        })
+        .collect();
+    let mut times = vec![Vec::new(); kinds.len()];
+    for _ in 0..7 {
+        for (k, (def, warp)) in warps.iter_mut().enumerate() {
+            let started = std::time::Instant::now();
+            warp.solve(def).unwrap();
+            times[k].push(started.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    for (k, t) in times.iter_mut().enumerate() {
+        t.sort_by(f64::total_cmp);
+        eprintln!("{n}²: {} ({} a frame) warm frame median {:.1} ms, all {t:.1?}", kinds[k].0, warps[k].1.settings.iterations, t[t.len() / 2]);
+    }
+}
+
+/// Issue 28, measured (not a gate): work-counted iteration counts for small
+/// grids with the default cascade. A 256² iteration costs 1/16 of a 1024²
+/// one, so 256² could run 16 × the count in the same frame time: cold rigid
+/// stretch of the benchmark cylinder's strongest bend against its converged
+/// warp, and Spot's round trip, by count (`cargo test --release -p
+/// tegument-core --lib cascade_counts_at_256 -- --ignored --nocapture`).
+#[test]
+#[ignore = "a measurement: prints rigid stretch and round trips by count (release)"]
+fn cascade_counts_at_256() {
+    let n = 256;
+    let (def, mut warp) = benchmark_cylinder(n, solver::Variant::Multigrid);
+    converge_fully(&mut warp, &def);
+    let converged = warp.metrics(&def).unwrap()[0].stretch_warped.mean;
+    warp.set_variant(solver::Variant::Cascade);
+    for k in [4u32, 8, 16, 32, 64] {
+        warp.settings.iterations = k;
+        warp.settings.warm_start = false;
+        warp.solve(&def).unwrap();
+        let met = &warp.metrics(&def).unwrap()[0];
+        eprintln!("cylinder 256², cascade {k}: rigid stretch {:.4} against converged {converged:.4} ({:+.1} %), folds {}, round trip {:.2}", met.stretch_warped.mean, 100.0 * (met.stretch_warped.mean / converged - 1.0), met.foldovers, met.round_trip_max);
+    }
+    let dir = spot_dir();
+    if dir.join("spot_triangulated.obj").exists() {
+        let m = read_obj(&dir.join("spot_triangulated.obj"));
+        let r = spot_rigidity(&dir, n);
+        let def = bend(&m.positions, 2, 1, 0.0, -0.7, 0.5);
+        for k in [8u32, 16, 32, 64, 128] {
+            let mut warp = UvWarp::new(m.input(), &m.corner_uvs, n, n, &[TileMaps { udim: 1001, rigidity: &r, mask: None }], WarpSettings { iterations: k, warm_start: false, ..Default::default() }).unwrap();
+            warp.solve(&def).unwrap();
+            let met = &warp.metrics(&def).unwrap()[0];
+            eprintln!("Spot 256², cascade {k}: rigid stretch {:.4} (identity {:.4}), p95 {:.3}, folds {}, round trip {:.2}", met.stretch_warped.mean, met.stretch_identity.mean, met.stretch_warped.p95, met.foldovers, met.round_trip_max);
+        }
+    }
+}

@@ -38,11 +38,14 @@
 
 //!
 //! Files: this one drives the hierarchy (levels, restriction, prolongation,
-//! the fast sweeps of [`super::sweep`]); `multigrid.rs` the cycles; `reference.rs` is the reference
+//! the fast sweeps of [`super::sweep`]); `multigrid.rs` the cycles;
+//! `anderson.rs` the multigrid's optional Anderson acceleration of its
+//! finest cycles (issue 28); `reference.rs` is the reference
 //! path, one constraint at a time, which the sweeps must match bit for bit
 //! and which serves `sample_warped`; `folds.rs` counts and repairs
 //! fold-overs.
 
+mod anderson;
 mod folds;
 mod multigrid;
 mod reference;
@@ -293,6 +296,12 @@ pub struct Solver {
     pub(crate) reference: bool,
     /// Which solver runs (see [`Variant`]; set with [`Solver::set_variant`]).
     variant: Variant,
+    /// The multigrid's finest cycles accelerated by Anderson's method
+    /// ([`anderson`]); `None`: plain cycles.
+    anderson: Option<anderson::Anderson>,
+    /// Keep the Anderson history from one warm frame to the next (the cycle
+    /// map changes little between frames) rather than only within a frame.
+    anderson_across_frames: bool,
 }
 
 /// The solvers: the product's, and the earlier ones kept so that one
@@ -353,7 +362,7 @@ impl Solver {
             level.start_y = vec![0.0; lw * lh];
             levels.push(level);
         }
-        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, records: Vec::new(), reference: false, variant: Variant::default() }
+        Solver { levels, go_tri, tri_chart, last_iterations: Vec::new(), last_repair: (0, 1.0), last_level_ms: Vec::new(), last_prepare_ms: 0.0, records: Vec::new(), reference: false, variant: Variant::default(), anderson: None, anderson_across_frames: false }
     }
 
     /// Chooses the solver (benchmarks and tests compare them); rebuilds the
@@ -370,6 +379,21 @@ impl Solver {
         }
         self.variant = variant;
         self.reset();
+    }
+
+    /// Multigrid only: Anderson acceleration of the finest cycles with a
+    /// history of `depth` cycles (0: off); `across_frames` keeps the history
+    /// between warm frames.
+    #[doc(hidden)]
+    pub fn set_anderson(&mut self, depth: usize, across_frames: bool) {
+        self.anderson = (depth > 0).then(|| anderson::Anderson::new(depth));
+        self.anderson_across_frames = across_frames;
+    }
+
+    /// Anderson steps taken accelerated and rejected (plain image kept) so far.
+    #[doc(hidden)]
+    pub fn anderson_counts(&self) -> Option<(usize, usize)> {
+        self.anderson.as_ref().map(|a| (a.accepted, a.rejected))
     }
 
     pub fn variant(&self) -> Variant {
@@ -569,9 +593,24 @@ impl Solver {
         };
         let bottom = levels - 1;
         let cycles = s.iterations as usize;
+        let anderson = &mut self.anderson;
+        if let Some(a) = anderson.as_mut() {
+            if !warm || !self.anderson_across_frames {
+                a.restart();
+            }
+        }
+        let mut finest_cycle = |levels: &mut [Level]| {
+            if let Some(a) = anderson.as_mut() {
+                a.before(&levels[0]);
+            }
+            multigrid::cycle(levels, 0, bottom, false, &steps);
+            if let Some(a) = anderson.as_mut() {
+                a.after(&mut levels[0]);
+            }
+        };
         if warm {
             for _ in 0..cycles {
-                multigrid::cycle(&mut self.levels, 0, bottom, false, &steps);
+                finest_cycle(&mut self.levels);
             }
         } else {
             for l in (0..=bottom).rev() {
@@ -581,7 +620,11 @@ impl Solver {
                     let (fine, coarse) = self.levels.split_at_mut(l + 1);
                     prolong(&coarse[0], &mut fine[l]);
                     for _ in 0..cycles + 1 {
-                        multigrid::cycle(&mut self.levels, l, bottom, false, &steps);
+                        if l == 0 {
+                            finest_cycle(&mut self.levels);
+                        } else {
+                            multigrid::cycle(&mut self.levels, l, bottom, false, &steps);
+                        }
                     }
                 }
                 if l > 0 {

@@ -49,7 +49,7 @@ pub(super) const COARSEST_ITERATIONS: usize = 32;
 /// level: 5 diverged on a plain Laplace problem.
 const RESIDUAL_SCALE: f32 = 4.0;
 /// Passes of the fold-prevention constraint per iteration (as the old solver).
-const AREA_PASSES: usize = 4;
+pub(super) const AREA_PASSES: usize = 4;
 
 /// One plain iteration (projection and regularisation) of a level, with
 /// that level's metric: what the solver's fast or reference kernels do.
