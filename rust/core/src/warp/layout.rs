@@ -9,7 +9,7 @@
 //! up through the per-texel triangle index; [`TileLayout::interpolate`] gives
 //! the interpolated positions `f_O`, `f_D` themselves.
 
-use glam::{DVec3, Vec2, Vec3};
+use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use super::raster::{barycentric, Prepared};
@@ -197,10 +197,5 @@ impl TileLayout {
                 Some(p.as_vec3())
             })
             .collect()
-    }
-
-    /// UV of the centre of texel `(x, y)` in absolute (UDIM) coordinates.
-    pub fn texel_uv(&self, x: f32, y: f32) -> Vec2 {
-        udim_offset(self.udim) + Vec2::new(x / self.width as f32, y / self.height as f32)
     }
 }
