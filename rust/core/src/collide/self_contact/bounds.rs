@@ -298,7 +298,7 @@ impl NodeBounds {
 /// The boundary loop of two disks with loops `a` and `b` (vertex cycles in
 /// the triangles' winding) joined along the boundary they share, if that is
 /// one run of edges and they touch nowhere else: then their union is a disk.
-/// `b_at` is `b`'s [`loop_index`] (kept per node by the tree, so that the
+/// `b_at` is `b`'s loop index ([`PatchTree::boundary_index`]) (kept per node by the tree, so that the
 /// many adjacent pairs a traversal meets cost binary searches, not a map).
 fn joined(a: &[u32], b: &[u32], b_at: &[(u32, u32)]) -> Option<Vec<u32>> {
     let (na, nb) = (a.len(), b.len());
@@ -330,13 +330,6 @@ fn joined(a: &[u32], b: &[u32], b_at: &[(u32, u32)]) -> Option<Vec<u32>> {
     let rest_b = nb - count; // b's edges outside the run
     ring.extend((1..rest_b).map(|k| b[(start_b + k) % nb]));
     Some(ring)
-}
-
-/// A boundary loop's vertices with their places on it, sorted by vertex.
-pub(super) fn loop_index(ring: &[u32]) -> Vec<(u32, u32)> {
-    let mut at: Vec<(u32, u32)> = ring.iter().enumerate().map(|(k, &v)| (v, k as u32)).collect();
-    at.sort_unstable();
-    at
 }
 
 /// Whether a closed boundary `ring`, projected along `v` over the motion,
@@ -416,6 +409,7 @@ fn quadratic_range(a: f32, b: f32, c: f32) -> (f32, f32) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::collide::self_contact::tree::loop_index;
     use crate::mesh::shapes::grid;
     use crate::mesh::{fan_triangles, MeshInput};
 

@@ -16,8 +16,6 @@
 
 use glam::Vec3;
 
-use super::bounds::loop_index;
-
 /// Most triangles of a leaf.
 pub(super) const LEAF: usize = 8;
 
@@ -184,6 +182,13 @@ impl PatchTree {
     pub(super) fn boundary_index(&self, i: usize) -> &[(u32, u32)] {
         &self.loop_index[self.loop_offsets[i] as usize..self.loop_offsets[i + 1] as usize]
     }
+}
+
+/// A boundary loop's vertices with their places on it, sorted by vertex.
+pub(super) fn loop_index(ring: &[u32]) -> Vec<(u32, u32)> {
+    let mut at: Vec<(u32, u32)> = ring.iter().enumerate().map(|(k, &v)| (v, k as u32)).collect();
+    at.sort_unstable();
+    at
 }
 
 fn leaf_shape(triangles: &[[u32; 3]]) -> Shape {
