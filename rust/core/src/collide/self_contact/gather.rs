@@ -14,7 +14,11 @@
 //!   ([`NodeBounds::cannot_touch_each_other`], Tang et al.'s
 //!   connectivity culling: without it every shared border would be walked
 //!   down to its leaves);
-//! * two leaves: their triangles' relative boxes, then each element pair.
+//! * two leaves: their triangles' relative boxes, then each element pair's,
+//!   then its exact distances at both ends of the motion less how much the
+//!   relative motion can change them ([`element_gap`]): at rest most
+//!   element pairs whose boxes overlap (neighbours a ring or two apart) are
+//!   an edge apart, and none of them is listed.
 //!
 //! Each vertex and each edge is *owned* by the first triangle of the tree's
 //! order that holds it, and an element pair is listed from the pair of
@@ -25,7 +29,7 @@
 
 use glam::Vec3;
 
-use super::bounds::{relative_gap, Motion, NodeBounds, Span};
+use super::bounds::{element_gap, relative_gap, Motion, NodeBounds, Span};
 use super::tree::PatchTree;
 
 /// A pair of elements: a vertex and a triangle (`corners = [v, a, b, c]`)
@@ -253,6 +257,11 @@ impl Gather<'_> {
                 return;
             }
             if relative_gap(&self.motion.span(one), &self.motion.span(other)) > self.reach {
+                return;
+            }
+            // The boxes overlap; the exact distances at both ends decide
+            // (the reach already carries the f32 rounding allowance).
+            if element_gap(&self.motion, one, other) > self.reach as f64 {
                 return;
             }
             let corners = if edge_edge { [one[0], one[1], other[0], other[1]] } else { [one[0], other[0], other[1], other[2]] };

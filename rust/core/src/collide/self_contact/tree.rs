@@ -57,6 +57,8 @@ pub(super) struct PatchTree {
     pub disk: Vec<bool>,
     loop_offsets: Vec<u32>,
     loop_vertices: Vec<u32>,
+    /// Per node, its loop's [`loop_index`] (same offsets).
+    loop_index: Vec<(u32, u32)>,
 }
 
 /// A node's surface as the bottom-up pass sees it.
@@ -162,17 +164,31 @@ impl PatchTree {
         let mut loop_offsets = Vec::with_capacity(nodes.len() + 1);
         loop_offsets.push(0u32);
         let mut loop_vertices = Vec::new();
+        let mut loop_index_all = Vec::new();
         for l in loops {
             loop_vertices.extend_from_slice(&l);
+            loop_index_all.extend(loop_index(&l));
             loop_offsets.push(loop_vertices.len() as u32);
         }
-        PatchTree { nodes, triangles: tree_triangles, order, leaves, disk, loop_offsets, loop_vertices }
+        PatchTree { nodes, triangles: tree_triangles, order, leaves, disk, loop_offsets, loop_vertices, loop_index: loop_index_all }
     }
 
     /// The boundary loop of disk node `i` (vertices in order), empty otherwise.
     pub(super) fn boundary(&self, i: usize) -> &[u32] {
         &self.loop_vertices[self.loop_offsets[i] as usize..self.loop_offsets[i + 1] as usize]
     }
+
+    /// [`Self::boundary`]'s vertices with their places on it, sorted by vertex.
+    pub(super) fn boundary_index(&self, i: usize) -> &[(u32, u32)] {
+        &self.loop_index[self.loop_offsets[i] as usize..self.loop_offsets[i + 1] as usize]
+    }
+}
+
+/// A boundary loop's vertices with their places on it, sorted by vertex.
+pub(super) fn loop_index(ring: &[u32]) -> Vec<(u32, u32)> {
+    let mut at: Vec<(u32, u32)> = ring.iter().enumerate().map(|(k, &v)| (v, k as u32)).collect();
+    at.sort_unstable();
+    at
 }
 
 fn leaf_shape(triangles: &[[u32; 3]]) -> Shape {
