@@ -6,12 +6,9 @@ use glam::Vec3;
 
 use super::{Sequence, StepOptions};
 use crate::collide::{Collider, ColliderSettings};
-use crate::mesh::shapes::{grid, quad_sphere};
+use super::tests::{moved, sphere};
+use crate::mesh::shapes::grid;
 use crate::pyramid::{Closeness, DeformerOptions, ACCELERATED_ITERATIONS, CONVERGE_TOLERANCE};
-
-fn moved(points: &[Vec3], by: Vec3) -> Vec<Vec3> {
-    points.iter().map(|&p| p + by).collect()
-}
 
 fn slide_path() -> Vec<Vec3> {
     let rise: Vec<Vec3> = (0..7).map(|k| Vec3::new(-0.2, 0.0, -0.32 + 0.025 * k as f32)).collect();
@@ -26,14 +23,7 @@ fn slide(friction: f32, iterations: usize, accelerated: bool, tolerance: Option<
     let mut sequence = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
     sequence.deformer_mut().set_accelerated(accelerated);
     sequence.deformer_mut().set_tolerance(tolerance).unwrap();
-    let ball = quad_sphere(8, 0.3);
-    let offsets: Vec<u32> = std::iter::once(0)
-        .chain(ball.polygon_sizes.iter().scan(0u32, |acc, &s| {
-            *acc += s as u32;
-            Some(*acc)
-        }))
-        .collect();
-    let tris = crate::mesh::fan_triangles(&ball.corner_verts, &offsets);
+    let (ball, tris) = sphere(0.3);
     let path = slide_path();
     let mut collider = Collider::new(&moved(&ball.positions, path[0]), &tris, ColliderSettings::new(0.01, friction)).unwrap();
     let options = StepOptions::new(iterations, Closeness::Uniform(0.02));
