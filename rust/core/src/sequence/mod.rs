@@ -224,3 +224,5 @@ mod seam_tests;
 mod irregular_tests;
 #[cfg(test)]
 mod self_tests;
+#[cfg(test)]
+mod contact_convergence_tests;

@@ -10,7 +10,7 @@ use crate::mesh::shapes::{grid, quad_sphere, PolyMesh};
 use crate::mesh::MeshInput;
 use crate::strain::MaxStretch;
 
-fn moved(points: &[Vec3], by: Vec3) -> Vec<Vec3> {
+pub(super) fn moved(points: &[Vec3], by: Vec3) -> Vec<Vec3> {
     points.iter().map(|&p| p + by).collect()
 }
 
@@ -18,7 +18,8 @@ fn centroid(points: &[Vec3]) -> Vec3 {
     points.iter().copied().sum::<Vec3>() / points.len() as f32
 }
 
-fn sphere(radius: f32) -> (PolyMesh, Vec<[u32; 3]>) {
+/// A closed quad sphere of `radius` at the origin and its triangles.
+pub(super) fn sphere(radius: f32) -> (PolyMesh, Vec<[u32; 3]>) {
     let mesh = quad_sphere(8, radius);
     let offsets: Vec<u32> = std::iter::once(0)
         .chain(mesh.polygon_sizes.iter().scan(0u32, |acc, &s| {

@@ -17,7 +17,10 @@
 //!    relative to the collider since contact, Δx⊥, is removed entirely if
 //!    |Δx⊥| < μs·d (static friction; d = projection depth), otherwise reduced
 //!    by μk·d (kinetic). Colliders are kinematic (inverse mass 0), so the whole
-//!    correction goes to the skin.
+//!    correction goes to the skin. On still colliders (the in-loop pass) a
+//!    vertex that starts the step resting on the surface measures its slip
+//!    from where it rests ([`super::planes::resting_reference`]): static
+//!    friction then holds it over any number of solver iterations.
 //! 3. **Edge–edge** and **collider vertex–skin triangle**: each skin edge
 //!    against the collider edges, each skin triangle against the collider
 //!    vertices (sharp collider corners). The correction moves the skin's

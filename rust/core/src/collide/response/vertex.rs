@@ -9,6 +9,7 @@ use super::{d, ColliderMotion, ColliderSet, ResolveParams, VertexHit};
 use crate::collide::bvh::Bounds;
 use crate::collide::ccd;
 use crate::collide::geometry::triangle_normal;
+use crate::collide::planes::resting_reference;
 use crate::collide::proximity;
 use crate::collide::slab::Patch;
 
@@ -143,10 +144,17 @@ impl<'a> ColliderSet<'a> {
         if dist >= sep {
             return None;
         }
-        let depth = sep + self.slack(sep) - dist;
+        let slack = self.slack(sep);
+        let depth = sep + slack - dist;
         let mut out = e + depth * n;
         if params.friction && (settings.static_friction > 0.0 || settings.kinetic_friction > 0.0) {
-            let slip = (out - xt) - (q1 - qt);
+            // On a still collider a vertex resting on it is held where it
+            // rests, not where this step crossed the surface (see `resting_reference`).
+            let contact = match self.motion(h.collider, params.motion) {
+                ColliderMotion::AtCurrent => resting_reference((s - q1).dot(n) - sep, slack, s, xt),
+                ColliderMotion::Swept => xt,
+            };
+            let slip = (out - contact) - (q1 - qt);
             let tangential = slip - slip.dot(n) * n;
             let len = tangential.length();
             if len > 0.0 {

@@ -392,3 +392,39 @@ fn planes_lift_the_skin_pulled_back_in_without_a_lookup_and_keep_it_out() {
     assert!(n_with.abs_diff(n_without) <= n_without / 20, "resting vertices: {n_with} with planes, {n_without} without");
     assert!((gap_with - gap_without).abs() < 0.1 * thickness, "mean gap {gap_with} with planes, {gap_without} without");
 }
+
+/// A vertex resting on a still collider, pulled in again by every solver
+/// iteration at an angle inside its static-friction cone, stays where it
+/// rests however many in-loop passes run, by the pairwise tests and by the
+/// clearance's planes alike (issue 28: measured from where each pull crossed
+/// the surface it crept a little every iteration, so a converged solve lost
+/// the drag that a short one kept).
+#[test]
+fn a_resting_contact_held_by_static_friction_does_not_creep_over_iterations() {
+    let c = floor(ColliderSettings::new(0.01, 1.0));
+    let topo = Skin::vertices_only(1);
+    let set = ColliderSet::new([&c]);
+    // Where a first lift leaves it: on the thickness plus the slack.
+    let mut first = [Vec3::new(0.0, 0.0, -0.1)];
+    set.resolve_path(&[Vec3::new(0.0, 0.0, 0.5)], &mut first, &topo, &ResolveParams::in_loop()).unwrap();
+    let rest = first[0];
+    assert!(rest.z > 0.01 && rest.z < 0.012, "{rest:?}");
+    // Each pull: 0.05 along x, 0.1 into the floor (tangent 0.5 of normal, μs = 1).
+    let pull = Vec3::new(0.05, 0.0, -0.1);
+    let planes = Clearance::new(&[&c], &topo, &[rest], 0.2).unwrap().with_planes(&[&c]).unwrap();
+    for clearance in [None, Some(&planes)] {
+        let mut at = rest;
+        for _ in 0..200 {
+            let mut end = [at + pull];
+            set.resolve_path_with(&[at], &mut end, &topo, &ResolveParams::in_loop(), clearance).unwrap();
+            at = end[0];
+        }
+        let planes_used = clearance.is_some();
+        assert!(at.z >= 0.01, "planes {planes_used}: {at:?}");
+        assert!((at.x - rest.x).abs() < 1e-4 && (at.y - rest.y).abs() < 1e-4, "planes {planes_used}: crept from {rest:?} to {at:?}");
+    }
+    // Outside the cone it slides, held back by kinetic friction.
+    let mut end = [rest + Vec3::new(0.5, 0.0, -0.1)];
+    set.resolve_path(&[rest], &mut end, &topo, &ResolveParams::in_loop()).unwrap();
+    assert!(end[0].x > 0.3 && end[0].x < 0.5, "{:?}", end[0]);
+}
