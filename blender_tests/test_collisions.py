@@ -111,7 +111,10 @@ def test_sphere_pushed_in_and_slid_drags_the_skin_only_with_friction(tmp_path):
         over = (np.linalg.norm(out[:, :2] - top[:2], axis=1) < 0.1) & (out[:, 2] > 0.0)
         assert over.any(), "the sphere raised no skin"
         drift[name] = float((out[over, 0] - rest[over, 0]).mean())
-    assert drift["Rough"] > 0.05, f"high friction should drag the skin along: {drift}"
+    # Of the sphere's 0.18 slide, a converged solve drags the skin ~0.03 (the core's
+    # a_rough_sphere_drags_the_skin_as_far_after_many_iterations_as_after_some); fewer iterations
+    # drag it further. The bound holds for either, so it does not depend on how far the solve got.
+    assert drift["Rough"] > 0.02, f"high friction should drag the skin along: {drift}"
     assert abs(drift["Smooth"]) < 0.4 * drift["Rough"], f"zero friction should let it slide: {drift}"
 
 

@@ -347,12 +347,6 @@ impl PyramidDeformer {
         Ok(())
     }
 
-    /// Accelerates the solver's iterations with Anderson's method over the
-    /// last `window` iterates (0: plain iterations).
-    pub fn set_anderson_window(&mut self, window: usize) {
-        self.solver.set_anderson_window(window);
-    }
-
     /// The accelerated solver (the multilevel correction of `solve::coarse`:
     /// [`ACCELERATED_ITERATIONS`] deliver the converged solve within 5 %) or
     /// plain local/global iterations (the default: at 10 iterations they

@@ -342,11 +342,6 @@ impl Coarse {
         }))
     }
 
-    /// Number of unknowns of the first level below the mesh.
-    pub(super) fn len(&self) -> usize {
-        self.offsets.len() - 1
-    }
-
     /// Given the iterate `x` and its image `g = G(x)`, overwrites `g` with
     /// the accelerated next iterate: `x + ω (g − x)` plus the correction
     /// `P e₁`, `e₁` from one V-cycle on `A₁ e₁ = ω Pᵀ M (g − x)`, extrapolated

@@ -19,7 +19,6 @@
 //! Results do not depend on the number of threads: every parallel loop writes
 //! disjoint outputs and every sum runs in a fixed order.
 
-mod anderson;
 mod chebyshev;
 mod closeness;
 mod coarse;

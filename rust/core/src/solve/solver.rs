@@ -6,7 +6,6 @@ use faer::sparse::linalg::cholesky::SymbolicCholesky;
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::anderson::Anderson;
 use super::chebyshev::Chebyshev;
 use super::coarse::Coarse;
 use super::constraint::{Constraint, Context};
@@ -66,9 +65,6 @@ pub struct Solver {
     constant_projections: Vec<Vec3>,
     rhs_constant: Vec<Vec3>,
     work: Vec<Vec3>,
-    /// Anderson window (0: plain iterations) and its history buffers.
-    anderson_window: usize,
-    anderson: Option<Anderson>,
     /// Whether to build and run the coarse correction, and the built level
     /// (rebuilt with the system).
     coarse_enabled: bool,
@@ -101,8 +97,6 @@ impl Solver {
             constant_projections: Vec::new(),
             rhs_constant: Vec::new(),
             work: Vec::new(),
-            anderson_window: 0,
-            anderson: None,
             coarse_enabled: false,
             coarse: None,
             before_hook: Vec::new(),
@@ -185,21 +179,6 @@ impl Solver {
         self.coarse_enabled
     }
 
-    /// Unknowns of the coarse level (0 when there is none); builds the system if needed.
-    pub fn coarse_len(&mut self) -> Result<usize> {
-        self.prepare()?;
-        Ok(self.coarse.as_ref().map_or(0, Coarse::len))
-    }
-
-    /// Accelerates the iterations with Anderson's method over the last
-    /// `window` iterates (0 turns it off). See [`super::anderson`].
-    pub fn set_anderson_window(&mut self, window: usize) {
-        if window != self.anderson_window {
-            self.anderson_window = window;
-            self.anderson = None;
-        }
-    }
-
     pub fn vertex_count(&self) -> usize {
         self.vertex_count
     }
@@ -243,11 +222,6 @@ impl Solver {
 
     pub fn constraint(&self, id: ConstraintId) -> Result<&dyn Constraint> {
         Ok(self.entry(id)?.constraint.as_ref())
-    }
-
-    pub fn constraint_mut(&mut self, id: ConstraintId) -> Result<&mut dyn Constraint> {
-        self.entry(id)?;
-        Ok(self.entries[id.0].constraint.as_mut())
     }
 
     /// Sets the targets of a [`super::Targets`] constraint (constant within
@@ -383,16 +357,7 @@ impl Solver {
             start += entry.constraint.rows().len();
         }
 
-        let mut anderson = match self.anderson_window {
-            0 => None,
-            window => {
-                let history = self.anderson.get_or_insert_with(|| Anderson::new(window, self.vertex_count));
-                history.restart();
-                Some(history)
-            }
-        };
-
-        let accelerated = anderson.is_some() || self.coarse.is_some();
+        let accelerated = self.coarse.is_some();
         let mut chebyshev = Chebyshev::new();
         let mut last_residual = f64::INFINITY;
         if self.coarse.is_some() {
@@ -430,8 +395,8 @@ impl Solver {
             }
             // Acceleration extrapolates the map `G`; a hook that moved
             // positions changed the map (contacts hold vertices against
-            // it). Anderson's extrapolation across that would move the fixed
-            // point: such iterations forget its history. The coarse
+            // it). Chebyshev's extrapolation across that would move the fixed
+            // point: such iterations restart its sequence. The coarse
             // correction leaves out the residual of the vertices the hook
             // moved, so that it still vanishes where the hook holds them.
             if let Some(coarse) = self.coarse.as_mut() {
@@ -449,13 +414,6 @@ impl Solver {
                 }
                 last_residual = sums.residual;
                 step_norms = Some((sums.step, sums.offset));
-            }
-            if let Some(history) = anderson.as_deref_mut() {
-                if hook_moved {
-                    history.restart();
-                } else {
-                    history.accelerate(current, next);
-                }
             }
             if let Some(hook) = hook.as_deref_mut() {
                 if accelerated {

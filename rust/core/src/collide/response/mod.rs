@@ -194,11 +194,6 @@ impl<'a> ColliderSet<'a> {
         ColliderSet { colliders, motions, outward, scale }
     }
 
-    /// Collider `c` moves as `motion` whatever the pass's parameters say.
-    pub fn set_motion(&mut self, c: usize, motion: Option<ColliderMotion>) {
-        self.motions[c] = motion;
-    }
-
     pub fn colliders(&self) -> &[&'a Collider] {
         &self.colliders
     }
