@@ -88,6 +88,11 @@ pub struct LocalPlanes {
     /// CSR offsets into `planes`, one more than the vertices.
     offsets: Vec<u32>,
     planes: Vec<Plane>,
+    /// Planes of colliders that stand still over the pass (the in-loop
+    /// passes), as opposed to planes drifting with translating colliders
+    /// (the first pass): only on still ones does a resting vertex keep its
+    /// friction reference where it rests (see [`resting_reference`]).
+    still: bool,
 }
 
 impl LocalPlanes {
@@ -97,7 +102,7 @@ impl LocalPlanes {
     /// colliders); `margin` absorbs the f32 rounding of the BVH's boxes and
     /// of the dot products.
     pub fn new(colliders: &[&Collider], outward: &[f64], positions: &[Vec3], near: &[bool], radius: f32, margin: f64) -> LocalPlanes {
-        LocalPlanes::gather(positions.len(), |v| {
+        LocalPlanes::gather(positions.len(), true, |v| {
             let p = positions[v];
             let area = Bounds { min: p - Vec3::splat(radius), max: p + Vec3::splat(radius) };
             if !near[v] {
@@ -108,7 +113,7 @@ impl LocalPlanes {
     }
 
     /// Each vertex's box and planes from `of(v)`, in parallel.
-    fn gather(n: usize, of: impl Fn(usize) -> (Bounds, Vec<Plane>) + Sync) -> LocalPlanes {
+    fn gather(n: usize, still: bool, of: impl Fn(usize) -> (Bounds, Vec<Plane>) + Sync) -> LocalPlanes {
         let per_vertex: Vec<(Bounds, Vec<Plane>)> = (0..n).into_par_iter().with_min_len(1024).map(&of).collect();
         let mut offsets = Vec::with_capacity(n + 1);
         let mut planes = Vec::new();
@@ -119,7 +124,7 @@ impl LocalPlanes {
             planes.extend(own);
             offsets.push(planes.len() as u32);
         }
-        LocalPlanes { boxes, offsets, planes }
+        LocalPlanes { boxes, offsets, planes, still }
     }
 
     /// Planes for a pass in which the colliders sweep (the first pass), if
@@ -166,7 +171,7 @@ impl LocalPlanes {
         let margin = rounding_margin(colliders, std::iter::once(Vec3::splat(largest)), radius) + spread + 2.0 * f32::EPSILON as f64 * largest as f64;
         let carried = carried.filter(|c| c.boxes.len() == start.len());
         let d = drift.as_dvec3();
-        let planes = LocalPlanes::gather(start.len(), |v| {
+        let planes = LocalPlanes::gather(start.len(), false, |v| {
             let p = shifted[v];
             if let Some(carried) = carried {
                 let own = carried.of(v as u32);
@@ -260,13 +265,14 @@ impl LocalPlanes {
         let n = plane.normal;
         let Lift { slack, static_friction, kinetic_friction } = lift(plane.collider as usize);
         let (hs, he) = (n.dot(s64), n.dot(e64));
-        // The contact is where the step crossed the level, or where the
-        // vertex rests if it starts on it (see [`resting_reference`]);
-        // friction holds it there.
+        // The contact is where the step crossed the level, or, on still
+        // planes, where the vertex rests if it starts on it (see
+        // [`resting_reference`]); friction holds it there.
         let depth = plane.level + slack - he;
         let mut out = e64 + depth * n;
         if static_friction > 0.0 || kinetic_friction > 0.0 {
-            let slip = out - resting_reference(hs - plane.level, slack, s64, contact);
+            let reference = if self.still { resting_reference(hs - plane.level, slack, s64, contact) } else { contact };
+            let slip = out - reference;
             let tangential = slip - slip.dot(n) * n;
             let len = tangential.length();
             if len > 0.0 {

@@ -622,6 +622,7 @@ fn squares_cylinder(n: usize) -> (Vec<Vec3>, UvWarp) {
 /// the warp still does its job. Returns the solves that broke that.
 fn cold_fold_failures(def: &[Vec3], warp: &mut UvWarp, counts: impl IntoIterator<Item = u32>) -> Vec<String> {
     let mut failures = Vec::new();
+    warp.settings.warm_start = false;
     for k in counts {
         warp.settings.iterations = k;
         warp.solve(def).unwrap();
@@ -953,9 +954,14 @@ fn anderson_accelerated_cycles_beat_plain_fas_cycles() {
     let (def, mut warp) = benchmark_cylinder(256, solver::Variant::Multigrid);
     let out = cycle_errors_of(&def, &mut warp, 6, &[FAS, anderson]);
     assert!(out[1][6] < 0.7 * out[0][6], "FAS {:.4?}, Anderson {:.4?}", out[0], out[1]);
-    warp.set_anderson(3, true);
-    let failures = cold_fold_failures(&def, &mut warp, [1, 4, 8]);
-    assert!(failures.is_empty(), "{failures:#?}");
+    for (def, mut warp) in [squares_cylinder(256), (def, warp)] {
+        warp.set_variant(solver::Variant::Multigrid);
+        warp.set_anderson(3, true);
+        let failures = cold_fold_failures(&def, &mut warp, [1, 4, 8]);
+        assert!(failures.is_empty(), "{failures:#?}");
+        let (accepted, _) = warp.tiles[0].solver.anderson_counts().unwrap();
+        assert!(accepted > 0, "no Anderson step was taken in the cold solves");
+    }
 }
 
 /// Issue 28, measured (not a gate): bakes of the benchmark cylinder's moving

@@ -8,7 +8,7 @@ use super::contact::open_side;
 use super::{d, ColliderMotion, ColliderSet, ResolveParams, VertexHit};
 use crate::collide::bvh::Bounds;
 use crate::collide::ccd;
-use crate::collide::geometry::triangle_normal;
+use crate::collide::geometry::{point_triangle_distance_squared, triangle_normal};
 use crate::collide::planes::resting_reference;
 use crate::collide::proximity;
 use crate::collide::slab::Patch;
@@ -149,9 +149,11 @@ impl<'a> ColliderSet<'a> {
         let mut out = e + depth * n;
         if params.friction && (settings.static_friction > 0.0 || settings.kinetic_friction > 0.0) {
             // On a still collider a vertex resting on it is held where it
-            // rests, not where this step crossed the surface (see `resting_reference`).
+            // rests, not where this step crossed the surface (see
+            // `resting_reference`). Resting means near this triangle, not
+            // merely level with its plane (a vertex beside the collider).
             let contact = match self.motion(h.collider, params.motion) {
-                ColliderMotion::AtCurrent => resting_reference((s - q1).dot(n) - sep, slack, s, xt),
+                ColliderMotion::AtCurrent => resting_reference(point_triangle_distance_squared(s, a1, b1, c1).sqrt() - sep, slack, s, xt),
                 ColliderMotion::Swept => xt,
             };
             let slip = (out - contact) - (q1 - qt);

@@ -171,14 +171,15 @@ pub(super) fn element_gap(motion: &Motion<'_>, one: &[u32], other: &[u32]) -> f6
     };
     let distance = |positions: &[Vec3]| {
         let (a, b) = (at(positions, one), at(positions, other));
-        let squared = match (one.len(), other.len()) {
-            (1, 3) => point_triangle_distance_squared(a[0], b[0], b[1], b[2]),
-            (3, 1) => point_triangle_distance_squared(b[0], a[0], a[1], a[2]),
-            _ => segment_segment_distance_squared(a[0], a[1], b[0], b[1]),
-        };
-        squared.sqrt()
+        match (one.len(), other.len()) {
+            (1, 3) => point_triangle_lower_bound(a[0], b),
+            (3, 1) => point_triangle_lower_bound(b[0], a),
+            _ => segment_segment_distance_squared(a[0], a[1], b[0], b[1]).sqrt(),
+        }
     };
-    let displacement = |v: u32| (motion.end[v as usize] - motion.start[v as usize]).as_dvec3();
+    // In f64 from the f32 ends, so that K is not rounded below the true
+    // relative motion.
+    let displacement = |v: u32| motion.end[v as usize].as_dvec3() - motion.start[v as usize].as_dvec3();
     let mut k = 0.0f64;
     let mut margins = (0.0f32, 0.0f32);
     for &i in one {
@@ -191,8 +192,27 @@ pub(super) fn element_gap(motion: &Motion<'_>, one: &[u32], other: &[u32]) -> f6
         margins.1 = margins.1.max(motion.margin[j as usize]);
     }
     let (d0, d1) = (distance(motion.start), distance(motion.end));
-    let least = if (d0 - d1).abs() <= k { 0.5 * (d0 + d1 - k) } else { d0.max(d1) - k };
+    // A K-Lipschitz distance that is d0 and d1 at the ends is at least
+    // (d0 + d1 − K) / 2 in between; the ends themselves bound it where
+    // rounding leaves |d0 − d1| a hair above K.
+    let least = (0.5 * (d0 + d1 - k)).min(d0).min(d1);
     least - margins.0 as f64 - margins.1 as f64
+}
+
+/// A lower bound on the distance from `p` to triangle `t`: the exact
+/// distance where the triangle is well shaped, and, for a sliver (height
+/// over its longest edge below 1/1000 of that edge, where the closest-point
+/// arithmetic loses its accuracy), the distance to its longest edge less
+/// that height, which every point of the triangle is within.
+fn point_triangle_lower_bound(p: DVec3, t: [DVec3; 3]) -> f64 {
+    let edges = [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])];
+    let (a, b) = edges.into_iter().max_by(|x, y| (x.1 - x.0).length_squared().total_cmp(&(y.1 - y.0).length_squared())).unwrap_or(edges[0]);
+    let longest = (b - a).length();
+    let height = (t[1] - t[0]).cross(t[2] - t[0]).length() / longest.max(f64::MIN_POSITIVE);
+    if height >= 1e-3 * longest {
+        return point_triangle_distance_squared(p, t[0], t[1], t[2]).sqrt();
+    }
+    segment_segment_distance_squared(p, p, a, b).sqrt() - height
 }
 
 /// Bounds of one triangle: normals over the motion and their widening.
@@ -497,6 +517,29 @@ mod tests {
             }
             proptest::prop_assert!(gap <= least + 1e-5, "bound {gap} above the least distance {least}");
             proptest::prop_assert!(gap <= least - least_margins(one) - least_margins(other) + 1e-5);
+        }
+    }
+
+    /// A sliver (a quad's diagonal split of nearly collinear corners) keeps
+    /// a bound below its true distance, where the closest-point arithmetic
+    /// alone could overshoot it, and close to it.
+    #[test]
+    fn a_sliver_triangle_gets_a_bound_below_its_distance() {
+        let t = [DVec3::ZERO, DVec3::new(1.0, 0.0, 0.0), DVec3::new(0.37, 2e-7, 0.0)];
+        for p in [DVec3::new(0.37, 1e-7, 1e-6), DVec3::new(0.5, -1e-6, 0.0), DVec3::new(0.1, 3e-7, 2e-7), DVec3::new(1.2, 0.1, 0.0)] {
+            let bound = point_triangle_lower_bound(p, t);
+            let steps = 400;
+            let mut least = f64::INFINITY;
+            for i in 0..=steps {
+                for j in 0..=steps - i {
+                    let (u, v) = (i as f64 / steps as f64, j as f64 / steps as f64);
+                    least = least.min((p - (t[0] + u * (t[1] - t[0]) + v * (t[2] - t[0]))).length());
+                }
+            }
+            // The sampling spacing (1/400 along the long edge) bounds how far
+            // the sampled least lies above the true one.
+            assert!(bound <= least + 1e-12, "bound {bound} above the sampled distance {least} for {p}");
+            assert!(bound >= least - 2.0 / steps as f64, "bound {bound} far below the distance {least} for {p}");
         }
     }
 

@@ -149,10 +149,15 @@ impl Anderson {
                 *o = v;
             }
         });
+        // A step that overflows is refused like one that folds (a fold count
+        // cannot see a NaN: its comparisons are false).
+        let finite = next.par_iter().all(|v| v.is_finite());
         scatter(&next, lv);
         self.x = next;
-        keep_areas(lv, AREA_PASSES, true);
-        if count_folds(&lv.dx, &lv.dy, lv.w, lv.h, 0.0) > 0 {
+        if finite {
+            keep_areas(lv, AREA_PASSES, true);
+        }
+        if !finite || count_folds(&lv.dx, &lv.dy, lv.w, lv.h, 0.0) > 0 {
             scatter(&self.g, lv);
             self.restart();
             self.rejected += 1;
