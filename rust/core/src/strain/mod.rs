@@ -63,6 +63,17 @@ pub fn validate_max_stretch(stretch: MaxStretch<'_>, vertex_count: usize) -> Res
     }
 }
 
+/// Lifts `p` onto its plane (`n·x ≥ level`, see [`EdgeLimits::project_above`])
+/// where it is below it; no plane, or a zero `n`, leaves it.
+pub fn keep_above(p: &mut Vec3, plane: Option<&(Vec3, f32)>) {
+    if let Some(&(n, level)) = plane {
+        let h = n.dot(*p);
+        if h < level {
+            *p += n * (level - h);
+        }
+    }
+}
+
 impl EdgeLimits {
     /// Limits for `edges` of a mesh at rest at `rest_positions`.
     pub fn new(edges: &[[u32; 2]], rest_positions: &[Vec3], stretch: MaxStretch<'_>) -> Result<Self> {
@@ -182,14 +193,7 @@ impl EdgeLimits {
         tolerance: f32,
         relaxation: f32,
     ) -> usize {
-        let keep = |p: &mut Vec3, v: usize| {
-            if let Some(&(n, level)) = above.get(v) {
-                let h = n.dot(*p);
-                if h < level {
-                    *p += n * (level - h);
-                }
-            }
-        };
+        let keep = |p: &mut Vec3, v: usize| keep_above(p, above.get(v));
         // The edges of the next sweep: all of them (`full`), or those at the
         // vertices this sweep moved, each vertex listed once (`mark` holds the
         // sweep that last listed it). Where most of the mesh moves, listing

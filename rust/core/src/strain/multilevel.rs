@@ -25,7 +25,7 @@
 
 use glam::Vec3;
 
-use super::EdgeLimits;
+use super::{keep_above, EdgeLimits};
 use crate::mesh::{aggregate_edges, aggregate_once};
 
 /// Levels stop once a level has fewer blocks than this.
@@ -176,12 +176,7 @@ impl Hierarchy {
                 continue;
             }
             *p += o;
-            if let Some(&(n, level)) = above.get(v) {
-                let h = n.dot(*p);
-                if h < level {
-                    *p += n * (level - h);
-                }
-            }
+            keep_above(p, above.get(v));
         }
     }
 }
