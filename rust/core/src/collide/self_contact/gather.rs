@@ -13,7 +13,9 @@
 //!   union cannot touch itself
 //!   ([`NodeBounds::cannot_touch_each_other`], Tang et al.'s
 //!   connectivity culling: without it every shared border would be walked
-//!   down to its leaves);
+//!   down to its leaves), nor two that meet at a corner or lie a ring apart
+//!   and that a plane keeps farther apart than the reach
+//!   ([`separated`]);
 //! * two leaves: their triangles' relative boxes, then each element pair's,
 //!   then its exact distances at both ends of the motion less how much the
 //!   relative motion can change them ([`element_gap`]): at rest most
@@ -30,6 +32,7 @@
 use glam::Vec3;
 
 use super::bounds::{element_gap, relative_gap, Motion, NodeBounds, Span};
+use super::separation::separated;
 use super::tree::PatchTree;
 
 /// A pair of elements: a vertex and a triangle (`corners = [v, a, b, c]`)
@@ -205,6 +208,12 @@ impl Gather<'_> {
             return;
         }
         if relative_gap(&bounds.span[a], &bounds.span[b]) > self.reach {
+            return;
+        }
+        // The plane first: it settles corners and near neighbours, and
+        // fails in a few steps on patches sharing an edge, which the
+        // curvature criterion then decides.
+        if self.cull && separated(self.tree, &self.motion, (a, &bounds.span[a]), (b, &bounds.span[b]), self.reach) {
             return;
         }
         if self.cull && !siblings && bounds.cannot_touch_each_other(self.tree, &self.motion, a, b) {

@@ -19,7 +19,8 @@
 //! Files, each one job, bottom-up: [`settings`] (what a pass is asked and
 //! reports), `exclusion` (which pairs are neighbours), `tree` (the patch
 //! tree, which patches are disks), `bounds` (boxes, normal cones and the
-//! contour criterion per node over a motion), `gather` (the candidate
+//! contour criterion per node over a motion), `separation` (a plane between
+//! patches meeting at a corner or a ring apart), `gather` (the candidate
 //! pairs), `contact` (one pair's CCD and projection with friction),
 //! `collision` ([`SelfCollision`]: the bind, the separations at rest, the
 //! intersections of a state), `resolve` (the passes, the fail-safe,
@@ -31,6 +32,7 @@ mod contact;
 mod exclusion;
 mod gather;
 mod resolve;
+mod separation;
 pub mod settings;
 mod tree;
 

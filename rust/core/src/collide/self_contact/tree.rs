@@ -59,7 +59,17 @@ pub(super) struct PatchTree {
     loop_vertices: Vec<u32>,
     /// Per node, its loop's [`loop_index`] (same offsets).
     loop_index: Vec<(u32, u32)>,
+    /// Per node of at most [`SEPARABLE`] triangles, its vertices, sorted
+    /// (empty for larger nodes): what [`super::separation`] projects
+    /// (offsets, then the lists).
+    vertices: (Vec<u32>, Vec<u32>),
+    /// The same nodes' exposed vertices: those another node can share.
+    exposed: (Vec<u32>, Vec<u32>),
 }
+
+/// Nodes up to this many triangles keep their vertex lists for the
+/// separating-plane test; larger pairs are cheaper to split than to scan.
+pub(super) const SEPARABLE: u32 = 1024;
 
 /// A node's surface as the bottom-up pass sees it.
 struct Shape {
@@ -170,7 +180,22 @@ impl PatchTree {
             loop_index_all.extend(loop_index(&l));
             loop_offsets.push(loop_vertices.len() as u32);
         }
-        PatchTree { nodes, triangles: tree_triangles, order, leaves, disk, loop_offsets, loop_vertices, loop_index: loop_index_all }
+        let vertex_count = rest.len().max(tree_triangles.iter().flatten().map(|&v| v as usize + 1).max().unwrap_or(0));
+        let [vertices, exposed] = node_vertices(&nodes, &tree_triangles, vertex_count);
+        PatchTree { nodes, triangles: tree_triangles, order, leaves, disk, loop_offsets, loop_vertices, loop_index: loop_index_all, vertices, exposed }
+    }
+
+    /// The vertices of node `i`, sorted, if it has at most [`SEPARABLE`]
+    /// triangles (empty otherwise).
+    pub(super) fn vertices(&self, i: usize) -> &[u32] {
+        &self.vertices.1[self.vertices.0[i] as usize..self.vertices.0[i + 1] as usize]
+    }
+
+    /// The vertices of node `i` that a triangle outside it holds too,
+    /// sorted (empty for nodes above [`SEPARABLE`] triangles): every vertex
+    /// it shares with another node is one.
+    pub(super) fn exposed(&self, i: usize) -> &[u32] {
+        &self.exposed.1[self.exposed.0[i] as usize..self.exposed.0[i + 1] as usize]
     }
 
     /// The boundary loop of disk node `i` (vertices in order), empty otherwise.
@@ -182,6 +207,49 @@ impl PatchTree {
     pub(super) fn boundary_index(&self, i: usize) -> &[(u32, u32)] {
         &self.loop_index[self.loop_offsets[i] as usize..self.loop_offsets[i + 1] as usize]
     }
+}
+
+/// Every node's sorted vertex list and the part of it *exposed* (held by
+/// a triangle outside the node too: the only vertices another node can
+/// share with it, whatever the topology), for nodes up to [`SEPARABLE`]
+/// triangles, bottom-up: a parent's counts are its children's summed.
+fn node_vertices(nodes: &[Node], triangles: &[[u32; 3]], vertex_count: usize) -> [(Vec<u32>, Vec<u32>); 2] {
+    let mut total = vec![0u32; vertex_count];
+    for &v in triangles.iter().flatten() {
+        total[v as usize] += 1;
+    }
+    // Per node: (vertex, triangles of the node holding it), sorted by vertex.
+    let mut counts: Vec<Vec<(u32, u32)>> = vec![Vec::new(); nodes.len()];
+    for i in (0..nodes.len()).rev() {
+        let node = nodes[i];
+        if node.count > SEPARABLE {
+            continue;
+        }
+        let mut list: Vec<(u32, u32)> = if node.is_leaf() {
+            triangles[node.range()].iter().flatten().map(|&v| (v, 1)).collect()
+        } else {
+            let (l, r) = (node.left as usize, node.left as usize + 1);
+            counts[l].iter().chain(&counts[r]).copied().collect()
+        };
+        list.sort_unstable();
+        let mut merged: Vec<(u32, u32)> = Vec::with_capacity(list.len());
+        for (v, k) in list {
+            match merged.last_mut() {
+                Some(last) if last.0 == v => last.1 += k,
+                _ => merged.push((v, k)),
+            }
+        }
+        counts[i] = merged;
+    }
+    let mut all = (vec![0u32], Vec::new());
+    let mut exposed = (vec![0u32], Vec::new());
+    for list in counts {
+        all.1.extend(list.iter().map(|&(v, _)| v));
+        all.0.push(all.1.len() as u32);
+        exposed.1.extend(list.iter().filter(|&&(v, k)| k < total[v as usize]).map(|&(v, _)| v));
+        exposed.0.push(exposed.1.len() as u32);
+    }
+    [all, exposed]
 }
 
 /// A boundary loop's vertices with their places on it, sorted by vertex.
