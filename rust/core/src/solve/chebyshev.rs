@@ -23,9 +23,8 @@
 //!
 //! The first iteration is not extrapolated ([`DELAY`]): a cold solve's
 //! first step is far from the linear regime the weights assume. An iteration
-//! after one whose hook moved vertices (contacts holding them) is not
-//! accelerated at all, and the sequence restarts when the set of moved
-//! vertices changes ([`super::contacts`]).
+//! whose hook moved vertices (contacts holding them) restarts the sequence:
+//! the extrapolation of a held vertex would push it off its hold.
 //!
 //! The iteration is not linear, and where it is far from it the
 //! extrapolation can overshoot into another fixed point: on the convergence

@@ -36,12 +36,11 @@
 //! nonlinear step smooths: there it overshoots).
 //!
 //! The correction is linear in the residual, so it vanishes at the fixed
-//! point: the corrected iteration has the plain one's fixed points.
-//! `Coarse::correct` can leave out the residual and the aggregates of held
-//! vertices, so that the correction also vanishes where a hook holds the
-//! iteration; that was not enough where contacts act (the solver now takes
-//! the plain step after an iteration whose hook moved a vertex,
-//! [`super::contacts`], and passes no held vertices).
+//! point: the corrected iteration has the plain one's fixed points. With an
+//! iteration hook that holds vertices (the stepper's contact passes), the
+//! residual of the held vertices is left out and their aggregates are not
+//! corrected, so that the correction also vanishes where the hook holds the
+//! iteration.
 //!
 //! Why the relaxation: on a real character (the MakeHuman body's fingers,
 //! strongly bent) the undamped iteration, plain or corrected, can fall into

@@ -2,17 +2,15 @@
 //! iteration after iteration, for the accelerated solver.
 //!
 //! The acceleration ([`super::coarse`], [`super::chebyshev`]) extrapolates
-//! the iteration's map `G`; a hook that holds vertices changes that map, and
-//! accelerated across it the iterate overshoots into the contacts, the hook
-//! throws it back, and the two fight: with Converge a tube bent 150° against
-//! itself (Self Collision) spiked 0.461 where its skinning input spikes
-//! 0.148. So an iteration that follows one whose hook moved a vertex takes
-//! the plain step everywhere (issue 28, measured in `docs/performance.md`).
-//! Taking it only around the contacts (the moved vertices and 2 or 6 rings
-//! of neighbours, the rest of the mesh accelerated) converged a sliding
-//! sphere's frames 2–4× closer, but spiked the tube 1.7–1.8: the
-//! acceleration elsewhere drives the fold into the contacts faster than the
-//! passes resolve it.
+//! the iteration's map `G`; a hook that holds vertices changes that map: the
+//! correction leaves the moved vertices' residual out, the extrapolation
+//! restarts after an iteration whose hook moved a vertex, and the stopping
+//! rule does not stop while the moved set changes (contacts still appearing
+//! or letting go). Measured and not kept (issue 28, `docs/performance.md`):
+//! the plain step everywhere after such an iteration passes the 150° Self
+//! Collision tube with Converge but loses all acceleration while a contact
+//! rests; the plain step only around the contacts (2 or 6 rings) spiked the
+//! tube 1.2–1.8.
 
 use glam::Vec3;
 
@@ -22,6 +20,8 @@ pub(super) struct MovedVertices {
     /// Ascending.
     moved: Vec<u32>,
     changed: bool,
+    /// Per vertex: moved (empty before the first update).
+    mask: Vec<bool>,
 }
 
 impl MovedVertices {
@@ -41,7 +41,19 @@ impl MovedVertices {
             .map(|(v, _)| v as u32)
             .collect();
         self.changed = moved != self.moved;
+        for &v in &self.moved {
+            self.mask[v as usize] = false;
+        }
+        self.mask.resize(before.len(), false);
+        for &v in &moved {
+            self.mask[v as usize] = true;
+        }
         self.moved = moved;
+    }
+
+    /// The moved vertices as a per-vertex mask, or `None` when none moved.
+    pub(super) fn held(&self) -> Option<&[bool]> {
+        self.any().then_some(&self.mask[..])
     }
 
     /// Whether the hook moved any vertex in the last iteration.
@@ -69,9 +81,10 @@ mod tests {
         moved.clear();
         moved.update(&before, &after);
         assert!(moved.any() && moved.changed());
+        assert_eq!(moved.held().unwrap(), &[false, false, false, true, false, false]);
         moved.update(&before, &after);
         assert!(moved.any() && !moved.changed(), "the same vertex moved again");
         moved.update(&before, &before);
-        assert!(!moved.any() && moved.changed(), "the contact let go");
+        assert!(!moved.any() && moved.changed() && moved.held().is_none(), "the contact let go");
     }
 }

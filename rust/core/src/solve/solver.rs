@@ -395,19 +395,19 @@ impl Solver {
                 system.solve(&self.rhs_constant, &self.variable_projections, next);
             }
             // Acceleration extrapolates the map `G`; a hook that moved
-            // positions changed the map (contacts hold vertices against it):
-            // an iteration after one whose hook moved a vertex takes the
-            // plain step everywhere (see `contacts` for why not only near
-            // them). The extrapolation then starts again from the plain
-            // iterates.
-            let after_contacts = self.hook_moved.any();
-            if let Some(coarse) = self.coarse.as_mut().filter(|_| !after_contacts) {
-                if self.hook_moved.changed() {
+            // positions changed the map (contacts hold vertices against
+            // it). Chebyshev's extrapolation across that would move the fixed
+            // point: such iterations restart its sequence. The coarse
+            // correction leaves out the residual of the vertices the hook
+            // moved, so that it still vanishes where the hook holds them
+            // (see `contacts` for what was measured beyond that).
+            if let Some(coarse) = self.coarse.as_mut() {
+                if self.hook_moved.any() {
                     chebyshev.restart();
                 }
                 let weight = chebyshev.next_weight();
                 let unextrapolated = (!self.unextrapolated.is_empty()).then_some(&self.unextrapolated[..]);
-                let sums = coarse.correct(current, next, None, &mut self.previous, (weight, unextrapolated), input);
+                let sums = coarse.correct(current, next, self.hook_moved.held(), &mut self.previous, (weight, unextrapolated), input);
                 // A residual that grew: the extrapolation overshot where the
                 // iteration is far from linear (see `chebyshev`); start again.
                 if sums.residual > last_residual {
