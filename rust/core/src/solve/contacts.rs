@@ -27,6 +27,9 @@ pub(super) struct MovedVertices {
 impl MovedVertices {
     /// Starts a solve: nothing moved.
     pub(super) fn clear(&mut self) {
+        for &v in &self.moved {
+            self.mask[v as usize] = false;
+        }
         self.moved.clear();
         self.changed = false;
     }
@@ -86,5 +89,10 @@ mod tests {
         assert!(moved.any() && !moved.changed(), "the same vertex moved again");
         moved.update(&before, &before);
         assert!(!moved.any() && moved.changed() && moved.held().is_none(), "the contact let go");
+        moved.update(&before, &after);
+        moved.clear();
+        moved.update(&before, &before);
+        moved.update(&before, &after);
+        assert_eq!(moved.held().unwrap().iter().filter(|&&m| m).count(), 1, "a new solve forgets the last one's vertices");
     }
 }
