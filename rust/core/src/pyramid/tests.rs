@@ -989,3 +989,35 @@ fn a_fine_mesh_far_from_the_origin_keeps_its_pyramid_rows() {
     let inexact = deformer.ring_fitted().iter().chain(deformer.pinned()).filter(|(_, r)| *r == PinReason::Inexact).count();
     assert_eq!(inexact, 0, "{inexact} of {} vertices lost their pyramid rows as inexact", mesh.positions.len());
 }
+
+/// A hook that, in iterations below `wandering`, nudges another vertex each
+/// iteration (contacts still appearing), and then moves nothing.
+fn wandering_hook(wandering: usize) -> impl FnMut(usize, &[Vec3], &mut [Vec3]) -> crate::Result<()> {
+    move |iteration, _before, after| {
+        if iteration < wandering {
+            after[1 + iteration] += Vec3::splat(1e-4);
+        }
+        Ok(())
+    }
+}
+
+#[test]
+fn an_accelerated_solve_does_not_stop_while_its_hook_moves_other_vertices() {
+    // Issue 28: the stopping rule must not stop while contacts still
+    // appear or let go (the steps then measure a map that keeps changing).
+    let mesh = cylinder(24, 32, 0.5, 4.0);
+    let input = candy_wrapper(&mesh, 4.0, 60f32.to_radians(), 60f32.to_radians());
+    let mut deformer = accelerated(&mesh);
+    deformer.set_tolerance(Some(5.0)).unwrap();
+    let closeness = Closeness::Uniform(0.05);
+    let mut x = input.clone();
+    let mut still = wandering_hook(0);
+    deformer.solve_into(&input, &mut x, 40, closeness, Some(&mut still)).unwrap();
+    let still_iterations = deformer.last_iterations();
+    let wandering = still_iterations + 6;
+    let mut x = input.clone();
+    let mut changing = wandering_hook(wandering);
+    deformer.solve_into(&input, &mut x, 40, closeness, Some(&mut changing)).unwrap();
+    assert!(still_iterations < 20, "a hook that moves nothing: stopped after {still_iterations}");
+    assert!(deformer.last_iterations() > wandering, "stopped after {} while the hook moved new vertices until {wandering}", deformer.last_iterations());
+}

@@ -19,25 +19,79 @@ fn slide_path() -> Vec<Vec3> {
 /// The last frame, the mean x drift of the skin over the sphere's top, and
 /// the iterations each frame ran.
 fn slide(friction: f32, iterations: usize, accelerated: bool, tolerance: Option<f32>) -> (Vec<Vec3>, f32, Vec<usize>) {
+    let frames = slide_path().len();
+    let (x, its) = slide_frames(friction, frames, &|_| (iterations, accelerated, tolerance));
+    let top = *slide_path().last().unwrap();
     let skin = grid(40, 40, 2.0);
-    let mut sequence = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
-    sequence.deformer_mut().set_accelerated(accelerated);
-    sequence.deformer_mut().set_tolerance(tolerance).unwrap();
-    let (ball, tris) = sphere(0.3);
-    let path = slide_path();
-    let mut collider = Collider::new(&moved(&ball.positions, path[0]), &tris, ColliderSettings::new(0.01, friction)).unwrap();
-    let options = StepOptions::new(iterations, Closeness::Uniform(0.02));
-    let mut x = Vec::new();
-    let mut its = Vec::new();
-    for &at in &path {
-        collider.update(&moved(&ball.positions, at)).unwrap();
-        x = sequence.step(&skin.positions, &mut [&mut collider], &options).unwrap().0;
-        its.push(sequence.deformer_mut().last_iterations());
-    }
-    let top = *path.last().unwrap();
+    let x = x.last().unwrap().clone();
     let over: Vec<usize> = (0..x.len()).filter(|&v| (x[v].truncate() - top.truncate()).length() < 0.1 && x[v].z > 0.0).collect();
     let drift = over.iter().map(|&v| x[v].x - skin.positions[v].x).sum::<f32>() / over.len().max(1) as f32;
     (x, drift, its)
+}
+
+/// Solver settings of a frame: iterations, accelerated, tolerance.
+type FrameSettings<'a> = dyn Fn(usize) -> (usize, bool, Option<f32>) + 'a;
+
+/// The first `frames` frames of the slide, each solved with `settings(frame)`;
+/// every frame's result and iterations.
+fn slide_frames(friction: f32, frames: usize, settings: &FrameSettings<'_>) -> (Vec<Vec<Vec3>>, Vec<usize>) {
+    let skin = grid(40, 40, 2.0);
+    let mut sequence = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
+    let (ball, tris) = sphere(0.3);
+    let path = slide_path();
+    let mut collider = Collider::new(&moved(&ball.positions, path[0]), &tris, ColliderSettings::new(0.01, friction)).unwrap();
+    let (mut results, mut its) = (Vec::new(), Vec::new());
+    for (frame, &at) in path.iter().enumerate().take(frames) {
+        let (iterations, accelerated, tolerance) = settings(frame);
+        sequence.deformer_mut().set_accelerated(accelerated);
+        sequence.deformer_mut().set_tolerance(tolerance).unwrap();
+        collider.update(&moved(&ball.positions, at)).unwrap();
+        let options = StepOptions::new(iterations, Closeness::Uniform(0.02));
+        results.push(sequence.step(&skin.positions, &mut [&mut collider], &options).unwrap().0);
+        its.push(sequence.deformer_mut().last_iterations());
+    }
+    (results, its)
+}
+
+/// Iterations of the reference solve ([`converge_errors`]).
+const REFERENCE_ITERATIONS: usize = 1000;
+
+/// Issue 28's convergence error of every frame of Converge's slide, with x_∞
+/// defined for a scene with contacts: frame `f`'s result against the same
+/// solve continued, i.e. the bake run with Converge up to frame `f − 1` (the
+/// same start: warm from Converge's own frames, friction's resting
+/// references included) and frame `f` solved by the same accelerated solver
+/// from that start without a tolerance for [`REFERENCE_ITERATIONS`]. With
+/// static friction the converged shape depends on the path (plain 1,000 and
+/// accelerated 400 iterations differ 6.2 %): this is the fixed point of the
+/// path Converge itself takes. With contacts the issue's "until positions
+/// change by less than 1e-7 of the mesh size per iteration" is not reached,
+/// by plain or accelerated iterations: a few vertices at the contact's rim
+/// keep flickering in and out (largest step per iteration 1e-4–2e-3 of the
+/// mesh size after 1,000 iterations) while the RMS shape is settled (the
+/// 500th and 1,000th iterates differ by 0.04–0.2 % of the displacement,
+/// frames 6 and 12, friction 0). Returns the errors, Converge's iterations,
+/// per frame the reference's largest last step (a fraction of the mesh size)
+/// and the reference's RMS displacement.
+fn converge_errors(friction: f32, frames: usize) -> (Vec<f64>, Vec<usize>, Vec<f64>, Vec<f64>) {
+    let skin = grid(40, 40, 2.0);
+    let size = 2.0;
+    let converge = |_: usize| (ACCELERATED_ITERATIONS, true, Some(CONVERGE_TOLERANCE));
+    let (results, its) = slide_frames(friction, frames, &converge);
+    let (mut errors, mut last_steps, mut offsets) = (Vec::new(), Vec::new(), Vec::new());
+    for f in 0..frames {
+        let continued = |n: usize| {
+            let settings = move |frame: usize| if frame == f { (n, true, None) } else { converge(frame) };
+            slide_frames(friction, f + 1, &settings).0.pop().unwrap()
+        };
+        let (reference, longer) = (continued(REFERENCE_ITERATIONS), continued(REFERENCE_ITERATIONS + 1));
+        let last_step = reference.iter().zip(&longer).map(|(p, q)| (*p - *q).length()).fold(0.0f32, f32::max) as f64 / size;
+        let offset = rms(&reference, &skin.positions);
+        errors.push(rms(&results[f], &reference) / offset);
+        last_steps.push(last_step);
+        offsets.push(offset);
+    }
+    (errors, its, last_steps, offsets)
 }
 
 fn rms(a: &[Vec3], b: &[Vec3]) -> f64 {
@@ -82,3 +136,21 @@ fn measure_converge_with_a_sliding_sphere() {
         }
     }
 }
+
+/// Converge's convergence error on every frame of the slide, cold (the
+/// first frame) and warm, by issue 28's definition ([`converge_errors`]):
+/// `cargo test --release -p tegument-core --lib measure_converge_errors_on_the_slide -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn measure_converge_errors_on_the_slide() {
+    for friction in [0.0, 1.0] {
+        let frames = slide_path().len();
+        let (errors, its, last_steps, offsets) = converge_errors(friction, frames);
+        let offsets: Vec<String> = offsets.iter().map(|o| format!("{o:.4}")).collect();
+        println!("friction {friction}: RMS displacement per frame {offsets:?}");
+        let percent: Vec<String> = errors.iter().map(|e| format!("{:.1}", 100.0 * e)).collect();
+        let steps: Vec<String> = last_steps.iter().map(|s| format!("{s:.0e}")).collect();
+        println!("friction {friction}: error % per frame {percent:?}, iterations {its:?}, reference's last step {steps:?}");
+    }
+}
+

@@ -23,6 +23,7 @@ mod chebyshev;
 mod closeness;
 mod coarse;
 mod coarsest;
+mod contacts;
 mod constraint;
 mod solver;
 mod stopping;

@@ -8,6 +8,7 @@ use rayon::prelude::*;
 
 use super::chebyshev::Chebyshev;
 use super::coarse::Coarse;
+use super::contacts::MovedVertices;
 use super::constraint::{Constraint, Context};
 use super::stopping::{self, Tolerance};
 use super::system::{RowBlock, System, SystemKind};
@@ -69,10 +70,10 @@ pub struct Solver {
     /// (rebuilt with the system).
     coarse_enabled: bool,
     coarse: Option<Coarse>,
-    /// An accelerated iteration's positions before the hook ran, and which
+    /// An accelerated iteration's positions before the hook ran, and the
     /// vertices the hook then moved.
     before_hook: Vec<Vec3>,
-    hook_moved: Vec<bool>,
+    hook_moved: MovedVertices,
     /// Vertices the Chebyshev extrapolation leaves out (empty: none); see
     /// [`Solver::set_unextrapolated`].
     unextrapolated: Vec<bool>,
@@ -100,7 +101,7 @@ impl Solver {
             coarse_enabled: false,
             coarse: None,
             before_hook: Vec::new(),
-            hook_moved: Vec::new(),
+            hook_moved: MovedVertices::default(),
             unextrapolated: Vec::new(),
             previous: Vec::new(),
             tolerance: None,
@@ -363,7 +364,7 @@ impl Solver {
         if self.coarse.is_some() {
             self.previous.resize(self.vertex_count, Vec3::ZERO);
         }
-        let mut hook_moved = false;
+        self.hook_moved.clear();
         let mut stop = match (self.tolerance, &self.coarse) {
             (Some(tolerance), Some(_)) => Some(stopping::Rule::new(tolerance, self.vertex_count)),
             _ => None,
@@ -398,15 +399,15 @@ impl Solver {
             // it). Chebyshev's extrapolation across that would move the fixed
             // point: such iterations restart its sequence. The coarse
             // correction leaves out the residual of the vertices the hook
-            // moved, so that it still vanishes where the hook holds them.
+            // moved, so that it still vanishes where the hook holds them
+            // (see `contacts` for what was measured beyond that).
             if let Some(coarse) = self.coarse.as_mut() {
-                if hook_moved {
+                if self.hook_moved.any() {
                     chebyshev.restart();
                 }
                 let weight = chebyshev.next_weight();
                 let unextrapolated = (!self.unextrapolated.is_empty()).then_some(&self.unextrapolated[..]);
-                let held = hook_moved.then_some(&self.hook_moved[..]);
-                let sums = coarse.correct(current, next, held, &mut self.previous, (weight, unextrapolated), input);
+                let sums = coarse.correct(current, next, self.hook_moved.held(), &mut self.previous, (weight, unextrapolated), input);
                 // A residual that grew: the extrapolation overshot where the
                 // iteration is far from linear (see `chebyshev`); start again.
                 if sums.residual > last_residual {
@@ -415,6 +416,7 @@ impl Solver {
                 last_residual = sums.residual;
                 step_norms = Some((sums.step, sums.offset));
             }
+            let mut contacts_changed = false;
             if let Some(hook) = hook.as_deref_mut() {
                 if accelerated {
                     self.before_hook.clear();
@@ -422,11 +424,8 @@ impl Solver {
                 }
                 hook.after_iteration(iteration, current, next)?;
                 if accelerated {
-                    self.hook_moved.clear();
-                    self.hook_moved.extend(self.before_hook.iter().zip(&*next).map(|(a, b)| {
-                        bytemuck::cast::<Vec3, [u32; 3]>(*a) != bytemuck::cast::<Vec3, [u32; 3]>(*b)
-                    }));
-                    hook_moved = self.hook_moved.iter().any(|&m| m);
+                    self.hook_moved.update(&self.before_hook, next);
+                    contacts_changed = self.hook_moved.changed();
                 }
                 // The hook moved the iterate: measure where it left it.
                 if stop.is_some() {
@@ -436,7 +435,9 @@ impl Solver {
             in_work = !in_work;
             if let (Some(rule), Some((step, offset))) = (stop.as_mut(), step_norms) {
                 let rms = |sum: f64| (sum / self.vertex_count as f64).sqrt();
-                if rule.converged(rms(step), rms(offset)) {
+                // Never while contacts still appear or let go: the steps
+                // measure a map that is still changing.
+                if rule.converged(rms(step), rms(offset)) && !contacts_changed {
                     self.last_iterations = iteration + 1;
                     break;
                 }
