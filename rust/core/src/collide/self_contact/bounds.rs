@@ -431,16 +431,12 @@ mod tests {
     use super::*;
     use crate::collide::self_contact::tree::loop_index;
     use crate::mesh::shapes::grid;
-    use crate::mesh::{fan_triangles, MeshInput};
-
-    fn tree_of(mesh: MeshInput<'_>) -> PatchTree {
-        PatchTree::build(&fan_triangles(mesh.corner_verts, &mesh.validate().unwrap()), mesh.positions)
-    }
+    use crate::mesh::MeshInput;
 
     #[test]
     fn a_flat_grid_cannot_touch_itself_a_folded_one_can() {
         let g = grid(10, 10, 1.0);
-        let tree = tree_of(g.input());
+        let tree = PatchTree::of_mesh(g.input());
         let zero = vec![0.0; g.positions.len()];
         let still = Motion { start: &g.positions, end: &g.positions, margin: &zero };
         let bounds = NodeBounds::new(&tree, &still, None);
@@ -472,7 +468,7 @@ mod tests {
         assert!(joined(&[0, 1, 4, 3], &[10, 11, 14, 13], &loop_index(&[10, 11, 14, 13])).is_none());
         // A grid split in two halves joins back to its whole boundary.
         let g = grid(8, 4, 1.0);
-        let tree = tree_of(g.input());
+        let tree = PatchTree::of_mesh(g.input());
         let zero = vec![0.0; g.positions.len()];
         let still = Motion { start: &g.positions, end: &g.positions, margin: &zero };
         let bounds = NodeBounds::new(&tree, &still, None);
@@ -586,7 +582,7 @@ mod tests {
         }
         let sizes = vec![4; corners.len() / 4];
         let mesh = MeshInput { positions: &positions, corner_verts: &corners, polygon_sizes: &sizes };
-        let tree = tree_of(mesh);
+        let tree = PatchTree::of_mesh(mesh);
         let zero = vec![0.0; positions.len()];
         let still = Motion { start: &positions, end: &positions, margin: &zero };
         let bounds = NodeBounds::new(&tree, &still, None);

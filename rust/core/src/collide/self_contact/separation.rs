@@ -128,11 +128,6 @@ mod tests {
     use crate::collide::geometry::{point_triangle_distance_squared, segment_segment_distance_squared};
     use crate::collide::self_contact::bounds::{relative_gap, NodeBounds};
     use crate::mesh::shapes::grid;
-    use crate::mesh::{fan_triangles, MeshInput};
-
-    fn tree_of(mesh: MeshInput<'_>) -> PatchTree {
-        PatchTree::build(&fan_triangles(mesh.corner_verts, &mesh.validate().unwrap()), mesh.positions)
-    }
 
     /// The least distance, over the motion sampled finely and with no
     /// margins, between two elements of nodes `a` and `b` that share no
@@ -172,7 +167,7 @@ mod tests {
     #[test]
     fn patches_meeting_at_a_corner_of_a_flat_grid_are_separated_and_a_fold_is_not() {
         let g = grid(8, 8, 1.0);
-        let tree = tree_of(g.input());
+        let tree = PatchTree::of_mesh(g.input());
         let zero = vec![0.0; g.positions.len()];
         let still = Motion { start: &g.positions, end: &g.positions, margin: &zero };
         let bounds = NodeBounds::new(&tree, &still, None);
@@ -235,7 +230,7 @@ mod tests {
             let end = bend(end_angle, &wobble.iter().rev().copied().collect::<Vec<_>>());
             let margins = vec![margin; start.len()];
             let motion = Motion { start: &start, end: &end, margin: &margins };
-            let tree = tree_of(g.input());
+            let tree = PatchTree::of_mesh(g.input());
             let bounds = NodeBounds::new(&tree, &motion, None);
             let small: Vec<usize> = (0..tree.nodes.len()).filter(|&i| tree.nodes[i].count <= 16).collect();
             for (k, &a) in small.iter().enumerate() {

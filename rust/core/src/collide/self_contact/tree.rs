@@ -90,6 +90,12 @@ impl PatchTree {
         Self::build_in_units(triangles, &units, &vec![true; triangles.len()], rest)
     }
 
+    /// The tree of a test mesh's polygons, fanned.
+    #[cfg(test)]
+    pub(super) fn of_mesh(mesh: crate::mesh::MeshInput<'_>) -> Self {
+        Self::build(&crate::mesh::fan_triangles(mesh.corner_verts, &mesh.validate().unwrap()), mesh.positions)
+    }
+
     /// The tree of `triangles` cut between *units*, runs of triangles
     /// (`unit_offsets`, compressed rows) that stay in one leaf: a polygon's.
     /// Only the triangles flagged in `surface` (one split of each polygon)
