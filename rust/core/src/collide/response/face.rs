@@ -54,7 +54,7 @@ impl<'a> ColliderSet<'a> {
             if candidates.is_empty() {
                 continue;
             }
-            let swept = self.motion(c, params.motion) == ColliderMotion::Swept;
+            let swept = params.motion == ColliderMotion::Swept;
             if slab(c, &candidates, 0.0, 1.0)
                 || (swept && (0..SLICES).all(|k| slab(c, &candidates, k as f64 / SLICES as f64, (k + 1) as f64 / SLICES as f64)))
             {
@@ -121,7 +121,6 @@ impl<'a> ColliderSet<'a> {
     }
 
     pub(super) fn vertex_ends(&self, c: usize, v: usize, motion: ColliderMotion) -> (DVec3, DVec3) {
-        let motion = self.motion(c, motion);
         let col = self.colliders[c];
         let end = d(col.current()[v]);
         match motion {

@@ -163,10 +163,6 @@ pub struct ContactStats {
 /// The colliders one skin collides with, borrowed for a step.
 pub struct ColliderSet<'a> {
     colliders: Vec<&'a Collider>,
-    /// Per collider, a motion that overrides [`ResolveParams::motion`]: a
-    /// compliant collider sweeps within an in-loop pass while the
-    /// kinematic ones stay at rest.
-    motions: Vec<Option<ColliderMotion>>,
     /// Outward orientation sign per collider (+1 / −1), 0 for open ones.
     outward: Vec<f64>,
     /// Largest absolute collider coordinate: sets rounding-aware tolerances.
@@ -190,24 +186,18 @@ impl<'a> ColliderSet<'a> {
         let colliders: Vec<&Collider> = colliders.into_iter().collect();
         let outward = colliders.iter().map(|c| c.outward_sign()).collect();
         let scale = colliders.iter().map(|c| c.extent() as f64).fold(1e-3, f64::max);
-        let motions = vec![None; colliders.len()];
-        ColliderSet { colliders, motions, outward, scale }
+        ColliderSet { colliders, outward, scale }
     }
 
     pub fn colliders(&self) -> &[&'a Collider] {
         &self.colliders
     }
 
-    /// How collider `c` moves in a pass of `motion`.
-    fn motion(&self, c: usize, motion: ColliderMotion) -> ColliderMotion {
-        self.motions[c].unwrap_or(motion)
-    }
-
     /// Collider `c`'s triangle tree for a pass of `motion`: its boxes over
     /// the sweep (in the collider's drifting frame) or where it stands.
     fn triangle_tree(&self, c: usize, motion: ColliderMotion) -> &'a BoxTree {
         let col = self.colliders[c];
-        match self.motion(c, motion) {
+        match motion {
             ColliderMotion::Swept => col.swept_tree(),
             ColliderMotion::AtCurrent => col.tree(),
         }
@@ -216,7 +206,7 @@ impl<'a> ColliderSet<'a> {
     /// The same for collider `c`'s vertices.
     fn vertex_tree(&self, c: usize, motion: ColliderMotion) -> &'a BoxTree {
         let col = self.colliders[c];
-        match self.motion(c, motion) {
+        match motion {
             ColliderMotion::Swept => col.swept_vertex_tree(),
             ColliderMotion::AtCurrent => col.vertex_tree(),
         }
@@ -225,7 +215,7 @@ impl<'a> ColliderSet<'a> {
     /// The box to look up in collider `c`'s trees for a skin element whose
     /// corners lie in `from` at the start of the step and in `to` at its end.
     fn query_box(&self, c: usize, motion: ColliderMotion, from: Bounds, to: Bounds) -> Bounds {
-        match self.motion(c, motion) {
+        match motion {
             ColliderMotion::Swept => self.colliders[c].swept_query(from, to),
             ColliderMotion::AtCurrent => from.union(to),
         }
@@ -233,7 +223,7 @@ impl<'a> ColliderSet<'a> {
 
     /// A skin point's path `s → e`, where collider `c`'s trees see it.
     fn tree_path(&self, c: usize, motion: ColliderMotion, s: DVec3, e: DVec3) -> (DVec3, DVec3) {
-        match self.motion(c, motion) {
+        match motion {
             ColliderMotion::Swept => (s, e - self.colliders[c].drift().as_dvec3()),
             ColliderMotion::AtCurrent => (s, e),
         }
@@ -260,7 +250,6 @@ impl<'a> ColliderSet<'a> {
 
     /// Triangle corners of collider `c` at the start and end of the step.
     fn triangle_ends(&self, c: usize, t: usize, motion: ColliderMotion) -> ([DVec3; 3], [DVec3; 3]) {
-        let motion = self.motion(c, motion);
         let col = self.colliders[c];
         let tri = col.triangles()[t];
         let end = tri.map(|v| d(col.current()[v as usize]));
@@ -272,7 +261,6 @@ impl<'a> ColliderSet<'a> {
     }
 
     fn edge_ends(&self, c: usize, e: usize, motion: ColliderMotion) -> ([DVec3; 2], [DVec3; 2]) {
-        let motion = self.motion(c, motion);
         let col = self.colliders[c];
         let edge = col.edges()[e];
         let end = edge.map(|v| d(col.current()[v as usize]));

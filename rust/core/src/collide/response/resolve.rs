@@ -86,13 +86,12 @@ impl<'a> ColliderSet<'a> {
     /// True when no collider moves during a pass of `motion`: still in-loop
     /// passes, and sweeps of colliders that stayed where they were.
     fn stand_still(&self, motion: ColliderMotion) -> bool {
-        (0..self.colliders.len()).all(|c| match self.motion(c, motion) {
+        match motion {
             ColliderMotion::AtCurrent => true,
-            ColliderMotion::Swept => {
-                let col = self.colliders[c];
+            ColliderMotion::Swept => self.colliders.iter().all(|col| {
                 bytemuck::cast_slice::<Vec3, u32>(col.previous()) == bytemuck::cast_slice::<Vec3, u32>(col.current())
-            }
-        })
+            }),
+        }
     }
 
     /// Whether vertex `i`'s step from `start` to `end` still meets a collider:
@@ -185,7 +184,7 @@ impl<'a> ColliderSet<'a> {
         let mut requested: Vec<(u32, Vec3)> = Vec::new();
         let mut moved = vec![false; n];
         // The clearance and its planes hold for colliders standing still.
-        let still = (0..self.colliders.len()).all(|c| self.motion(c, params.motion) == ColliderMotion::AtCurrent);
+        let still = params.motion == ColliderMotion::AtCurrent;
         let clearance = clearance.filter(|c| still && c.is_valid_for(&self.colliders, n));
         let lift = |c: usize| {
             let settings = self.colliders[c].settings();
@@ -251,7 +250,7 @@ impl<'a> ColliderSet<'a> {
         // the colliders, if they translate together (carried along from the
         // last frame where they hold). Each comes with the step starts in its
         // frame.
-        let all_swept = (0..self.colliders.len()).all(|c| self.motion(c, params.motion) == ColliderMotion::Swept);
+        let all_swept = params.motion == ColliderMotion::Swept;
         let drifting = match clearance {
             None if all_swept => {
                 let radius = PLANE_REACH * Clearance::default_radius(&self.colliders, skin, start);

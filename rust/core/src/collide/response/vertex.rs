@@ -112,7 +112,7 @@ impl<'a> ColliderSet<'a> {
         if triangles.is_empty() {
             return true;
         }
-        let swept = self.motion(c, motion) == ColliderMotion::Swept;
+        let swept = motion == ColliderMotion::Swept;
         Patch::with(|patch| {
             patch.gather(self.colliders[c], triangles, swept);
             patch.apart(start, end, separation, sliced)
@@ -152,7 +152,7 @@ impl<'a> ColliderSet<'a> {
             // rests, not where this step crossed the surface (see
             // `resting_reference`). Resting means near this triangle, not
             // merely level with its plane (a vertex beside the collider).
-            let contact = match self.motion(h.collider, params.motion) {
+            let contact = match params.motion {
                 ColliderMotion::AtCurrent => resting_reference(point_triangle_distance_squared(s, a1, b1, c1).sqrt() - sep, slack, s, xt),
                 ColliderMotion::Swept => xt,
             };
