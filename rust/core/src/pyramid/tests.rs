@@ -994,8 +994,10 @@ fn accelerated_solve_with_vertices_held_in_a_dent() {
     let (error, plain_error) = (rms_distance(&short, &reference) / scale, rms_distance(&plain_short, &reference) / scale);
     println!("dent held: 300 accelerated {difference:.5}; 10 iterations: accelerated {error:.4}, plain {plain_error:.4}");
     assert!(difference < 5e-3, "with the hook the accelerated solve ends {difference} of the displacement away");
-    // With the held vertices fixed in the coarse problem: 0.0011 (plain 0.34).
-    assert!(error < 0.01, "10 iterations with a dent held: accelerated {error}, plain {plain_error}");
+    // With the held vertices fixed in the coarse problem: 0.0011 (plain
+    // 0.34); with them free in it and their aggregates left uncorrected, as
+    // before: 0.0069.
+    assert!(error < 0.003, "10 iterations with a dent held: accelerated {error}, plain {plain_error}");
 }
 
 #[test]
