@@ -78,6 +78,18 @@ def shared_data(*parts: str) -> pathlib.Path:
     return path
 
 
+def solver_switch(settings) -> None:
+    """Lets a contact test run with either solver, whatever the default: ``TEGUMENT_TEST_CONVERGE=1``
+    bakes with Converge (at its iteration limit), ``0`` with plain iterations (their count); unset,
+    the add-on's defaults stand. A switch of the tests, not a setting of the add-on."""
+    import tegument
+
+    switch = os.environ.get("TEGUMENT_TEST_CONVERGE")
+    if switch in ("0", "1"):
+        settings.converge = switch == "1"
+        settings.iterations = tegument.DEFAULTS.accelerated_iterations if settings.converge else tegument.DEFAULTS.iterations
+
+
 def wheel_bake(deformer, inputs, settings) -> list:
     """What a plain bake (no colliders, dynamics or strain limits) writes, from the wheel: the frames
     ``inputs`` (world space, in bake order) solved at the add-on's settings ``settings``

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import penetration
 from scene import add_sphere, world_mesh
+from conftest import solver_switch
 from test_pyramid_deform import read_pc2
 
 # scene.add_sphere's UV sphere: 32 segments, 16 rings.
@@ -40,6 +41,7 @@ def bake(skin, frames: int, closeness: float = 0.02, collection: str = "Collider
     settings.collider_collection = bpy.data.collections[collection]
     settings.closeness = closeness
     settings.frame_start, settings.frame_end = 1, frames
+    solver_switch(settings)
     assert bpy.ops.tegument.bake() == {"FINISHED"}
     cache, _ = read_pc2(bpy.path.abspath(settings.cache_path))
     assert cache.shape[0] == frames and np.isfinite(cache).all()

@@ -25,7 +25,7 @@ import bpy
 import numpy as np
 import pytest
 
-from conftest import shared_data
+from conftest import shared_data, solver_switch
 from test_pyramid_deform import read_pc2
 
 import character_demo  # upstream_local: the stack above Tegument (the skinning input)
@@ -65,6 +65,7 @@ def bake(obj, *, self_collision: bool, cache: str) -> np.ndarray:
     settings.self_collision.enabled = self_collision
     settings.cache_path = cache
     settings.frame_start, settings.frame_end = 1, FRAMES
+    solver_switch(settings)
     assert bpy.ops.tegument.bake() == {"FINISHED"}
     frames, _ = read_pc2(bpy.path.abspath(settings.cache_path))
     assert frames.shape[0] == FRAMES

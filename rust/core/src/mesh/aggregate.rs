@@ -2,6 +2,26 @@
 //! solver's coarse level ([`crate::solve`]) and of the strain pass's block
 //! levels ([`crate::strain::Hierarchy`]).
 
+/// The members of each group, given each node's group `of` (`< count`):
+/// `(offsets, members)`, group `g`'s nodes ascending at
+/// `members[offsets[g]..offsets[g + 1]]`.
+pub fn group_members(of: &[u32], count: usize) -> (Vec<u32>, Vec<u32>) {
+    let mut offsets = vec![0u32; count + 1];
+    for &g in of {
+        offsets[g as usize + 1] += 1;
+    }
+    for g in 0..count {
+        offsets[g + 1] += offsets[g];
+    }
+    let mut fill = offsets.clone();
+    let mut members = vec![0u32; of.len()];
+    for (v, &g) in of.iter().enumerate() {
+        members[fill[g as usize] as usize] = v as u32;
+        fill[g as usize] += 1;
+    }
+    (offsets, members)
+}
+
 /// One round of aggregation of a graph of `nodes` nodes whose `edges` list
 /// every edge in both directions, sorted and without duplicates. In node
 /// order, a node none of whose neighbours is taken starts an aggregate with

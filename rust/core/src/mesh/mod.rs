@@ -16,7 +16,7 @@ mod transform;
 mod validate;
 mod weld;
 
-pub use aggregate::{aggregate_edges, aggregate_once};
+pub use aggregate::{aggregate_edges, aggregate_once, group_members};
 pub use elements::{either_split_triangles, fan_triangles, polygon_edges, triangle_edges, vertex_incidence};
 pub use topology::{Topology, TopologyReport};
 pub use transform::transform_points;

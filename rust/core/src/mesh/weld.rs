@@ -106,19 +106,7 @@ impl Weld {
                 welded_of[r as usize]
             };
         }
-        let mut member_offsets = vec![0u32; count as usize + 1];
-        for &w in &welded_of {
-            member_offsets[w as usize + 1] += 1;
-        }
-        for w in 0..count as usize {
-            member_offsets[w + 1] += member_offsets[w];
-        }
-        let mut fill = member_offsets.clone();
-        let mut members = vec![0u32; n];
-        for (v, &w) in welded_of.iter().enumerate() {
-            members[fill[w as usize] as usize] = v as u32;
-            fill[w as usize] += 1;
-        }
+        let (member_offsets, members) = super::group_members(&welded_of, count as usize);
         Weld { welded_of, member_offsets, members }
     }
 

@@ -24,7 +24,7 @@ fn neighbours(mesh: &PolyMesh) -> Vec<Vec<usize>> {
 
 /// The spike measure, largest over the vertices: growth of
 /// |x_i − mean of its neighbours| over the mean rest length of its edges.
-fn spike_max(mesh: &PolyMesh, x: &[Vec3]) -> f32 {
+pub(super) fn spike_max(mesh: &PolyMesh, x: &[Vec3]) -> f32 {
     let rest = &mesh.positions;
     neighbours(mesh)
         .iter()

@@ -6,8 +6,9 @@ use glam::Vec3;
 use super::*;
 use crate::collide::{self_intersections, ColliderSettings, SelfSettings};
 use crate::mesh::fixtures::smooth_bend;
-use crate::mesh::shapes::{cylinder, grid, PolyMesh};
-use crate::pyramid::Closeness;
+use crate::mesh::shapes::{capped_tube, cylinder, grid, PolyMesh};
+use crate::pyramid::{Closeness, ACCELERATED_ITERATIONS, CONVERGE_TOLERANCE};
+use super::irregular_tests::spike_max;
 
 fn audited(mesh: &PolyMesh, x: &[Vec3]) -> usize {
     self_intersections(MeshInput { positions: x, ..mesh.input() }).unwrap().len()
@@ -47,6 +48,48 @@ fn a_tube_bent_150_degrees_folds_without_passing_through_itself() {
     assert_eq!(with, 0, "{reports:?}");
     assert!(reports.iter().map(|r| r.self_contacts).sum::<usize>() > 0);
     assert!(reports.iter().all(|r| r.self_intersections == 0 && r.self_tangled == 0));
+}
+
+/// A tube bent to 150° with self-collision, baked with Converge (the
+/// accelerated solver, its tolerance and iteration limit; the add-on's
+/// setting) or with 10 plain iterations: per frame the spike maximum of the
+/// result and of the input, and the iterations the frame ran. `blender`:
+/// the tube of `blender_tests/test_self_collision.py` (32 around, radius
+/// 0.25, fan caps, the bend blended over the middle fifth, the add-on's
+/// self-collision settings) instead of [`bend`]'s.
+fn converge_bend(converge: bool, blender: bool) -> Vec<(f32, f32, usize)> {
+    let (tube, low, high, settings) = match blender {
+        false => (cylinder(24, 48, 0.2, 2.0), 0.85, 1.15, SETTINGS),
+        true => (capped_tube(32, 48, 0.25, 2.0), 0.8, 1.2, SelfSettings::default()),
+    };
+    let mut sequence = Sequence::bind(tube.input(), DeformerOptions::default()).unwrap();
+    let iterations = if converge { ACCELERATED_ITERATIONS } else { 10 };
+    sequence.deformer_mut().set_accelerated(converge);
+    sequence.deformer_mut().set_tolerance(converge.then_some(CONVERGE_TOLERANCE)).unwrap();
+    let options = StepOptions { iterations, ..with_self(settings) };
+    (0..=12)
+        .map(|frame| {
+            let angle = 150f32.to_radians() * frame as f32 / 12.0;
+            let input = smooth_bend(&tube, 1.0, low, high, angle, 0.0);
+            let (x, _) = sequence.step(&input, &mut [], &options).unwrap();
+            assert!(x.iter().all(|p| p.is_finite()), "frame {frame}: non-finite output");
+            (spike_max(&tube, &x), spike_max(&tube, &input), sequence.deformer_mut().last_iterations())
+        })
+        .collect()
+}
+
+/// `cargo test --release -p tegument-core --lib measure_converge_on_the_self_collision_bend -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn measure_converge_on_the_self_collision_bend() {
+    for blender in [true, false] {
+        for converge in [false, true] {
+            let frames = converge_bend(converge, blender);
+            let spikes: Vec<String> = frames.iter().map(|(s, i, _)| format!("{s:.3}/{i:.3}")).collect();
+            let its: Vec<usize> = frames.iter().map(|f| f.2).collect();
+            println!("blender's tube {blender}, converge {converge}: spike max result/input per frame {spikes:?}, iterations {its:?}");
+        }
+    }
 }
 
 #[test]

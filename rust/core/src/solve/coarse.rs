@@ -38,9 +38,15 @@
 //! The correction is linear in the residual, so it vanishes at the fixed
 //! point: the corrected iteration has the plain one's fixed points. With an
 //! iteration hook that holds vertices (the stepper's contact passes), the
-//! residual of the held vertices is left out and their aggregates are not
-//! corrected, so that the correction also vanishes where the hook holds the
-//! iteration.
+//! held vertices are fixed (Dirichlet) rows of the coarse problem for that
+//! iteration: their correction is 0, `P` loses their rows (`A₁ =
+//! P_fᵀ(I − M)P_f` over the free vertices, assembled and factorised again
+//! whenever the held set changes, on the aggregations of the free problem),
+//! and their residual leaves the right-hand side. So the correction moves
+//! the free vertices as the held ones stay, and it also vanishes where the
+//! hook holds the iteration. (Before, the held vertices' residual was left
+//! out but `A₁` took them as free and their whole aggregates went
+//! uncorrected.)
 //!
 //! Why the relaxation: on a real character (the MakeHuman body's fingers,
 //! strongly bent) the undamped iteration, plain or corrected, can fall into
@@ -57,7 +63,7 @@ use rayon::prelude::*;
 
 use super::coarsest::Coarsest;
 use super::system::RowBlock;
-use crate::mesh::aggregate_once;
+use crate::mesh::{aggregate_once, group_members};
 use crate::Result;
 
 /// Most unknowns of the coarsest level, which is solved exactly: rounds of
@@ -209,14 +215,9 @@ pub(super) struct Sums {
     pub offset: f64,
 }
 
-/// The coarse levels of one solver for one set of weights.
-pub(super) struct Coarse {
-    /// Aggregate of each vertex on the first level.
-    aggregate: Vec<u32>,
-    /// `ω Pᵀ M` by first-level aggregate: offsets into `columns`/`values`.
-    offsets: Vec<u32>,
-    columns: Vec<u32>,
-    values: Vec<f32>,
+/// The levels below the mesh for one first-level matrix: one V-cycle
+/// solves it approximately.
+struct Hierarchy {
     /// Levels smoothed by Gauss–Seidel, finest first; empty when the first
     /// level is the coarsest.
     levels: Vec<Level>,
@@ -225,8 +226,63 @@ pub(super) struct Coarse {
     coarsest: Coarsest,
     coarsest_rhs: Vec<Vec3>,
     coarsest_error: Vec<Vec3>,
-    /// Per first-level aggregate: no held vertex in it.
-    free: Vec<bool>,
+}
+
+/// The coarse problem with the vertices a hook holds fixed (see
+/// [`Coarse::correct`]), for the set it was built for.
+struct Held {
+    /// The held vertices, ascending.
+    vertices: Vec<u32>,
+    /// The cycle of `A₁` with the held vertices' rows and columns of `P`
+    /// removed; `None` if that matrix could not be factorised (then the
+    /// iteration takes the plain step).
+    hierarchy: Option<Hierarchy>,
+}
+
+/// The coarse levels of one solver for one set of weights.
+pub(super) struct Coarse {
+    /// Aggregate of each vertex on the first level.
+    aggregate: Vec<u32>,
+    /// The vertices of each first-level aggregate: `members[member_offsets[a]..member_offsets[a + 1]]`.
+    member_offsets: Vec<u32>,
+    members: Vec<u32>,
+    /// `ω Pᵀ M` by first-level aggregate: offsets into `columns`/`values`.
+    offsets: Vec<u32>,
+    columns: Vec<u32>,
+    values: Vec<f32>,
+    /// `M` by vertex (compressed rows, no diagonal), for the coarse problem
+    /// with held vertices.
+    m: VertexRows,
+    /// The cycle of `A₁` (nothing held).
+    free: Hierarchy,
+    /// The cycle with held vertices fixed, rebuilt when the held set changes.
+    held: Option<Held>,
+}
+
+/// A sparse matrix by vertex rows, `M`'s pattern.
+struct VertexRows {
+    offsets: Vec<u32>,
+    columns: Vec<u32>,
+    values: Vec<f32>,
+}
+
+impl VertexRows {
+    /// From `(row, column, value)` entries sorted by row.
+    fn from_sorted(n: usize, entries: &[(u32, u32, f32)]) -> Self {
+        let mut offsets = vec![0u32; n + 1];
+        for &(i, _, _) in entries {
+            offsets[i as usize + 1] += 1;
+        }
+        for v in 0..n {
+            offsets[v + 1] += offsets[v];
+        }
+        VertexRows { offsets, columns: entries.iter().map(|e| e.1).collect(), values: entries.iter().map(|e| e.2).collect() }
+    }
+
+    fn row(&self, i: usize) -> impl Iterator<Item = (usize, f32)> + '_ {
+        let range = self.offsets[i] as usize..self.offsets[i + 1] as usize;
+        self.columns[range.clone()].iter().map(|&j| j as usize).zip(self.values[range].iter().copied())
+    }
 }
 
 impl Coarse {
@@ -294,52 +350,25 @@ impl Coarse {
             offsets[a + 1] += offsets[a];
         }
 
-        // Pᵀ(I − M)P, symmetrised, both triangles.
-        let mut entries: Vec<(u32, u32, f64)> = Vec::with_capacity(n + 2 * m.len());
-        for &a in &aggregate {
-            entries.push((a, a, 1.0));
-        }
-        for &(i, j, v) in &m {
-            let (a, b) = (aggregate[i as usize], aggregate[j as usize]);
-            entries.push((a, b, -0.5 * v as f64));
-            entries.push((b, a, -0.5 * v as f64));
-        }
-        let mut matrix = Csr::from_entries(count, entries);
-
-        // Further rounds until the coarsest level is small enough to factorise.
-        let mut levels = Vec::new();
-        for _ in 1..MAX_ROUNDS {
-            if matrix.len() <= MAX_AGGREGATES {
-                break;
-            }
-            let (down, next) = aggregate_once(matrix.len(), &matrix.edges());
-            if next * 2 > matrix.len() {
-                break;
-            }
-            let coarser = matrix.restricted(&down, next);
-            let len = matrix.len();
-            levels.push(Level { matrix, down, rhs: vec![Vec3::ZERO; len], error: vec![Vec3::ZERO; len], scratch: vec![Vec3::ZERO; len] });
-            matrix = coarser;
-        }
-
-        let lower: Vec<(u32, u32, f64)> = (0..matrix.len())
-            .flat_map(|i| matrix.row(i).filter(move |&(j, _)| j <= i).map(move |(j, v)| (j as u32, i as u32, v as f64)))
-            .collect();
-        let Some(coarsest) = Coarsest::new(matrix.len(), lower) else {
+        let m = VertexRows::from_sorted(n, &m);
+        let Some(free) = Hierarchy::build(first_level(&aggregate, count, &m, None), None) else {
             return Ok(None);
         };
-        let last = coarsest.len();
-        Ok(Some(Coarse {
-            aggregate,
-            offsets,
-            columns,
-            values,
-            levels,
-            coarsest,
-            coarsest_rhs: vec![Vec3::ZERO; last],
-            coarsest_error: vec![Vec3::ZERO; last],
-            free: vec![true; count],
-        }))
+
+        let (member_offsets, members) = group_members(&aggregate, count);
+        Ok(Some(Coarse { aggregate, member_offsets, members, offsets, columns, values, m, free, held: None }))
+    }
+
+    /// Builds the coarse problem with the vertices `held` (ascending;
+    /// `mask` per vertex) fixed, unless it was built for them last.
+    fn prepare_held(&mut self, vertices: &[u32], mask: &[bool]) {
+        if self.held.as_ref().is_none_or(|h| h.vertices != vertices) {
+            let count = self.member_offsets.len() - 1;
+            let matrix = first_level(&self.aggregate, count, &self.m, Some(mask));
+            let downs: Vec<&[u32]> = self.free.levels.iter().map(|l| &l.down[..]).collect();
+            let hierarchy = Hierarchy::build(matrix, Some(&downs));
+            self.held = Some(Held { vertices: vertices.to_vec(), hierarchy });
+        }
     }
 
     /// Given the iterate `x` and its image `g = G(x)`, overwrites `g` with
@@ -356,63 +385,65 @@ impl Coarse {
     /// Returns the squared norms of the residual (`g − x` before all that),
     /// of the accelerated step and of the new iterate's offset from `input`.
     ///
-    /// `held` marks vertices whose residual is left out (a hook holds them
-    /// where the step cannot go), so that the correction vanishes at the
-    /// held iteration's fixed point too.
+    /// `held` gives the vertices a hook holds (ascending, and as a
+    /// per-vertex mask): their correction is fixed at 0, a Dirichlet
+    /// condition of the coarse problem. Their rows and columns leave `P`
+    /// (`A₁` becomes `P_fᵀ(I − M)P_f` over the free vertices, factorised
+    /// again when the held set changes), and their residual leaves the
+    /// right-hand side (the hook, not the step, decides where they go). So
+    /// the correction moves the free vertices as the held ones stay, and it
+    /// still vanishes at the held iteration's fixed point.
     pub(super) fn correct(
         &mut self,
         x: &[Vec3],
         g: &mut [Vec3],
-        held: Option<&[bool]>,
+        held: Option<(&[u32], &[bool])>,
         previous: &mut [Vec3],
         extrapolation: (f32, Option<&[bool]>),
         input: &[Vec3],
     ) -> Sums {
         let (weight, unextrapolated) = extrapolation;
-        let (offsets, columns, values) = (&self.offsets, &self.columns, &self.values);
-        let rhs = match self.levels.first_mut() {
-            Some(level) => &mut level.rhs,
-            None => &mut self.coarsest_rhs,
-        };
-        {
-            let g = &*g;
-            rhs.par_iter_mut().enumerate().with_min_len(256).for_each(|(a, b)| {
-                let mut sum = Vec3::ZERO;
-                let range = offsets[a] as usize..offsets[a + 1] as usize;
-                match held {
-                    None => {
-                        for k in range {
-                            let j = columns[k] as usize;
-                            sum += (g[j] - x[j]) * values[k];
-                        }
+        let error: Option<&[Vec3]> = match held {
+            None => {
+                let (offsets, columns, values) = (&self.offsets, &self.columns, &self.values);
+                let g = &*g;
+                self.free.first_rhs().par_iter_mut().enumerate().with_min_len(256).for_each(|(a, b)| {
+                    let mut sum = Vec3::ZERO;
+                    for k in offsets[a] as usize..offsets[a + 1] as usize {
+                        let j = columns[k] as usize;
+                        sum += (g[j] - x[j]) * values[k];
                     }
-                    Some(held) => {
-                        for k in range.filter(|&k| !held[columns[k] as usize]) {
-                            let j = columns[k] as usize;
-                            sum += (g[j] - x[j]) * values[k];
-                        }
+                    *b = sum;
+                });
+                Some(self.free.solve())
+            }
+            Some((vertices, mask)) => {
+                self.prepare_held(vertices, mask);
+                let Coarse { member_offsets, members, m, held, .. } = self;
+                match held.as_mut().and_then(|h| h.hierarchy.as_mut()) {
+                    // ω P_fᵀ M_ff (g − x): free rows, free columns.
+                    Some(hierarchy) => {
+                        let g = &*g;
+                        hierarchy.first_rhs().par_iter_mut().enumerate().with_min_len(256).for_each(|(a, b)| {
+                            let mut sum = Vec3::ZERO;
+                            for &i in &members[member_offsets[a] as usize..member_offsets[a + 1] as usize] {
+                                if mask[i as usize] {
+                                    continue;
+                                }
+                                for (j, v) in m.row(i as usize).filter(|&(j, _)| !mask[j]) {
+                                    sum += (g[j] - x[j]) * v;
+                                }
+                            }
+                            *b = sum * RELAXATION;
+                        });
+                        Some(hierarchy.solve())
                     }
+                    None => None,
                 }
-                *b = sum;
-            });
-        }
-        let error = if self.levels.is_empty() {
-            self.coarsest.solve(&self.coarsest_rhs, &mut self.coarsest_error);
-            &self.coarsest_error
-        } else {
-            self.cycle(0);
-            &self.levels[0].error
+            }
         };
-        // The aggregates of held vertices get no correction either: the
-        // coarse matrix takes them as free, and correcting them against the
-        // hook makes the iteration oscillate around its fixed point.
+        let held = held.map(|h| h.1);
         let aggregate = &self.aggregate;
-        let free = &mut self.free;
-        free.fill(true);
-        for (i, _) in held.into_iter().flatten().enumerate().filter(|(_, &h)| h) {
-            free[aggregate[i] as usize] = false;
-        }
-        let free = &*free;
         // One pass for the step, the correction and the extrapolation, and
         // the norms, summed by fixed blocks in order.
         let extrapolate = weight != 1.0;
@@ -426,12 +457,16 @@ impl Coarse {
             .map(|(((((block, g), x), previous), input), aggregate)| {
                 let (mut residual, mut step, mut offset) = (0.0f32, 0.0f32, 0.0f32);
                 let left_out = unextrapolated.map(|mask| &mask[block * APPLY_BLOCK..]);
+                let held = held.map(|mask| &mask[block * APPLY_BLOCK..]);
                 for (k, ((((gi, xi), pi), ii), &a)) in g.iter_mut().zip(x).zip(previous).zip(input).zip(aggregate).enumerate() {
-                    let a = a as usize;
                     let plain = *gi - *xi;
                     residual += plain.length_squared();
                     let carried = left_out.is_some_and(|mask| mask[k]);
-                    let correction = if free[a] && !carried { error[a] } else { Vec3::ZERO };
+                    let fixed = held.is_some_and(|mask| mask[k]);
+                    let correction = match error {
+                        Some(error) if !carried && !fixed => error[a as usize],
+                        _ => Vec3::ZERO,
+                    };
                     let corrected = *xi + plain * RELAXATION + correction;
                     // Weight 1 exactly: `p + (c − p)` can differ from `c` in
                     // the last bit, which would make a solve depend on the
@@ -454,6 +489,95 @@ impl Coarse {
             step: a.step + b.step,
             offset: a.offset + b.offset,
         })
+    }
+}
+
+/// `Pᵀ(I − M)P` on the first level, symmetrised, both triangles; with
+/// `held`, `P` without the held vertices' rows (an aggregate of held
+/// vertices only gets an empty row: its correction is 0).
+fn first_level(aggregate: &[u32], count: usize, m: &VertexRows, held: Option<&[bool]>) -> Csr {
+    let free = |v: usize| held.is_none_or(|h| !h[v]);
+    let mut entries: Vec<(u32, u32, f64)> = Vec::with_capacity(aggregate.len() + 2 * m.columns.len());
+    for (v, &a) in aggregate.iter().enumerate() {
+        if free(v) {
+            entries.push((a, a, 1.0));
+        }
+    }
+    for i in (0..aggregate.len()).filter(|&i| free(i)) {
+        for (j, v) in m.row(i).filter(|&(j, _)| free(j)) {
+            let (a, b) = (aggregate[i], aggregate[j]);
+            entries.push((a, b, -0.5 * v as f64));
+            entries.push((b, a, -0.5 * v as f64));
+        }
+    }
+    Csr::from_entries(count, entries)
+}
+
+impl Hierarchy {
+    /// The levels below `first`: by further rounds of aggregation until the
+    /// coarsest is small enough to factorise, or by the aggregations `downs`
+    /// of another hierarchy (the same levels for a modified first matrix).
+    /// `None` if the coarsest level is not positive definite.
+    fn build(first: Csr, downs: Option<&[&[u32]]>) -> Option<Self> {
+        let mut matrix = first;
+        let mut levels = Vec::new();
+        let push = |matrix: Csr, down: Vec<u32>, next: usize, levels: &mut Vec<Level>| {
+            let coarser = matrix.restricted(&down, next);
+            let len = matrix.len();
+            levels.push(Level { matrix, down, rhs: vec![Vec3::ZERO; len], error: vec![Vec3::ZERO; len], scratch: vec![Vec3::ZERO; len] });
+            coarser
+        };
+        match downs {
+            None => {
+                for _ in 1..MAX_ROUNDS {
+                    if matrix.len() <= MAX_AGGREGATES {
+                        break;
+                    }
+                    let (down, next) = aggregate_once(matrix.len(), &matrix.edges());
+                    if next * 2 > matrix.len() {
+                        break;
+                    }
+                    matrix = push(matrix, down, next, &mut levels);
+                }
+            }
+            Some(downs) => {
+                for down in downs {
+                    let next = down.iter().max().map_or(0, |&a| a as usize + 1);
+                    matrix = push(matrix, down.to_vec(), next, &mut levels);
+                }
+            }
+        }
+        // A node without a free vertex below it has an empty row: 1 on its
+        // diagonal makes its correction 0 (its right-hand side is 0).
+        let lower: Vec<(u32, u32, f64)> = (0..matrix.len())
+            .flat_map(|i| {
+                let empty = matrix.diagonal[i] == 0.0;
+                let identity = empty.then_some((i as u32, i as u32, 1.0));
+                matrix.row(i).filter(move |&(j, _)| j <= i).map(move |(j, v)| (j as u32, i as u32, v as f64)).chain(identity)
+            })
+            .collect();
+        let coarsest = Coarsest::new(matrix.len(), lower)?;
+        let last = coarsest.len();
+        Some(Hierarchy { levels, coarsest, coarsest_rhs: vec![Vec3::ZERO; last], coarsest_error: vec![Vec3::ZERO; last] })
+    }
+
+    /// The first level's right-hand side, for [`Hierarchy::solve`].
+    fn first_rhs(&mut self) -> &mut [Vec3] {
+        match self.levels.first_mut() {
+            Some(level) => &mut level.rhs,
+            None => &mut self.coarsest_rhs,
+        }
+    }
+
+    /// One V-cycle from the first level's right-hand side; its error.
+    fn solve(&mut self) -> &[Vec3] {
+        if self.levels.is_empty() {
+            self.coarsest.solve(&self.coarsest_rhs, &mut self.coarsest_error);
+            &self.coarsest_error
+        } else {
+            self.cycle(0);
+            &self.levels[0].error
+        }
     }
 
     /// One cycle on level `l`, from its `rhs` into its `error`: the

@@ -3,7 +3,8 @@
 //!
 //! The acceleration ([`super::coarse`], [`super::chebyshev`]) extrapolates
 //! the iteration's map `G`; a hook that holds vertices changes that map: the
-//! correction leaves the moved vertices' residual out, the extrapolation
+//! correction fixes the moved vertices (Dirichlet rows of its coarse
+//! problem, [`super::coarse`]), the extrapolation
 //! restarts after an iteration whose hook moved a vertex, and the stopping
 //! rule does not stop while the moved set changes (contacts still appearing
 //! or letting go). Measured and not kept (issue 28, `docs/performance.md`):
@@ -54,9 +55,10 @@ impl MovedVertices {
         self.moved = moved;
     }
 
-    /// The moved vertices as a per-vertex mask, or `None` when none moved.
-    pub(super) fn held(&self) -> Option<&[bool]> {
-        self.any().then_some(&self.mask[..])
+    /// The moved vertices, ascending and as a per-vertex mask, or `None`
+    /// when none moved.
+    pub(super) fn held(&self) -> Option<(&[u32], &[bool])> {
+        self.any().then_some((&self.moved[..], &self.mask[..]))
     }
 
     /// Whether the hook moved any vertex in the last iteration.
@@ -84,7 +86,7 @@ mod tests {
         moved.clear();
         moved.update(&before, &after);
         assert!(moved.any() && moved.changed());
-        assert_eq!(moved.held().unwrap(), &[false, false, false, true, false, false]);
+        assert_eq!(moved.held().unwrap(), (&[3u32][..], &[false, false, false, true, false, false][..]));
         moved.update(&before, &after);
         assert!(moved.any() && !moved.changed(), "the same vertex moved again");
         moved.update(&before, &before);
@@ -93,6 +95,6 @@ mod tests {
         moved.clear();
         moved.update(&before, &before);
         moved.update(&before, &after);
-        assert_eq!(moved.held().unwrap().iter().filter(|&&m| m).count(), 1, "a new solve forgets the last one's vertices");
+        assert_eq!(moved.held().unwrap().1.iter().filter(|&&m| m).count(), 1, "a new solve forgets the last one's vertices");
     }
 }

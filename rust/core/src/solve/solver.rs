@@ -398,9 +398,10 @@ impl Solver {
             // positions changed the map (contacts hold vertices against
             // it). Chebyshev's extrapolation across that would move the fixed
             // point: such iterations restart its sequence. The coarse
-            // correction leaves out the residual of the vertices the hook
-            // moved, so that it still vanishes where the hook holds them
-            // (see `contacts` for what was measured beyond that).
+            // correction fixes the vertices the hook moved (Dirichlet rows
+            // of its coarse problem), so that it moves the rest as they stay
+            // and still vanishes where the hook holds them (see `contacts`
+            // for what was measured beyond that).
             if let Some(coarse) = self.coarse.as_mut() {
                 if self.hook_moved.any() {
                     chebyshev.restart();
