@@ -456,13 +456,17 @@ impl Pass<'_> {
             return Gathered::Nothing;
         }
         // Iterations shrink as a solve converges: four times this one's move
-        // (and at least the last margin) covers most of the ones to come.
+        // covers most of the ones to come. Not the last candidates' margins
+        // as well: those of the first pass are twice what last frame's solve
+        // moved the skin, and where a fold closes (its rounds and fail-safe
+        // moving skin far) carrying them into every in-loop gathering paired
+        // up millions of elements of the fold (issue 30, seventh round).
         let floor = self.collision.margin_floor(self.settings);
-        let old = candidates.take().map(|c| c.margin);
+        candidates.take();
         let margin: Vec<f32> = (0..before.len())
             .into_par_iter()
             .with_min_len(4096)
-            .map(|v| (4.0 * (after[v] - before[v]).length()).max(old.as_ref().map_or(0.0, |m| m[v])).max(floor))
+            .map(|v| (4.0 * (after[v] - before[v]).length()).max(floor))
             .collect();
         *candidates = Some(self.candidates(before, before, margin));
         Gathered::Whole

@@ -229,6 +229,31 @@ fn the_in_loop_pass_reuses_its_candidates_and_holds_back_what_it_cannot_clear() 
     assert!(total.gathers < 10, "every pass gathered the whole skin again: {total:?}");
 }
 
+/// An in-loop gathering sizes each vertex's margin by the iteration that
+/// left the candidates, not by the margins they had: the first pass's are
+/// twice how far last frame's solve moved the skin, and where a fold
+/// closes, carried into every in-loop gathering, they paired up the fold.
+#[test]
+fn an_in_loop_gathering_takes_its_margins_from_the_iteration_not_from_the_last_candidates() {
+    let mesh = two_sheets(8, 0.1);
+    let collision = bound(&mesh, &SETTINGS);
+    let still = mesh.positions.clone();
+    // Margins wider than the room between the sheets pair them up.
+    let wide = vec![0.1; still.len()];
+    let mut state = Some(collision.candidates(&still, &still, &wide, &SETTINGS, &Tangles::default(), None).unwrap());
+    let paired = state.as_ref().map_or(0, Candidates::len);
+    assert!(paired > 100, "the wide margins paired only {paired} elements");
+    // An iteration moves one corner of the lower sheet beyond its margin,
+    // in its plane: the candidates are gathered again.
+    let mut after = still.clone();
+    after[0].x -= 0.2;
+    let stats = collision.resolve_in_loop(&mut state, &still, &mut after, &SETTINGS, &Tangles::default(), None).unwrap();
+    assert_eq!(stats.gathers, 1);
+    // Only that corner has room to reach the other sheet now.
+    let listed = state.as_ref().map_or(0, Candidates::len);
+    assert!(4 * listed < paired, "{listed} pairs listed again of the {paired} the wide margins paired");
+}
+
 /// A random motion of two small sheets towards and through each other.
 fn motion() -> impl Strategy<Value = (Vec<f32>, Vec<f32>, f32)> {
     (prop::collection::vec(-0.4f32..0.1, 50), prop::collection::vec(-0.05f32..0.05, 50), 0.0f32..0.02)
