@@ -198,7 +198,23 @@ def character_lines(rows: Rows) -> list[Line]:
                                f"{rows.value('blender', case, 'pinned by bind'):.0f} vertices pinned by bind "
                                f"({rows.value('blender', case, 'split vertices'):.0f} split at seams); " + shape("Tegument")
                                + f"; convergence error, worst frame: {convergence(rows, case)}"))
+        other = other_solver_line(rows, comparison, name, case)
+        if other:
+            lines.append(other)
     return lines
+
+
+def other_solver_line(rows: Rows, comparison: str, name: str, case: str) -> Line | None:
+    """The character baked with the other Converge setting in the same minutes (`blender_bench.py
+    --character-both`, which `make bench` passes), or None when the run did not bake it."""
+    frame = next((r for r in rows.rows if r["benchmark"] == "blender" and re.fullmatch(case, r["case"])
+                  and re.fullmatch(r"Tegument \(Converge (on|off), \d+ it\.\): frame", r["metric"])), None)
+    if frame is None:
+        return None
+    label = frame["metric"].split(":")[0].removeprefix("Tegument (").removesuffix(")")
+    return Line(comparison, name, f"Tegument Pyramid Deform ({label})", frame["value"],
+                note=f"{rows.value('blender', case, f'Tegument ({label}) frame / Corrective Smooth frame'):.2f}× Corrective Smooth's frame "
+                     f"in the same minutes; {rows.value('blender', case, f'Tegument ({label}): iterations a frame'):.1f} iterations a frame")
 
 
 def convergence(rows: Rows, case: str) -> str:

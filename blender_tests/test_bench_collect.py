@@ -133,6 +133,19 @@ def test_the_character_lines_compare_corrective_smooth_and_tegument_on_each_vari
     assert lines[5].note.endswith("; convergence error, worst frame: 49.0 % at the defaults, 3.0 % with Converge from each frame's input (at most 12 it.)")
 
 
+def test_with_both_solver_settings_the_character_lines_add_the_other_one_in_the_same_minutes():
+    rows = run_rows()
+    for k, case in enumerate(CHARACTERS):
+        rows += [row("blender", case, "Tegument (Converge on, 24 it.): frame", 40.0 + k),
+                 row("blender", case, "Tegument (Converge on, 24 it.) frame / Corrective Smooth frame", 1.25 + k, unit="x"),
+                 row("blender", case, "Tegument (Converge on, 24 it.): iterations a frame", 7.5, unit="")]
+    lines = [line for line in collect.summary(collect.Rows(rows)) if line.comparison.startswith("real character")]
+    assert [line.method for line in lines[:4]] == ["armature only (skinning)", "Blender Corrective Smooth (10 it.)",
+                                                    "Tegument Pyramid Deform (10 it.)", "Tegument Pyramid Deform (Converge on, 24 it.)"]
+    assert [line.ms_per_frame for line in lines[3::4]] == [40.0, 41.0, 42.0]
+    assert lines[7].note == "2.25× Corrective Smooth's frame in the same minutes; 7.5 iterations a frame"
+
+
 def test_the_scaling_lines_go_by_size_with_the_frame_phases_and_the_growth_per_vertex():
     lines = [line for line in collect.summary(collect.Rows(run_rows())) if line.comparison.startswith("bake loop at scale")]
     assert [(line.case, line.ms_per_frame) for line in lines] == [
