@@ -315,11 +315,15 @@ def test_topology_change_upstream_is_refused_and_keeps_the_cache(limb, capfd):
     assert subdivision.show_viewport, "the user's modifiers must be restored"
 
 
-def test_bake_frame_and_live_playback(limb):
+@pytest.mark.parametrize("converge", [False, True], ids=["plain", "converge"])
+def test_bake_frame_and_live_playback(limb, converge):
     """Bake Frame and live playback write the frames a whole bake writes: each frame is solved
-    from the one before it, so the frames they fill in one by one must match the bake's."""
+    from the one before it, so the frames they fill in one by one must match the bake's. With
+    Converge a frame starts from the frame before it (a warm start): live playback starts from the
+    cached one."""
     obj, _ = limb
     bpy.ops.tegument.deform_add()
+    obj.tegument.converge = converge
     scene = bpy.context.scene
     assert bpy.ops.tegument.bake() == {"FINISHED"}
     whole = read_pc2(bpy.path.abspath(obj.tegument.cache_path))[0]

@@ -54,6 +54,7 @@ PARAMS = {
     "deformed_positions": "Floats",
     "points": "Floats",
     "history": "Floats | None",
+    "PyramidDeformer.reset.input": "Floats | None",
     "out": "Float32 | None",
     "matrix": "Floats",
     "corner_verts": "Indices",

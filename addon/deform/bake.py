@@ -115,7 +115,7 @@ class BakeJob:
             if self.uses_step:
                 self._start_history(frames.start)
             else:
-                self.deformer.reset()  # the first frame is solved from its input (Converge warm-starts the rest)
+                self._start_warm(frames.start)
         except BaseException:
             for writer in self.collider_writers.values():
                 writer.abort()
@@ -178,6 +178,22 @@ class BakeJob:
         self.deformer.reset(np.ascontiguousarray(evaluate.to_world(self._existing[before], matrix), dtype=np.float32))
         for k, existing in self._collider_existing.items():
             self.rig.place_local(k, existing[before])
+
+    def _start_warm(self, first: int) -> None:
+        """Without the history-based step a bake solves its first frame from the input and, with
+        Converge, every later one from the frame before it (a warm start). A bake that continues
+        cached frames (live playback, Bake Frame after the cache) starts warm from the last of them,
+        with the input it was solved from, so that it writes the frames one bake of the whole range
+        writes."""
+        self.deformer.reset()
+        before = first - self.start_frame - 1
+        if not self.settings.converge or self._existing is None or not 0 <= before < len(self._existing):
+            return
+        self.scene.frame_set(first - 1)
+        depsgraph = bpy.context.evaluated_depsgraph_get()
+        _, input_world = evaluate.evaluated_positions(self.obj, depsgraph)
+        result = evaluate.to_world(self._existing[before], self.obj.evaluated_get(depsgraph).matrix_world)
+        self.deformer.reset(np.ascontiguousarray(result, dtype=np.float32), input=np.ascontiguousarray(input_world, dtype=np.float32))
 
     def _world_of(self, frame: int, local: np.ndarray) -> np.ndarray:
         self.scene.frame_set(frame)

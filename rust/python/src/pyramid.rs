@@ -380,12 +380,26 @@ impl PyramidDeformer {
     /// Forgets the last output of :meth:`step` and :meth:`solve`: the next
     /// step, and the next warm solve, start from their input. With ``history`` (float32 ``(N, 3)``, free of collisions), the
     /// next step starts from there instead, as if a step had produced it: how
-    /// a bake resumes after frames it has already cached.
-    #[pyo3(signature = (history = None))]
-    fn reset(&self, py: Python<'_>, history: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
+    /// a bake resumes after frames it has already cached. With ``input`` too
+    /// (float32 ``(N, 3)``: what ``history`` was solved from), the next warm
+    /// :meth:`solve` starts from ``history`` moved as the input moved, as if
+    /// a solve of ``input`` had returned it: how a Converge bake resumes, so
+    /// that it writes the frames one bake of the whole range writes.
+    #[pyo3(signature = (history = None, *, input = None))]
+    fn reset(&self, py: Python<'_>, history: Option<&Bound<'_, PyAny>>, input: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
         let history = history.map(|h| positions_arg("history", h, Some(self.vertex_count))).transpose()?;
+        let input = input.map(|i| positions_arg("input", i, Some(self.vertex_count))).transpose()?;
+        let solved = match (&history, input) {
+            (Some(history), Some(input)) => Some((input, history.clone())),
+            (None, Some(_)) => {
+                return Err(TegumentError::new_err(
+                    "reset: input given without history; pass the result it was solved into as history",
+                ))
+            }
+            _ => None,
+        };
         *self.last_step.lock().unwrap_or_else(|e| e.into_inner()) = None;
-        *self.solved.lock().unwrap_or_else(|e| e.into_inner()) = None;
+        *self.solved.lock().unwrap_or_else(|e| e.into_inner()) = solved;
         self.with(py, move |core| match &history {
             Some(h) => core.set_history(h),
             None => {

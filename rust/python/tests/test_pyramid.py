@@ -193,6 +193,27 @@ def test_a_tolerance_stops_converged_solves_and_warm_solves_start_from_the_last_
     assert deformer.tolerance is None
 
 
+def test_a_reset_with_the_last_result_and_its_input_resumes_warm_solves_where_they_were():
+    """A bake that continues cached frames gives the deformer the last frame's result and input
+    (``reset(history, input=)``): its next warm solve is then the one the uninterrupted bake ran."""
+    lbs, deformer = candy_wrapper_case(True)
+    deformer.accelerated = True
+    deformer.tolerance = tegument.DEFAULTS.tolerance
+    first_input = np.ascontiguousarray(lbs * 0.97, dtype=np.float32)  # the frame before: a little smaller
+    first = deformer.solve(first_input, iterations=12, warm=True)
+    uninterrupted = deformer.solve(lbs, iterations=12, warm=True)
+    deformer.reset(first, input=first_input)
+    resumed = deformer.solve(lbs, iterations=12, warm=True)
+    np.testing.assert_array_equal(resumed, uninterrupted)
+    deformer.reset()
+    cold = deformer.solve(lbs, iterations=12, warm=True)
+    assert not np.array_equal(cold, uninterrupted)  # the frame depends on where it starts
+    with pytest.raises(tegument.TegumentError, match="input given without history"):
+        deformer.reset(input=first_input)
+    with pytest.raises(tegument.TegumentError, match=r"input: expected float32 \(408, 3\)"):
+        deformer.reset(first, input=first_input[:3])
+
+
 def jacobi_reference(rest, corners, sizes, pinned, source, closeness, sweeps, scale_safe):
     """StretchMesh-style Jacobi reconstruction, in numpy, encoded here from the
     rest mesh (not by the library): normal of the one-ring polygon, plane

@@ -239,11 +239,15 @@ class PyramidDeformer:
         non-manifold, degenerate or very high valence one-rings), ascending.
         They follow the input positions exactly.
         """
-    def reset(self, history: Floats | None = None) -> None:
+    def reset(self, history: Floats | None = None, *, input: Floats | None = None) -> None:
         """Forgets the last output of :meth:`step` and :meth:`solve`: the next
         step, and the next warm solve, start from their input. With ``history`` (float32 ``(N, 3)``, free of collisions), the
         next step starts from there instead, as if a step had produced it: how
-        a bake resumes after frames it has already cached.
+        a bake resumes after frames it has already cached. With ``input`` too
+        (float32 ``(N, 3)``: what ``history`` was solved from), the next warm
+        :meth:`solve` starts from ``history`` moved as the input moved, as if
+        a solve of ``input`` had returned it: how a Converge bake resumes, so
+        that it writes the frames one bake of the whole range writes.
         """
     def residual(self, positions: Floats) -> float:
         """Mean pyramid residual of ``positions`` (float32 ``(N, 3)``): the mean
