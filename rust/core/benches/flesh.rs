@@ -150,13 +150,15 @@ fn main() {
                 );
                 let w = step.contact_work;
                 println!(
-                    "{:<28} frame {k} phases (ms): compliant targets {:.0}, first recession {:.0}, first pass {:.0}, in-loop passes {:.0}, strain {:.0}, recession headings {:.0}, recession contacts {:.0}",
+                    "{:<28} frame {k} phases (ms): compliant targets {:.0}, first recession {:.0}, first pass {:.0}, in-loop passes {:.0}, strain {:.0} ({} rounds, {} multilevel cycles), recession headings {:.0}, recession contacts {:.0}",
                     config.name,
                     w.compliant_targets_ms,
                     w.first_recession_ms,
                     w.first_pass_ms,
                     w.in_loop_pass_ms,
                     w.strain_ms,
+                    w.strain_rounds,
+                    w.strain_cycles,
                     w.recession_heading_ms,
                     w.recession_contacts_ms
                 );

@@ -133,7 +133,7 @@ pub struct StepReport {
 /// Where one step's collider and strain time went: wall-clock milliseconds
 /// per phase, summed over substeps and iterations (0 for phases that did not
 /// run). Timings, so not the same from run to run: for benchmarks and
-/// traces, never for decisions.
+/// traces, never for decisions (the strain pass's counts are exact).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct ContactWork {
     /// The skin's target rows that give way to compliant colliders.
@@ -146,6 +146,11 @@ pub struct ContactWork {
     pub in_loop_pass_ms: f64,
     /// The unified strain passes after them.
     pub strain_ms: f64,
+    /// The unified strain passes' rounds (strain projection, then contact
+    /// resolution) and, within them, cycles of the multilevel projection: a
+    /// count, the same in every run, for comparing strain solvers.
+    pub strain_rounds: usize,
+    pub strain_cycles: usize,
     /// Compliant colliders' in-loop recessions: where each vertex heads.
     pub recession_heading_ms: f64,
     /// Compliant colliders' in-loop recessions: the contact pass that stops

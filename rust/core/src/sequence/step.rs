@@ -277,9 +277,11 @@ impl Sequence {
                 // The multilevel projection only where the rounds have room to
                 // settle its large moves against the contacts: the last iteration.
                 let (rounds, levels) = if iteration >= last_iteration { (STRAIN_ROUNDS, levels) } else { (STRAIN_ROUNDS_EARLY, None) };
-                let pinched = limit_strain_with_contacts(limits, levels, colliders, after, skin, &inverse_mass, rounds, clearance.as_ref())?;
-                suspects.extend_from_slice(&pinched);
-                last_pinched.extend(pinched);
+                let pass = limit_strain_with_contacts(limits, levels, colliders, after, skin, &inverse_mass, rounds, clearance.as_ref())?;
+                suspects.extend_from_slice(&pass.pinched);
+                last_pinched.extend(pass.pinched);
+                report.contact_work.strain_rounds += pass.rounds;
+                report.contact_work.strain_cycles += pass.cycles;
                 report.contact_work.strain_ms += ms_since(started);
             }
             for &c in &compliant {

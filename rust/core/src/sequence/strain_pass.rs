@@ -65,9 +65,19 @@ pub(super) const HOLDS: f32 = 9e-3;
 /// sweeps as the unified loop had before its contact planes).
 pub(super) const POST_STRAIN_SWEEPS: usize = 128;
 
+/// What one unified strain pass did.
+pub(super) struct StrainPass {
+    /// The vertices the last contact resolution left pinched.
+    pub pinched: Vec<u32>,
+    /// Rounds of (shortening, contact resolution) run.
+    pub rounds: usize,
+    /// Cycles of the multilevel projection run, over all rounds.
+    pub cycles: usize,
+}
+
 /// Unified strain limiting (seed 002 §2): edge shortening and contact
 /// resolution alternate until both hold or the rounds run out. Returns the
-/// vertices the last contact resolution left pinched. With `levels`, every
+/// vertices the last contact resolution left pinched, and the work done. With `levels`, every
 /// round's shortening runs cycles of the multilevel projection, which draws
 /// material from far away, each followed by over-relaxed sweeps, all of
 /// them keeping the contacts on their planes.
@@ -103,23 +113,25 @@ pub(super) fn limit_strain_with_contacts(
     inverse_mass: &[f32],
     rounds: usize,
     clearance: Option<&Clearance>,
-) -> Result<Vec<u32>> {
+) -> Result<StrainPass> {
     let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
     let set = ColliderSet::new(refs);
     let params = ResolveParams { friction: false, ..ResolveParams::in_loop() };
-    let mut pinched = Vec::new();
+    let mut pass = StrainPass { pinched: Vec::new(), rounds: 0, cycles: 0 };
     // Per vertex, the plane of its last push out of a collider (zero normal: none).
     let mut above: Vec<(Vec3, f32)> = Vec::new();
     for _ in 0..rounds {
         if limits.worst_ratio(x) <= 1.0 + HOLDS {
             break;
         }
+        pass.rounds += 1;
         let mut shortened = x.to_vec();
         match levels {
             // Cycles of the levels and over-relaxed sweeps, until the limits
             // hold or the cycles run out; the planes keep contacts sliding.
             Some(levels) => {
                 for _ in 0..MULTILEVEL_CYCLES {
+                    pass.cycles += 1;
                     levels.project(&mut shortened, inverse_mass, &above, MULTILEVEL_SWEEPS);
                     limits.project_relaxed(&mut shortened, inverse_mass, &above, STRAIN_SWEEPS, HOLDS, OVER_RELAXATION);
                     if limits.worst_ratio(&shortened) <= 1.0 + HOLDS {
@@ -146,9 +158,9 @@ pub(super) fn limit_strain_with_contacts(
                     above[i] = (n, n.dot(shortened[i]));
                 }
             }
-            pinched = stats.pinched;
+            pass.pinched = stats.pinched;
         }
         x.copy_from_slice(&shortened);
     }
-    Ok(pinched)
+    Ok(pass)
 }

@@ -16,6 +16,7 @@
 
 use glam::Vec3;
 
+mod along;
 mod multilevel;
 pub use multilevel::Hierarchy;
 
