@@ -36,6 +36,26 @@ fn budget_seconds() -> f64 {
     std::env::var("TEGUMENT_SELF_BENCH_BUDGET_S").ok().and_then(|v| v.parse().ok()).unwrap_or(120.0)
 }
 
+/// The last frame stepped (`TEGUMENT_SELF_BENCH_FRAMES`, default all 12): two binaries compared
+/// side by side on a loaded host must do the same work, which a budget in wall-clock seconds
+/// does not guarantee.
+fn last_frame() -> usize {
+    std::env::var("TEGUMENT_SELF_BENCH_FRAMES").ok().and_then(|v| v.parse().ok()).unwrap_or(FRAMES).min(FRAMES)
+}
+
+/// CPU seconds this process has used, all threads (`/proc/self/stat`'s utime + stime, in
+/// clock ticks of 1/100 s, Linux's `USER_HZ`): on a shared host, what a step cost without the
+/// other jobs' load. None off Linux.
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // The fields after the command name, which is in parentheses and may hold spaces.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |k: usize| fields.get(k)?.parse::<f64>().ok();
+    // utime and stime are the 14th and 15th fields; `rest` starts at the 3rd.
+    Some((ticks(11)? + ticks(12)?) / 100.0)
+}
+
 struct Bend {
     axis_z: f32,
     low: f32,
@@ -66,9 +86,10 @@ fn case(report: &mut Report, label: &str, mesh: &PolyMesh, bend: &Bend, thicknes
             let t = Instant::now();
             let (xa, _) = a.step(input, &mut [], &plain).unwrap();
             let ta = t.elapsed().as_secs_f64();
-            let t = Instant::now();
+            let (t, cpu) = (Instant::now(), cpu_seconds());
             let (xb, rb) = b.step(input, &mut [], &with).unwrap();
             let tb = t.elapsed().as_secs_f64();
+            let cpu_b = cpu.zip(cpu_seconds()).map_or(f64::NAN, |(a, b)| 1000.0 * (b - a));
             // Frame 0 binds self-collision (the patch tree, the separations at rest): timed apart.
             if k == 0 {
                 report.add(label, "self-collision first step (bind)", 1000.0 * tb, "ms", 2, "the patch tree and the separations at rest, once per bind");
@@ -80,7 +101,7 @@ fn case(report: &mut Report, label: &str, mesh: &PolyMesh, bend: &Bend, thicknes
             held += rb.self_held;
             let w = rb.self_work;
             println!(
-                "frame {k}: {:.1} / {:.1} ms, self contacts {}, held {}, intersections {}; phases ms: begin {:.1}, first pass {:.1}, in-loop rounds {:.1}, in-loop fail-safe {:.1}, tangles {:.1}; gathers {} whole + {} around, most candidates {}",
+                "frame {k}: {:.1} / {:.1} ms ({cpu_b:.0} CPU ms), self contacts {}, held {}, intersections {}; phases ms: begin {:.1}, first pass {:.1}, in-loop rounds {:.1}, in-loop fail-safe {:.1}, tangles {:.1}; gathers {} whole + {} around, most candidates {}",
                 1000.0 * ta,
                 1000.0 * tb,
                 rb.self_contacts,
@@ -102,6 +123,10 @@ fn case(report: &mut Report, label: &str, mesh: &PolyMesh, bend: &Bend, thicknes
             }
             (last_a, last_b) = (xa, xb);
             reached = k;
+            if k == last_frame() && k < FRAMES {
+                println!("stopped after frame {k} (TEGUMENT_SELF_BENCH_FRAMES)");
+                break;
+            }
             if time_b.iter().sum::<f64>() > budget && k < FRAMES {
                 println!("stopped after frame {k}: the self-collision steps passed the {budget:.0} s budget");
                 break;

@@ -32,27 +32,18 @@ pub(super) struct SelfPass {
     settings: SelfSettings,
     takes_part: Option<Vec<bool>>,
     tangles: Tangles,
-    /// Per vertex, how far the solve may take it from its input: twice as
-    /// far as the last frame's did (the candidates' margins).
-    margin: Vec<f32>,
     /// The candidates of the current substep, for its first and in-loop passes.
     candidates: Option<Candidates>,
-    /// Where the last first pass ended: the in-loop passes' candidates are
-    /// gathered around it.
-    first_end: Option<Vec<Vec3>>,
     /// How long readying the step took (for the report's [`super::SelfWork`]).
     begin_ms: f64,
 }
 
-/// The tangles of the last output, with what they were found under, and
-/// how far the last frame's solve moved the skin from where its first pass
-/// ended.
+/// The tangles of the last output, with what they were found under.
 #[derive(Debug, Clone)]
 pub(super) struct KeptTangles {
     rings: u32,
     takes_part: Option<Vec<bool>>,
     tangles: Tangles,
-    drift: Vec<f32>,
 }
 
 impl Sequence {
@@ -72,25 +63,13 @@ impl Sequence {
         let collision = self.self_collision.as_mut().expect("just made");
         collision.prepare(&options.settings)?;
         let takes_part = collision.takes_part(options.weights)?;
-        let kept = self.self_tangles.take();
-        // The margins cover how far the solve takes the skin from where the
-        // first pass leaves it: twice last frame's. Not from the input: where
-        // the input folds through itself the output stays far from it, and
-        // margins that wide would pair up the whole fold.
-        let margin = match (&kept, &self.history, &self.last_input) {
-            (Some(k), _, _) if k.drift.len() == start.len() => k.drift.iter().map(|d| 2.0 * d).collect(),
-            (_, Some(output), Some(input)) if output.len() == start.len() && input.len() == start.len() => {
-                output.iter().zip(input).map(|(o, i)| 2.0 * (*o - *i).length()).collect()
-            }
-            _ => vec![0.0; start.len()],
-        };
-        let kept = kept.filter(|k| k.rings == options.settings.rings && k.takes_part == takes_part);
+        let kept = self.self_tangles.take().filter(|k| k.rings == options.settings.rings && k.takes_part == takes_part);
         let tangles = match kept {
             Some(k) => k.tangles,
             None => Tangles::at(collision, start, &options.settings, takes_part.as_deref())?.0,
         };
         let begin_ms = milliseconds(began);
-        Ok(Some(SelfPass { settings: options.settings, takes_part, tangles, margin, candidates: None, first_end: None, begin_ms }))
+        Ok(Some(SelfPass { settings: options.settings, takes_part, tangles, candidates: None, begin_ms }))
     }
 
     /// Counts the output's intersections into the report and keeps them as
@@ -117,11 +96,7 @@ impl Sequence {
         report.self_tangled = pass.tangles.vertex_count();
         report.self_pinched.sort_unstable();
         report.self_pinched.dedup();
-        let drift = match &pass.first_end {
-            Some(end) if end.len() == output.len() => output.iter().zip(end).map(|(o, e)| (*o - *e).length()).collect(),
-            _ => Vec::new(),
-        };
-        self.self_tangles = Some(KeptTangles { rings: pass.settings.rings, tangles, takes_part: pass.takes_part, drift });
+        self.self_tangles = Some(KeptTangles { rings: pass.settings.rings, tangles, takes_part: pass.takes_part });
         report.self_work.begin_ms += pass.begin_ms;
         report.self_work.tangles_ms += milliseconds(began);
         Ok(())
@@ -153,9 +128,14 @@ pub(super) fn first_pass(
 ) -> Result<()> {
     let began = Instant::now();
     let part = pass.takes_part.as_deref();
-    pass.candidates = Some(collision.candidates(x_n, x, &pass.margin, &pass.settings, &pass.tangles, part)?);
+    // The least margins: each vertex's own corrections widen its margin as
+    // the rounds make them (`resolve_path`). Margins from the last frame's
+    // solve (twice how far it moved each vertex from where its first pass
+    // ended) paired up the character's closing fold by the million: 9.8M
+    // candidates where the least margins list 76k (issue 30, eighth round).
+    let least = vec![0.0; x.len()];
+    pass.candidates = Some(collision.candidates(x_n, x, &least, &pass.settings, &pass.tangles, part)?);
     let stats = collision.resolve_path(&mut pass.candidates, x_n, x, &pass.settings, &pass.tangles, part)?;
-    pass.first_end = Some(x.to_vec());
     count_work(report, 1 + stats.gathers, stats.gathers_around, pass.candidates.as_ref());
     report.self_work.first_pass_ms += milliseconds(began);
     report.self_contacts += stats.contacts;

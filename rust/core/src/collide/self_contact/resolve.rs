@@ -3,11 +3,12 @@
 //! were gathered for, and the fail-safe that ends every pass free of new
 //! intersections.
 //!
-//! One gathering ([`Candidates`]) serves all the passes of a substep: it
-//! covers every vertex's straight path from the last output to the target
-//! (the first pass), and around the target, anywhere within a per-vertex
-//! margin (the first pass's corrections, and the in-loop passes, where the
-//! solver moves the skin about as far from its input as it did last frame).
+//! One list of candidates ([`Candidates`]) serves all the passes of a
+//! substep: it covers every vertex's straight path from a start to a
+//! reference (the first pass: the last output to the target; the in-loop
+//! passes: staying at where an iteration started), give or take a
+//! per-vertex margin, and is kept up to date as vertices leave their
+//! margins.
 //!
 //! * **First pass** ([`SelfCollision::resolve_path`]): from the last output
 //!   towards the frame's target.
@@ -15,8 +16,21 @@
 //!   solver iteration, from where it started to where it ended. A pair is
 //!   skipped outright while its two sides have strayed from the target less,
 //!   together, than its distance there less the separation.
-//! * A vertex leaving its margin gathers the candidates again: around the
-//!   pass's start, each margin at least twice that pass's move.
+//! * A vertex leaving its margin gathers the candidates again. Where a few
+//!   did, only *around* them ([`Pass::gather_around`]): each gets a new
+//!   path and margin, the pairs with it as a corner are listed again and
+//!   every other pair is kept (whether a pair can come within its reach
+//!   depends on its own corners' paths and margins alone). Where many did,
+//!   the whole skin.
+//!   - The first pass starts from the least margin ([`SelfCollision::margin_floor`]):
+//!     a vertex its rounds correct is gathered around again with a margin
+//!     as large as its correction so far. A margin taken from the last
+//!     frame instead (twice how far its solve moved the skin) paired up a
+//!     closing fold by the million (issue 30, eighth round).
+//!   - The in-loop passes' margins are four times the iteration's move;
+//!     they shrink as the solve converges, so where many vertices left, a
+//!     whole gathering narrows the list again; the few that pass their
+//!     margin by a hair in later iterations are gathered around.
 //! * **Fail-safe**: when the rounds end with contacts left, the vertices of
 //!   every pair whose paths still cross are put back where the pass started
 //!   (free of intersections), and the pairs around them checked again, until
@@ -42,6 +56,21 @@ use crate::{Error, Result};
 
 /// Rounds of detection and projection before the fail-safe.
 pub const SELF_ROUNDS: usize = 8;
+
+/// At most this share of the vertices (1/n) leaving their margins in the
+/// first pass are gathered around; more, the whole skin. Its margins only
+/// grow, so the pairs it keeps were listed for margins as tight as any
+/// new gathering would give: a whole gathering costs the same and keeps
+/// nothing, worth it only where most of the skin moved.
+const AROUND_FIRST_PASS: usize = 4;
+
+/// The same for the in-loop passes. A kept pair keeps the margins it was
+/// listed for, which the converging solve's later iterations no longer
+/// need: where hundreds of vertices left, a whole gathering around the
+/// iteration's start narrows the list (measured on the MakeHuman
+/// character: around-gatherings for those kept lists of 5–6M pairs where a
+/// whole one lists 0.1–0.5M, issue 30, eighth round).
+const AROUND_IN_LOOP: usize = 64;
 
 /// The vertices of the triangles that intersected (or touched) at the start
 /// of a frame.
@@ -142,6 +171,25 @@ impl Candidates {
 
     pub fn is_empty(&self) -> bool {
         self.pairs.is_empty()
+    }
+
+    /// Per vertex, whether one of `positions` is beyond its margin of the
+    /// reference; and how many are.
+    fn strayed(&self, positions: &[&[Vec3]]) -> (Vec<bool>, usize) {
+        let flags: Vec<bool> = (0..self.reference.len())
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|v| positions.iter().any(|x| (x[v] - self.reference[v]).length() > self.margin[v]))
+            .collect();
+        let count = flags.iter().filter(|&&f| f).count();
+        (flags, count)
+    }
+
+    /// Each vertex's start, reference and margin, and the pairs listed for
+    /// them (for the tests: a whole gathering of these lists the same pairs).
+    #[cfg(test)]
+    pub(super) fn parts(&self) -> (&[Vec3], &[Vec3], &[f32], &[ElementPair]) {
+        (&self.start, &self.reference, &self.margin, &self.pairs)
     }
 
     /// Whether every vertex of `positions` is within its margin of the reference.
@@ -287,6 +335,7 @@ impl SelfCollision {
         for _ in 0..SELF_ROUNDS {
             stats.rounds += 1;
             let current = candidates.as_ref().expect("gathered");
+            debug_assert!(current.start.as_slice() == start, "the candidates are of this path");
             let (contacts, changes) = pass.round(&current.pairs, start, end, moved.as_deref(), |_| false);
             stats.contacts += contacts;
             if changes.is_empty() {
@@ -298,9 +347,24 @@ impl SelfCollision {
                 end[v as usize] = p;
                 flags[v as usize] = true;
             }
-            moved = Some(flags);
-            if !fits(current, end) {
-                let margin = candidates.take().expect("gathered").margin;
+            // Vertices corrected beyond their margins get one as large as
+            // their correction so far (the rounds' next corrections are
+            // mostly smaller), around the corrected end.
+            let c = candidates.as_mut().expect("gathered");
+            let (left, count) = c.strayed(&[end]);
+            if count == 0 {
+                moved = Some(flags);
+                continue;
+            }
+            let margin: Vec<f32> = (0..end.len()).map(|v| if left[v] { c.margin[v].max((end[v] - c.reference[v]).length()) } else { c.margin[v] }).collect();
+            if count <= end.len() / AROUND_FIRST_PASS {
+                pass.gather_around(c, &left, start, end, &margin);
+                stats.gathers_around += 1;
+                // The pairs listed again have a corner among `left`: the
+                // next round looks at them, as at every pair of a moved vertex.
+                flags.iter_mut().zip(&left).for_each(|(f, l)| *f |= l);
+                moved = Some(flags);
+            } else {
                 *candidates = Some(pass.candidates(start, end, margin));
                 stats.gathers += 1;
                 moved = None;
@@ -449,8 +513,9 @@ impl Pass<'_> {
         Candidates { start: start.to_vec(), reference: end.to_vec(), margin, pairs, distance }
     }
 
-    /// Gathers the in-loop candidates again, around `before`, if a vertex
-    /// strayed beyond them; returns whether it did.
+    /// Gathers the in-loop candidates again, staying at `before`, if a
+    /// vertex strayed beyond them: around the vertices that did, if they
+    /// are few, else the whole skin. Returns what it did.
     fn ensure(&self, candidates: &mut Option<Candidates>, before: &[Vec3], after: &[Vec3]) -> Gathered {
         if candidates.as_ref().is_some_and(|c| c.holds(&[before, after])) {
             return Gathered::Nothing;
@@ -462,14 +527,51 @@ impl Pass<'_> {
         // moving skin far) carrying them into every in-loop gathering paired
         // up millions of elements of the fold (issue 30, seventh round).
         let floor = self.collision.margin_floor(self.settings);
-        candidates.take();
         let margin: Vec<f32> = (0..before.len())
             .into_par_iter()
             .with_min_len(4096)
             .map(|v| (4.0 * (after[v] - before[v]).length()).max(floor))
             .collect();
+        if let Some(c) = candidates.as_mut() {
+            let (left, count) = c.strayed(&[before, after]);
+            if count <= before.len() / AROUND_IN_LOOP {
+                self.gather_around(c, &left, before, before, &margin);
+                return Gathered::Around;
+            }
+        }
         *candidates = Some(self.candidates(before, before, margin));
         Gathered::Whole
+    }
+
+    /// Gathers again only around the vertices `left` (flags per vertex):
+    /// each gets the path `start → end` and the `margin` given for it, the
+    /// pairs with one of them as a corner are listed again under those, and
+    /// every other pair is kept.
+    ///
+    /// The list stays what a whole gathering would need: whether two
+    /// elements can come within their reach depends only on their own
+    /// corners' paths and margins. A pair with no corner among `left` has
+    /// the corners' paths and margins of the gathering that listed it (or
+    /// proved it out of reach), so keeping it, or keeping it out, is right
+    /// still; every pair with a corner among `left` has a triangle around
+    /// one of them (the triangle owning that corner or edge, or the
+    /// vertex–triangle pair's triangle), which the focus looks at.
+    fn gather_around(&self, c: &mut Candidates, left: &[bool], start: &[Vec3], end: &[Vec3], margin: &[f32]) {
+        for v in (0..left.len()).filter(|&v| left[v]) {
+            c.start[v] = start[v];
+            c.reference[v] = end[v];
+            c.margin[v] = margin[v];
+        }
+        let touches = |pair: &ElementPair| pair.corners.iter().any(|&v| left[v as usize]);
+        let (pairs, kept_distance): (Vec<ElementPair>, Vec<f32>) = c.pairs.iter().zip(&c.distance).filter(|(pair, _)| !touches(pair)).map(|(p, d)| (*p, *d)).unzip();
+        let focus = self.collision.focus_around(left);
+        let found: Vec<ElementPair> = self.gather(&Motion { start: &c.start, end: &c.reference, margin: &c.margin }, Some(&focus)).into_iter().filter(|p| touches(p)).collect();
+        let reference = &c.reference;
+        let found_distance: Vec<f32> = found.par_iter().map(|pair| distance(pair, reference)).collect();
+        c.pairs = pairs;
+        c.distance = kept_distance;
+        c.pairs.extend(found);
+        c.distance.extend(found_distance);
     }
 
     /// One round: the corrections of every pair touching a moved vertex (or

@@ -243,13 +243,17 @@ fn an_in_loop_gathering_takes_its_margins_from_the_iteration_not_from_the_last_c
     let mut state = Some(collision.candidates(&still, &still, &wide, &SETTINGS, &Tangles::default(), None).unwrap());
     let paired = state.as_ref().map_or(0, Candidates::len);
     assert!(paired > 100, "the wide margins paired only {paired} elements");
-    // An iteration moves one corner of the lower sheet beyond its margin,
-    // in its plane: the candidates are gathered again.
+    // An iteration moves the four corners of the lower sheet beyond their
+    // margins, outwards in its plane: too many of these 162 vertices (more
+    // than 1/64) to gather around them, the candidates are gathered again.
     let mut after = still.clone();
-    after[0].x -= 0.2;
+    for v in [0, 8, 72, 80] {
+        let outwards = after[v].truncate().normalize();
+        after[v] += 0.2 * outwards.extend(0.0);
+    }
     let stats = collision.resolve_in_loop(&mut state, &still, &mut after, &SETTINGS, &Tangles::default(), None).unwrap();
-    assert_eq!(stats.gathers, 1);
-    // Only that corner has room to reach the other sheet now.
+    assert_eq!((stats.gathers, stats.gathers_around), (1, 0));
+    // Only those corners have room to reach the other sheet now.
     let listed = state.as_ref().map_or(0, Candidates::len);
     assert!(4 * listed < paired, "{listed} pairs listed again of the {paired} the wide margins paired");
 }
@@ -337,4 +341,68 @@ fn tangles_found_around_the_last_ones_are_those_found_over_the_whole_skin() {
     let (around, around_pairs) = Tangles::around(&collision, &crossed, &SETTINGS, None, whole.vertex_flags()).unwrap();
     assert_eq!((around.vertex_flags(), &around_pairs), (whole.vertex_flags(), &pairs));
     assert!(Tangles::around(&collision, &crossed, &SETTINGS, None, &[true]).is_err(), "flags of another skin");
+}
+
+/// The pairs a whole gathering lists for the candidates' own paths and
+/// margins.
+fn whole_gathering(collision: &SelfCollision, candidates: &Candidates) -> Vec<super::gather::ElementPair> {
+    use super::bounds::Motion;
+    let (start, reference, margin, _) = candidates.parts();
+    let accept = |a: &[u32], b: &[u32]| !collision.excluded(a, b);
+    collision.gather(&Motion { start, end: reference, margin }, SETTINGS.thickness, true, None, &accept, None)
+}
+
+#[test]
+fn an_in_loop_pass_gathers_again_only_around_the_few_vertices_that_left_their_margins() {
+    // Two sheets close enough to list pairs, gathered staying where they are.
+    let mesh = two_sheets(8, 0.012);
+    let collision = bound(&mesh, &SETTINGS);
+    let before = mesh.positions.clone();
+    let margin = vec![0.002; before.len()];
+    let tangles = Tangles::default();
+    let mut candidates = Some(collision.candidates(&before, &before, &margin, &SETTINGS, &tangles, None).unwrap());
+    let first = candidates.as_ref().unwrap().parts().3.to_vec();
+    assert!(!first.is_empty(), "the sheets are within reach of each other");
+    // An iteration moves one vertex of the upper sheet's middle sideways, past its margin.
+    let half = before.len() / 2;
+    let moved = half + half / 2;
+    let mut after = before.clone();
+    after[moved].x += 0.005;
+    let stats = collision.resolve_in_loop(&mut candidates, &before, &mut after, &SETTINGS, &tangles, None).unwrap();
+    assert_eq!((stats.gathers, stats.gathers_around), (0, 1), "{stats:?}");
+    // The pairs of the moved vertex are those a whole gathering lists for
+    // its new reference and margin; every other pair is the first list's.
+    let candidates = candidates.unwrap();
+    let (_, reference, margin, listed) = candidates.parts();
+    assert!((after[moved] - reference[moved]).length() <= margin[moved], "the moved vertex is within its new margin");
+    let touches = |p: &super::gather::ElementPair| p.corners.contains(&(moved as u32));
+    let mut expected: Vec<_> = first.iter().copied().filter(|p| !touches(p)).chain(whole_gathering(&collision, &candidates).into_iter().filter(touches)).collect();
+    assert!(expected.iter().any(touches), "the moved vertex has pairs");
+    let mut listed = listed.to_vec();
+    expected.sort_unstable();
+    listed.sort_unstable();
+    assert_eq!(listed, expected);
+}
+
+#[test]
+fn a_first_pass_gathers_again_only_around_the_vertices_its_corrections_took_beyond_their_margins() {
+    // A dimple of the upper sheet pushed down through the lower one, from the least margins.
+    let mesh = two_sheets(16, 0.1);
+    let collision = bound(&mesh, &SETTINGS);
+    let half = mesh.positions.len() / 2;
+    let mut end = mesh.positions.clone();
+    for p in &mut end[half..] {
+        p.z -= 0.2 * (1.0 - 8.0 * p.truncate().length()).max(0.0);
+    }
+    let tangles = Tangles::default();
+    let least = vec![0.0; end.len()];
+    let mut candidates = Some(collision.candidates(&mesh.positions, &end, &least, &SETTINGS, &tangles, None).unwrap());
+    let stats = collision.resolve_path(&mut candidates, &mesh.positions, &mut end, &SETTINGS, &tangles, None).unwrap();
+    // The corrections moved a few of the 578 vertices past the least margins:
+    // gathered around them, never over the whole skin.
+    assert!(stats.contacts > 0);
+    assert!(stats.gathers_around > 0, "{stats:?}");
+    assert_eq!(stats.gathers, 0, "{stats:?}");
+    assert!(audited(&mesh, &end).is_empty(), "{stats:?}");
+    assert!(end.iter().all(|p| p.is_finite()));
 }
