@@ -1,0 +1,101 @@
+"""Records the hard-posed MakeHuman character's Bake with Self Collision as the add-on runs it, for
+``rust/core/examples/self_replay.rs`` to replay through the core without Blender (issue 30).
+
+What it records is exactly what the Bake operator hands the wheel: the bind's rest positions and
+polygons, each frame's world-space input to ``PyramidDeformer.step``, the iterations, closeness,
+Converge, tolerance and the Self Collision settings. The deformer's ``step`` is wrapped only to
+record its arguments; each frame is then solved plainly (``solve``: fast, the recording does not
+need the step's result, only the next frame's input, which the armature gives). The file is written
+outside the project tree (a new temporary directory unless a path is given); nothing here enters
+``make bench`` or CI.
+
+    make extension
+    .venv/bin/python bench/record_self_replay.py dist/tegument-0.1.0-linux_x64.zip [out.replay]
+    cargo run --release -p tegument-core --example self_replay -- <out.replay> [frames]
+
+Needs ``../shared/data/makehuman`` (as the character bench does). The layout of the file is in the
+example's header.
+"""
+
+import importlib
+import os
+import pathlib
+import sys
+import tempfile
+
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+
+
+def record(zip_path: pathlib.Path, out: pathlib.Path) -> None:
+    user = tempfile.mkdtemp(prefix="tegument-replay-user-")
+    os.environ["BLENDER_USER_RESOURCES"] = user
+    import bpy
+
+    sys.path.insert(0, str(ROOT / "demo"))
+    import character_demo
+    import extension
+
+    addon = extension.install(zip_path, user)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.preferences.addon_enable(module=addon)
+    workdir = pathlib.Path(tempfile.mkdtemp(prefix="tegument-replay-"))
+    bpy.ops.wm.save_as_mainfile(filepath=str(workdir / "replay.blend"))
+    bake = importlib.import_module(addon + ".deform.bake")
+    evaluate = importlib.import_module(addon + ".deform.evaluate")
+    frames: list[np.ndarray] = []
+    seen: dict = {}
+
+    class Recorder:
+        """The deformer, with ``step`` recorded and answered by a plain solve."""
+
+        def __init__(self, real):
+            object.__setattr__(self, "_real", real)
+
+        def __getattr__(self, name):
+            return getattr(self._real, name)
+
+        def __setattr__(self, name, value):
+            seen[name] = value
+            setattr(self._real, name, value)
+
+        def step(self, world, colliders, iterations, closeness, out=None, **options):
+            if colliders is not None:
+                raise RuntimeError("the replay records self-collision alone; the scene has colliders")
+            settings = options.pop("self_collision")
+            if options:
+                raise RuntimeError(f"the replay does not record these step options: {sorted(options)}")
+            if getattr(settings, "weights", None) is not None:
+                raise RuntimeError("the replay records Self Collision without a vertex group")
+            frames.append(np.array(world, dtype=np.float32))
+            seen.update(iterations=iterations, closeness=closeness, self_collision=settings)
+            return self._real.solve(world, iterations=iterations, closeness=closeness, out=out)
+
+    solve_frame = bake.solve_frame
+    bake.solve_frame = lambda scene, obj, frame, deformer, *a, **k: solve_frame(scene, obj, frame, Recorder(deformer), *a, **k)
+    obj, _ = character_demo.build("obj", workdir)
+    character_demo.add_and_bake(obj, "//replay.pc2", self_collision=True)
+    rest, corners, sizes = evaluate.bound_mesh(obj)
+    settings = seen["self_collision"]
+    closeness, tolerance = seen["closeness"], seen.get("tolerance")
+    head = np.zeros(16, np.uint32)
+    head[:6] = [len(rest), len(corners), len(sizes), len(frames), seen["iterations"], int(bool(seen.get("accelerated")))]
+    words = head.view(np.float32)
+    words[6] = np.nan if tolerance is None else float(tolerance)
+    words[7] = np.nan if closeness is None else float(closeness)
+    words[8], words[9], words[10] = settings.thickness, settings.friction, settings.kinetic_friction
+    head[11], head[12] = settings.rings, int(bool(obj.tegument.scale_safe))
+    with open(out, "wb") as f:
+        for part, dtype in ((head, "<u4"), (rest, "<f4"), (corners, "<u4"), (sizes, "<u4"), (np.stack(frames), "<f4")):
+            f.write(np.ascontiguousarray(part, dtype=dtype).tobytes())
+    print(f"{out}: {len(rest)} vertices, {len(sizes)} polygons, {len(frames)} frames, {seen['iterations']} iterations")
+
+
+if __name__ == "__main__":
+    if len(sys.argv) not in (2, 3):
+        sys.exit(__doc__)
+    target = pathlib.Path(sys.argv[2]) if len(sys.argv) == 3 else pathlib.Path(tempfile.mkdtemp(prefix="tegument-replay-")) / "character.replay"
+    if target.resolve().is_relative_to(ROOT):
+        sys.exit(f"{target}: write the recording outside the project tree")
+    record(pathlib.Path(sys.argv[1]), target)
