@@ -6,7 +6,7 @@
 //! One list of candidates ([`Candidates`]) serves all the passes of a
 //! substep: it covers every vertex's straight path from a start to a
 //! reference (the first pass: the last output to the target; the in-loop
-//! passes: staying at where an iteration started), give or take a
+//! passes: an iteration's start to its end), give or take a
 //! per-vertex margin, and is kept up to date as vertices leave their
 //! margins.
 //!
@@ -27,10 +27,14 @@
 //!     as large as its correction so far. A margin taken from the last
 //!     frame instead (twice how far its solve moved the skin) paired up a
 //!     closing fold by the million (issue 30, eighth round).
-//!   - The in-loop passes' margins are four times the iteration's move;
-//!     they shrink as the solve converges, so where many vertices left, a
-//!     whole gathering narrows the list again; the few that pass their
-//!     margin by a hair in later iterations are gathered around.
+//!   - An in-loop whole gathering follows the iteration's own paths, `before
+//!     → after`, with margins for the iterations to come (eight times the
+//!     iteration's move, at most four separations); later iterations are
+//!     matched against those paths at whichever time fits them
+//!     ([`Candidates::fitted`]). The margins shrink as the solve converges,
+//!     so where many vertices left, a whole gathering narrows the list
+//!     again; the few that leave are gathered around, each as a ball about
+//!     where the iteration started.
 //! * **Fail-safe**: when the rounds end with contacts left, the vertices of
 //!   every pair whose paths still cross are put back where the pass started
 //!   (free of intersections), and the pairs around them checked again, until
@@ -71,6 +75,25 @@ const AROUND_FIRST_PASS: usize = 4;
 /// character: around-gatherings for those kept lists of 5–6M pairs where a
 /// whole one lists 0.1–0.5M, issue 30, eighth round).
 const AROUND_IN_LOOP: usize = 64;
+
+/// An in-loop whole gathering's margin for the iterations after the one
+/// that made it: this many times that iteration's move...
+const IN_LOOP_MARGIN_MOVES: f32 = 8.0;
+
+/// ...but at most this many times the vertex's separation (which is at most
+/// a quarter of its shortest edge). The solve's iterations converge slowly:
+/// four times an iteration's move as the margin made the straight frames of
+/// the MakeHuman character gather the whole skin 5–12 times a frame, eight
+/// times 2–5. But a margin pairs a vertex up with every element within it:
+/// where the last frame's fail-safe held skin back, the first iteration
+/// moves it up to 59 mm, and uncapped margins listed 1.4–5.8M pairs for the
+/// whole frame. Capped, such a vertex leaves its margin sooner and is
+/// gathered around (issue 30, ninth round).
+const IN_LOOP_MARGIN_SEPARATIONS: f32 = 4.0;
+
+/// How finely [`Candidates::fitted`] looks for the time along the gathered
+/// paths at which positions fit them best (1/n of the paths).
+const FIT_STEPS: usize = 32;
 
 /// The vertices of the triangles that intersected (or touched) at the start
 /// of a frame.
@@ -190,6 +213,64 @@ impl Candidates {
     #[cfg(test)]
     pub(super) fn parts(&self) -> (&[Vec3], &[Vec3], &[f32], &[ElementPair]) {
         (&self.start, &self.reference, &self.margin, &self.pairs)
+    }
+
+    /// Where vertex `v`'s gathered path is at time `t`.
+    fn path_at(&self, v: usize, t: f32) -> Vec3 {
+        self.start[v] + t * (self.reference[v] - self.start[v])
+    }
+
+    /// Per vertex, whether `x` is beyond its margin of its path at time `t`.
+    fn outside_at(&self, x: &[Vec3], t: f32) -> Vec<bool> {
+        (0..x.len()).into_par_iter().with_min_len(4096).map(|v| (x[v] - self.path_at(v, t)).length() > self.margin[v]).collect()
+    }
+
+    /// The vertices of `x` beyond their margins of the gathered paths at the
+    /// one time (for every vertex) that leaves out the fewest, and how many.
+    /// The end and the start of the paths are tried first (an iteration
+    /// after the one that gathered ends near the end; the rounds of the one
+    /// that gathered start at the start); then every 1/[`FIT_STEPS`].
+    fn best_fit(&self, x: &[Vec3]) -> (Vec<bool>, usize) {
+        let within = |t: f32| (0..x.len()).into_par_iter().with_min_len(4096).all(|v| (x[v] - self.path_at(v, t)).length() <= self.margin[v]);
+        if within(1.0) || within(0.0) {
+            return (vec![false; x.len()], 0);
+        }
+        (0..=FIT_STEPS)
+            .map(|k| {
+                let out = self.outside_at(x, k as f32 / FIT_STEPS as f32);
+                let count = out.iter().filter(|&&o| o).count();
+                (out, count)
+            })
+            .min_by_key(|(_, count)| *count)
+            .expect("FIT_STEPS + 1 times")
+    }
+
+    /// Per vertex, whether the in-loop motion `before → after` leaves what
+    /// the candidates cover, and how many vertices do: `before` is matched
+    /// with the gathered paths at one time `t₀`, `after` at one time `t₁`,
+    /// each the one that leaves out the fewest ([`Self::best_fit`]).
+    ///
+    /// Why any such pair of times keeps the guarantee: the gathering listed
+    /// every pair that can come within its reach while each vertex `v` stays
+    /// within its margin `m_v` of its path `p_v(t)`, `t` one time for all
+    /// vertices. Map the motion's `u ∈ [0, 1]` to `t(u) = t₀ + u·(t₁ − t₀)`,
+    /// the same for every vertex: the offset `x_v(u) − p_v(t(u))` is linear
+    /// in `u`, so never longer than at `u = 0` or `u = 1`, within `m_v` for
+    /// every vertex not flagged. A flagged vertex is gathered around as a
+    /// ball about `before` holding `after` ([`Pass::ensure`]), which no time
+    /// enters, so the mix stays covered.
+    fn fitted(&self, before: &[Vec3], after: &[Vec3]) -> (Vec<bool>, usize) {
+        let (mut left, count) = self.best_fit(before);
+        let (out, more) = self.best_fit(after);
+        if more == 0 {
+            return (left, count);
+        }
+        if count == 0 {
+            return (out, more);
+        }
+        left.iter_mut().zip(&out).for_each(|(l, o)| *l |= o);
+        let count = left.iter().filter(|&&l| l).count();
+        (left, count)
     }
 
     /// Whether every vertex of `positions` is within its margin of the reference.
@@ -390,7 +471,7 @@ impl SelfCollision {
 
     /// Makes the in-loop motion `before → after` free of new
     /// self-intersections by changing `after`, with `candidates` (gathered
-    /// again around `before` if a vertex strayed beyond them). Runs the
+    /// again if a vertex strayed beyond them). Runs the
     /// rounds only: the caller ends with [`Self::hold_back_in_loop`] (alone,
     /// or together with the colliders' check).
     #[allow(clippy::too_many_arguments)]
@@ -513,33 +594,44 @@ impl Pass<'_> {
         Candidates { start: start.to_vec(), reference: end.to_vec(), margin, pairs, distance }
     }
 
-    /// Gathers the in-loop candidates again, staying at `before`, if a
-    /// vertex strayed beyond them: around the vertices that did, if they
-    /// are few, else the whole skin. Returns what it did.
+    /// Gathers the in-loop candidates again if the motion `before → after`
+    /// leaves them ([`Candidates::fitted`]): around the vertices that left,
+    /// if they are few, else the whole skin along the iteration's paths.
+    /// Returns what it did.
+    ///
+    /// Not the last candidates' margins in either: those of the first pass
+    /// grow with its corrections, and where a fold closes (its rounds and
+    /// fail-safe moving skin far) carrying them into every in-loop gathering
+    /// paired up millions of elements of the fold (issue 30, seventh round).
     fn ensure(&self, candidates: &mut Option<Candidates>, before: &[Vec3], after: &[Vec3]) -> Gathered {
-        if candidates.as_ref().is_some_and(|c| c.holds(&[before, after])) {
+        let fit = candidates.as_ref().map(|c| c.fitted(before, after));
+        if fit.as_ref().is_some_and(|(_, count)| *count == 0) {
             return Gathered::Nothing;
         }
-        // Iterations shrink as a solve converges: four times this one's move
-        // covers most of the ones to come. Not the last candidates' margins
-        // as well: those of the first pass are twice what last frame's solve
-        // moved the skin, and where a fold closes (its rounds and fail-safe
-        // moving skin far) carrying them into every in-loop gathering paired
-        // up millions of elements of the fold (issue 30, seventh round).
         let floor = self.collision.margin_floor(self.settings);
-        let margin: Vec<f32> = (0..before.len())
-            .into_par_iter()
-            .with_min_len(4096)
-            .map(|v| (4.0 * (after[v] - before[v]).length()).max(floor))
-            .collect();
-        if let Some(c) = candidates.as_mut() {
-            let (left, count) = c.strayed(&[before, after]);
+        let moved = |v: usize| (after[v] - before[v]).length();
+        if let (Some(c), Some((left, count))) = (candidates.as_mut(), fit) {
             if count <= before.len() / AROUND_IN_LOOP {
-                self.gather_around(c, &left, before, before, &margin);
+                // Each a ball about `before` holding `after` and the next
+                // iterations' moves, which shrink as the solve converges.
+                let ball: Vec<f32> = (0..before.len()).into_par_iter().with_min_len(4096).map(|v| (4.0 * moved(v)).max(floor)).collect();
+                self.gather_around(c, &left, before, before, &ball);
                 return Gathered::Around;
             }
         }
-        *candidates = Some(self.candidates(before, before, margin));
+        // Along the iteration's own paths, not a ball about `before` holding
+        // `after`: skin the solve carries along together (a limb) keeps its
+        // relative boxes however far it moves, where balls as wide as the
+        // move pair it up with everything within that move (the character's
+        // closing fold: 5.5M pairs listed where the paths list 1.0M, issue
+        // 30, ninth round). The margins are for the iterations to come.
+        let separation = self.collision.separations();
+        let margin: Vec<f32> = (0..before.len())
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|v| (IN_LOOP_MARGIN_MOVES * moved(v)).min(IN_LOOP_MARGIN_SEPARATIONS * separation[v]).max(floor))
+            .collect();
+        *candidates = Some(self.candidates(before, after, margin));
         Gathered::Whole
     }
 

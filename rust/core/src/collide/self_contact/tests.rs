@@ -406,3 +406,73 @@ fn a_first_pass_gathers_again_only_around_the_vertices_its_corrections_took_beyo
     assert!(audited(&mesh, &end).is_empty(), "{stats:?}");
     assert!(end.iter().all(|p| p.is_finite()));
 }
+
+/// An in-loop whole gathering follows the iteration's own paths: two sheets
+/// the solve carries far sideways together are not paired up by how far
+/// they moved (a ball about where they started, as wide as the move, pairs
+/// every element of one with the other), and the rounds of that same
+/// iteration find their motion covered without gathering again.
+#[test]
+fn an_in_loop_gathering_follows_the_iterations_paths() {
+    let mesh = two_sheets(8, 0.1);
+    let collision = bound(&mesh, &SETTINGS);
+    let none = Tangles::default();
+    let still = mesh.positions.clone();
+    let least = vec![0.0; still.len()];
+    let mut state = Some(collision.candidates(&still, &still, &least, &SETTINGS, &none, None).unwrap());
+    let shift = Vec3::new(0.5, 0.0, 0.0);
+    let moved: Vec<Vec3> = still.iter().map(|p| *p + shift).collect();
+    let mut after = moved.clone();
+    let stats = collision.resolve_in_loop(&mut state, &still, &mut after, &SETTINGS, &none, None).unwrap();
+    assert_eq!((stats.gathers, stats.gathers_around, stats.contacts), (1, 0, 0));
+    assert_eq!(after, moved, "nothing to correct: the sheets stay 0.1 apart");
+    // (Pairs within a sheet, an edge apart, are listed under the margins.)
+    let half = still.len() as u32 / 2;
+    let (_, _, _, listed) = state.as_ref().unwrap().parts();
+    let between = listed.iter().filter(|p| p.corners.iter().any(|&v| v < half) && p.corners.iter().any(|&v| v >= half)).count();
+    assert_eq!(between, 0, "sheets moving together, 0.1 apart, paired up ({} pairs listed)", listed.len());
+    // The same iteration's motion again (as its later rounds and the
+    // fail-safe's check see it): from the start of the gathered paths.
+    let again = collision.resolve_in_loop(&mut state, &still, &mut after, &SETTINGS, &none, None).unwrap();
+    assert_eq!((again.gathers, again.gathers_around), (0, 0));
+    // The next iteration, carrying them a little further, ends near the paths' end.
+    let mut next: Vec<Vec3> = moved.iter().map(|p| *p + 0.02 * shift).collect();
+    let later = collision.resolve_in_loop(&mut state, &moved, &mut next, &SETTINGS, &none, None).unwrap();
+    assert_eq!((later.gathers, later.gathers_around), (0, 0));
+}
+
+/// A motion matched with the gathered paths at other times than their ends
+/// ([`Candidates::fitted`]): the upper sheet's later motion, from halfway
+/// along its path to its end, give or take less than the margin, is not
+/// gathered again, and every pair a gathering of that motion itself lists
+/// is in the list (the guarantee).
+#[test]
+fn a_motion_matched_along_the_gathered_paths_finds_every_pair_within_reach() {
+    use super::bounds::Motion;
+    let mesh = two_sheets(8, 0.1);
+    let collision = bound(&mesh, &SETTINGS);
+    let none = Tangles::default();
+    let half = mesh.positions.len() / 2;
+    let still = mesh.positions.clone();
+    // The upper sheet comes down to 0.01 above the lower one, with margins of 0.02.
+    let drop = |s: f32| -> Vec<Vec3> { still.iter().enumerate().map(|(v, p)| if v >= half { *p - Vec3::new(0.0, 0.0, 0.09 * s) } else { *p }).collect() };
+    let end = drop(1.0);
+    let margin = vec![0.02; still.len()];
+    let mut state = Some(collision.candidates(&still, &end, &margin, &SETTINGS, &none, None).unwrap());
+    let listed = state.as_ref().unwrap().parts().3.to_vec();
+    // Halfway to the end, then the end, each vertex off by up to 0.015.
+    let wobble = |x: Vec<Vec3>, seed: f32| -> Vec<Vec3> {
+        x.iter().enumerate().map(|(v, p)| *p + 0.015 * Vec3::new((v as f32 * 1.3 + seed).sin(), (v as f32 * 2.1 + seed).cos(), (v as f32 * 0.7 + seed).sin()) / 3f32.sqrt()).collect()
+    };
+    let (before, after) = (wobble(drop(0.5), 0.3), wobble(drop(1.0), 1.7));
+    collision.in_loop_crossings(&mut state, &before, &after, None, &SETTINGS, &none, None).unwrap();
+    let (start, _, _, kept) = state.as_ref().unwrap().parts();
+    assert_eq!(start, still.as_slice(), "gathered again: the motion was not matched along the paths");
+    assert_eq!(kept, listed.as_slice());
+    let accept = |a: &[u32], b: &[u32]| !collision.excluded(a, b);
+    let zero = vec![0.0; still.len()];
+    let needed = collision.gather(&Motion { start: &before, end: &after, margin: &zero }, SETTINGS.thickness, true, None, &accept, None);
+    assert!(!needed.is_empty(), "the motion brings the sheets within reach");
+    let missing: Vec<_> = needed.iter().filter(|p| !listed.contains(p)).collect();
+    assert!(missing.is_empty(), "{} of {} pairs within reach not listed: {:?}", missing.len(), needed.len(), &missing[..missing.len().min(5)]);
+}
