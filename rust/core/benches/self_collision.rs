@@ -18,6 +18,7 @@ mod common;
 
 use std::time::Instant;
 
+use common::self_work::{cpu_seconds, work_line};
 use common::{machine, with_threads, Report};
 use tegument_core::collide::{self_intersections, SelfSettings};
 use tegument_core::mesh::fixtures::{makehuman_body, makehuman_obj, smooth_bend};
@@ -41,19 +42,6 @@ fn budget_seconds() -> f64 {
 /// does not guarantee.
 fn last_frame() -> usize {
     std::env::var("TEGUMENT_SELF_BENCH_FRAMES").ok().and_then(|v| v.parse().ok()).unwrap_or(FRAMES).min(FRAMES)
-}
-
-/// CPU seconds this process has used, all threads (`/proc/self/stat`'s utime + stime, in
-/// clock ticks of 1/100 s, Linux's `USER_HZ`): on a shared host, what a step cost without the
-/// other jobs' load. None off Linux.
-fn cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // The fields after the command name, which is in parentheses and may hold spaces.
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |k: usize| fields.get(k)?.parse::<f64>().ok();
-    // utime and stime are the 14th and 15th fields; `rest` starts at the 3rd.
-    Some((ticks(11)? + ticks(12)?) / 100.0)
 }
 
 struct Bend {
@@ -101,20 +89,13 @@ fn case(report: &mut Report, label: &str, mesh: &PolyMesh, bend: &Bend, thicknes
             held += rb.self_held;
             let w = rb.self_work;
             println!(
-                "frame {k}: {:.1} / {:.1} ms ({cpu_b:.0} CPU ms), self contacts {}, held {}, intersections {}; phases ms: begin {:.1}, first pass {:.1}, in-loop rounds {:.1}, in-loop fail-safe {:.1}, tangles {:.1}; gathers {} whole + {} around, most candidates {}",
+                "frame {k}: {:.1} / {:.1} ms ({cpu_b:.0} CPU ms), self contacts {}, held {}, intersections {}; {}",
                 1000.0 * ta,
                 1000.0 * tb,
                 rb.self_contacts,
                 rb.self_held,
                 rb.self_intersections,
-                w.begin_ms,
-                w.first_pass_ms,
-                w.in_loop_rounds_ms,
-                w.in_loop_fail_safe_ms,
-                w.tangles_ms,
-                w.gathers,
-                w.gathers_around,
-                w.most_candidates
+                work_line(&w)
             );
             if k > 0 {
                 for (phase, ms) in [("begin", w.begin_ms), ("first pass", w.first_pass_ms), ("in-loop rounds", w.in_loop_rounds_ms), ("in-loop fail-safe", w.in_loop_fail_safe_ms), ("tangles", w.tangles_ms)] {

@@ -33,6 +33,10 @@ use tegument_core::mesh::MeshInput;
 use tegument_core::pyramid::{Closeness, DeformerOptions};
 use tegument_core::sequence::{SelfOptions, Sequence, StepOptions};
 
+#[path = "../benches/common/self_work.rs"]
+mod self_work;
+use self_work::{cpu_seconds, work_line};
+
 /// What a recording holds.
 struct Recording {
     rest: Vec<Vec3>,
@@ -106,15 +110,6 @@ impl Recording {
     }
 }
 
-/// CPU time of this process (user + system, all threads), ms.
-fn cpu_ms() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    // Fields after the command's closing parenthesis: utime and stime are the 12th and 13th.
-    let fields: Vec<&str> = stat.rsplit(')').next().unwrap_or("").split_whitespace().collect();
-    let ticks = |k: usize| fields.get(k).and_then(|s| s.parse::<f64>().ok()).unwrap_or(f64::NAN);
-    (ticks(11) + ticks(12)) * 10.0
-}
-
 fn main() -> Result<(), String> {
     let mut args = std::env::args().skip(1);
     let path = args.next().ok_or("usage: self_replay <recording> [frames]")?;
@@ -141,29 +136,22 @@ fn main() -> Result<(), String> {
     let options = StepOptions { self_collision: Some(SelfOptions { settings: r.settings, weights: None }), ..StepOptions::new(r.iterations, closeness) };
     let (mut wall_total, mut cpu_total, mut held_total, mut contacts_total) = (0.0, 0.0, 0, 0);
     for (k, input) in r.frames.iter().enumerate().take(only.unwrap_or(usize::MAX)) {
-        let (clock, cpu) = (Instant::now(), cpu_ms());
+        let (clock, cpu) = (Instant::now(), cpu_seconds());
         let (_, report) = sequence.step(input, &mut [], &options).map_err(|e| format!("frame {}: {e}", k + 1))?;
-        let (wall, cpu) = (1000.0 * clock.elapsed().as_secs_f64(), cpu_ms() - cpu);
+        let wall = 1000.0 * clock.elapsed().as_secs_f64();
+        let cpu = cpu.zip(cpu_seconds()).map_or(f64::NAN, |(a, b)| 1000.0 * (b - a));
         wall_total += wall;
         cpu_total += cpu;
         held_total += report.self_held;
         contacts_total += report.self_contacts;
-        let w = report.self_work;
         println!(
-            "frame {}: {wall:.0} ms wall, {cpu:.0} ms cpu; contacts {}, held {}, intersections {}, tangled {}; begin {:.0}, first {:.0}, rounds {:.0}, fail-safe {:.0}, tangles {:.0} ms; gathers {} + {} around, most candidates {}",
+            "frame {}: {wall:.0} ms wall, {cpu:.0} ms cpu; contacts {}, held {}, intersections {}, tangled {}; {}",
             k + 1,
             report.self_contacts,
             report.self_held,
             report.self_intersections,
             report.self_tangled,
-            w.begin_ms,
-            w.first_pass_ms,
-            w.in_loop_rounds_ms,
-            w.in_loop_fail_safe_ms,
-            w.tangles_ms,
-            w.gathers,
-            w.gathers_around,
-            w.most_candidates
+            work_line(&report.self_work)
         );
     }
     println!("total {wall_total:.0} ms wall, {cpu_total:.0} ms cpu; contacts {contacts_total}, held {held_total}");

@@ -7,6 +7,8 @@
 
 #![allow(dead_code)] // each bench binary uses a different part of this module
 
+pub mod self_work;
+
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
