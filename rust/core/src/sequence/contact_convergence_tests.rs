@@ -118,8 +118,8 @@ fn a_rough_sphere_drags_the_skin_as_far_after_many_iterations_as_after_some() {
 
 /// Convergence error of the add-on's Converge with a rough and a smooth
 /// sliding sphere, against the same accelerated solve run 400 iterations
-/// (issue 28's definition). A measurement, not a check (Converge with
-/// contacts does not meet 5 % yet):
+/// (issue 28's definition). A measurement, not a check (Converge with a
+/// rough sliding contact does not meet 5 % yet):
 /// `cargo test --release -p tegument-core --lib converge_with_a_sliding_sphere -- --ignored --nocapture`.
 #[test]
 #[ignore]
@@ -164,7 +164,8 @@ fn measure_converge_errors_on_the_slide() {
 /// 28's 5 % of converged ([`converge_errors`]). The contact patch slides
 /// along the sphere, and the correction moves it there: the hook reports the
 /// vertices it left sliding and the correction moves them along the surface
-/// instead of holding them fixed (before, frames 7–12 ended 5.4–6.5 % away).
+/// instead of holding them fixed (before, frames 1, 7, 8, 10 and 12 ended
+/// 5.4–6.4 % away).
 /// The first frame does not touch the sphere (its displacement is ~0, so
 /// its ratio means nothing); frames from the first contact on count.
 #[test]
