@@ -46,7 +46,12 @@
 //! the free vertices as the held ones stay, and it also vanishes where the
 //! hook holds the iteration. (Before, the held vertices' residual was left
 //! out but `A₁` took them as free and their whole aggregates went
-//! uncorrected.)
+//! uncorrected.) A held vertex the hook reports sliding along a surface
+//! (kinetic friction or none, [`super::IterationHook::sliding`]) is not
+//! fixed: it stays an unknown whose residual and correction keep only their
+//! part along that surface, its residual shortened by friction as the hook
+//! shortens a step ([`super::contacts`]), so the correction moves a sliding
+//! contact patch along the collider.
 //!
 //! Why the relaxation: on a real character (the MakeHuman body's fingers,
 //! strongly bent) the undamped iteration, plain or corrected, can fall into
@@ -386,8 +391,12 @@ impl Coarse {
     /// Returns the squared norms of the residual (`g − x` before all that),
     /// of the accelerated step and of the new iterate's offset from `input`.
     ///
-    /// `held` gives the vertices a hook holds (ascending, and as a
-    /// per-vertex mask): their correction is fixed at 0, a Dirichlet
+    /// `contacts` gives the vertices the hook moved in the last iteration.
+    /// Those it left sliding along a surface are free unknowns: their step
+    /// enters the right-hand side as their contact admits it (along the
+    /// surface, less kinetic friction) and their row and correction keep
+    /// only their part along the surface. The others (`held`, stuck) have
+    /// their correction fixed at 0, a Dirichlet
     /// condition of the coarse problem. Their rows and columns leave `P`
     /// (`A₁` becomes `P_fᵀ(I − M)P_f` over the free vertices, factorised
     /// again when the held set changes), and their residual leaves the

@@ -3,8 +3,9 @@
 //!
 //! The acceleration ([`super::coarse`], [`super::chebyshev`]) extrapolates
 //! the iteration's map `G`; a hook that holds vertices changes that map: the
-//! correction fixes the moved vertices (Dirichlet rows of its coarse
-//! problem, [`super::coarse`]), the extrapolation
+//! correction fixes the moved vertices the hook does not report sliding
+//! (Dirichlet rows of its coarse problem, [`super::coarse`]) and moves the
+//! sliding ones along their surface only ([`Sliding`]), the extrapolation
 //! restarts after an iteration whose hook moved a vertex, and the stopping
 //! rule does not stop while the moved set changes (contacts still appearing
 //! or letting go). Measured and not kept (issue 28, `docs/performance.md`):
