@@ -11,6 +11,8 @@
 //!   one, receding) stays, so that a clearance can hold while it moves.
 //! * [`collider`]: a triangle mesh moving from last frame to this frame, with
 //!   thickness, friction and a BVH over its swept triangles.
+//! * [`friction`]: position-based friction of one contact, and whether it
+//!   left the vertex stuck or sliding.
 //! * [`geometry`]: f64 helpers (normals, distances, crossing tests).
 //! * [`inside`]: whether a point is inside a closed collider (ray parity),
 //!   for the solver.
@@ -38,6 +40,7 @@ pub mod ccd;
 pub mod clearance;
 pub mod collider;
 pub mod envelope;
+pub mod friction;
 pub mod geometry;
 pub mod inside;
 pub mod planes;
@@ -54,6 +57,7 @@ pub use ccd::{CcdHit, CcdParams};
 pub use clearance::{Clearance, Unproven};
 pub use collider::{Collider, ColliderSettings, Compliance, SurfacePoint};
 pub use envelope::Envelope;
+pub use friction::{Hold, Slide};
 pub use inside::is_inside;
 pub use response::{ColliderMotion, ColliderSet, ContactStats, ResolveParams};
 pub use self_contact::{Candidates, SelfCollision, SelfSettings, SelfStats, Tangles};

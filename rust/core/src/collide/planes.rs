@@ -42,6 +42,7 @@ use rayon::prelude::*;
 
 use super::bvh::Bounds;
 use super::collider::Collider;
+use super::friction::{friction, Hold};
 use super::geometry::triangle_normal;
 
 /// Planes kept per skin vertex: the normals of the nearest collider
@@ -64,8 +65,9 @@ struct Plane {
 pub enum VertexStep {
     /// Proven to keep its distance from every collider.
     Clear,
-    /// Lifted to this end position, whose step is proven clear.
-    Lifted(Vec3),
+    /// Lifted to this end position, whose step is proven clear, and how
+    /// friction left it there.
+    Lifted(Vec3, Hold),
     /// Nothing proven: the pairwise tests decide.
     Unknown,
 }
@@ -270,23 +272,13 @@ impl LocalPlanes {
         // [`resting_reference`]); friction holds it there.
         let depth = plane.level + slack - he;
         let mut out = e64 + depth * n;
-        if static_friction > 0.0 || kinetic_friction > 0.0 {
-            let reference = if self.still { resting_reference(hs - plane.level, slack, s64, contact) } else { contact };
-            let slip = out - reference;
-            let tangential = slip - slip.dot(n) * n;
-            let len = tangential.length();
-            if len > 0.0 {
-                if len < static_friction * depth {
-                    out -= tangential;
-                } else {
-                    out -= tangential * (kinetic_friction * depth / len).min(1.0);
-                }
-            }
-        }
+        let reference = if self.still { resting_reference(hs - plane.level, slack, s64, contact) } else { contact };
+        let (change, hold) = friction(out - reference, n, depth, static_friction, kinetic_friction);
+        out -= change;
         let out = out.as_vec3();
         // Rounded to f32, the new end must still be in the box and above.
         if out.is_finite() && area.contains(out) && above(plane, out) {
-            VertexStep::Lifted(out)
+            VertexStep::Lifted(out, hold)
         } else {
             VertexStep::Unknown
         }
@@ -497,7 +489,7 @@ mod tests {
                     let d = distance(&segment(s, e));
                     prop_assert!(d > sep, "vertex {v} cleared but reaches {d} <= {sep}");
                 }
-                VertexStep::Lifted(lifted) => {
+                VertexStep::Lifted(lifted, _) => {
                     let d = distance(&segment(s, lifted));
                     prop_assert!(d > sep, "vertex {v} lifted to {lifted:?} but its step reaches {d} <= {sep}");
                 }
@@ -641,11 +633,11 @@ mod tests {
             // The solver pulls it 5 mm in and 3 mm sideways.
             let pulled = rest + Vec3::new(0.003, 0.0, -0.005);
             match (planes.vertex_step(0, rest, pulled, lift), expect_planes) {
-                (VertexStep::Lifted(p), true) => {
+                (VertexStep::Lifted(p, _), true) => {
                     assert!(p.z > top + thickness && p.distance(pulled) < 0.01, "lifted to {p:?}");
                     // Friction holds it nearer to where it touched than a frictionless lift.
                     let frictionless = |_: usize| Lift { static_friction: 0.0, kinetic_friction: 0.0, ..lift(0) };
-                    let VertexStep::Lifted(free) = planes.vertex_step(0, rest, pulled, frictionless) else { panic!("no frictionless lift") };
+                    let VertexStep::Lifted(free, _) = planes.vertex_step(0, rest, pulled, frictionless) else { panic!("no frictionless lift") };
                     assert!(p.distance(rest) < free.distance(rest), "with friction {p:?}, without {free:?}");
                 }
                 (VertexStep::Unknown, false) => {}

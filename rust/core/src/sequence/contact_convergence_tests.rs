@@ -71,9 +71,10 @@ const REFERENCE_ITERATIONS: usize = 1000;
 /// mesh size after 1,000 iterations) while the RMS shape is settled (the
 /// 500th and 1,000th iterates differ by 0.04–0.2 % of the displacement,
 /// frames 6 and 12, friction 0). Returns the errors, Converge's iterations,
-/// per frame the reference's largest last step (a fraction of the mesh size)
-/// and the reference's RMS displacement.
-fn converge_errors(friction: f32, frames: usize) -> (Vec<f64>, Vec<usize>, Vec<f64>, Vec<f64>) {
+/// per frame the reference's largest last step (a fraction of the mesh size;
+/// measured only if `with_last_steps`, else 0) and the reference's RMS
+/// displacement.
+fn converge_errors(friction: f32, frames: usize, with_last_steps: bool) -> (Vec<f64>, Vec<usize>, Vec<f64>, Vec<f64>) {
     let skin = grid(40, 40, 2.0);
     let size = 2.0;
     let converge = |_: usize| (ACCELERATED_ITERATIONS, true, Some(CONVERGE_TOLERANCE));
@@ -84,8 +85,11 @@ fn converge_errors(friction: f32, frames: usize) -> (Vec<f64>, Vec<usize>, Vec<f
             let settings = move |frame: usize| if frame == f { (n, true, None) } else { converge(frame) };
             slide_frames(friction, f + 1, &settings).0.pop().unwrap()
         };
-        let (reference, longer) = (continued(REFERENCE_ITERATIONS), continued(REFERENCE_ITERATIONS + 1));
-        let last_step = reference.iter().zip(&longer).map(|(p, q)| (*p - *q).length()).fold(0.0f32, f32::max) as f64 / size;
+        let reference = continued(REFERENCE_ITERATIONS);
+        let last_step = match with_last_steps {
+            true => continued(REFERENCE_ITERATIONS + 1).iter().zip(&reference).map(|(p, q)| (*p - *q).length()).fold(0.0f32, f32::max) as f64 / size,
+            false => 0.0,
+        };
         let offset = rms(&reference, &skin.positions);
         errors.push(rms(&results[f], &reference) / offset);
         last_steps.push(last_step);
@@ -114,8 +118,8 @@ fn a_rough_sphere_drags_the_skin_as_far_after_many_iterations_as_after_some() {
 
 /// Convergence error of the add-on's Converge with a rough and a smooth
 /// sliding sphere, against the same accelerated solve run 400 iterations
-/// (issue 28's definition). A measurement, not a check (Converge with
-/// contacts does not meet 5 % yet):
+/// (issue 28's definition). A measurement, not a check (Converge with a
+/// rough sliding contact does not meet 5 % yet):
 /// `cargo test --release -p tegument-core --lib converge_with_a_sliding_sphere -- --ignored --nocapture`.
 #[test]
 #[ignore]
@@ -145,7 +149,7 @@ fn measure_converge_with_a_sliding_sphere() {
 fn measure_converge_errors_on_the_slide() {
     for friction in [0.0, 1.0] {
         let frames = slide_path().len();
-        let (errors, its, last_steps, offsets) = converge_errors(friction, frames);
+        let (errors, its, last_steps, offsets) = converge_errors(friction, frames, true);
         let offsets: Vec<String> = offsets.iter().map(|o| format!("{o:.4}")).collect();
         println!("friction {friction}: RMS displacement per frame {offsets:?}");
         let percent: Vec<String> = errors.iter().map(|e| format!("{:.1}", 100.0 * e)).collect();
@@ -154,3 +158,23 @@ fn measure_converge_errors_on_the_slide() {
     }
 }
 
+
+
+/// Converge on the frictionless slide: every frame in contact within issue
+/// 28's 5 % of converged ([`converge_errors`]). The contact patch slides
+/// along the sphere, and the correction moves it there: the hook reports the
+/// vertices it left sliding and the correction moves them along the surface
+/// instead of holding them fixed (before, frames 1, 7, 8, 10 and 12 ended
+/// 5.4–6.4 % away).
+/// The first frame does not touch the sphere (its displacement is ~0, so
+/// its ratio means nothing); frames from the first contact on count.
+#[test]
+fn converge_keeps_a_frictionless_sliding_contact_within_five_percent_of_converged() {
+    let frames = slide_path().len();
+    let (errors, its, _, offsets) = converge_errors(0.0, frames, false);
+    let in_contact: Vec<(usize, f64)> = (0..frames).filter(|&f| offsets[f] > 1e-4).map(|f| (f, errors[f])).collect();
+    assert!(in_contact.len() >= frames - 1, "frames in contact: {in_contact:?}, displacements {offsets:?}");
+    for &(frame, error) in &in_contact {
+        assert!(error <= 0.05, "frame {frame}: {:.1} % from converged (all: {in_contact:?}, iterations {its:?})", 100.0 * error);
+    }
+}

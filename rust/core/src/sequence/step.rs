@@ -15,7 +15,7 @@ use crate::collide::{Clearance, Collider, ColliderSet, ColliderSettings, Resolve
 use crate::mesh::validate_positions;
 use crate::pyramid::MAX_ITERATIONS;
 use crate::pyramid::PyramidDeformer;
-use crate::solve::{ConstraintId, IterationHook, Targets};
+use crate::solve::{ConstraintId, IterationHook, Sliding, SlidingHook, Targets};
 use crate::strain::{EdgeLimits, Hierarchy};
 use crate::{Error, Result};
 
@@ -254,7 +254,10 @@ impl Sequence {
         // Receding compliant colliders are measured by their envelopes, and
         // again if one leaves its envelope (see `in_loop_clearance`).
         let mut clearance: Option<Clearance> = None;
-        let mut in_loop = |iteration: usize, before: &[Vec3], after: &mut [Vec3]| -> Result<()> {
+        // Only where the colliders' pass is the only one that moves the skin
+        // does its account of which vertices slide hold for the iteration.
+        let report_sliding = unified.is_none() && compliant.is_empty() && self_collision.is_none();
+        let mut in_loop = SlidingHook::new(|iteration: usize, before: &[Vec3], after: &mut [Vec3], sliding: &mut Vec<Sliding>| -> Result<()> {
             if any_colliders {
                 let started = std::time::Instant::now();
                 // Compliant colliders stand still here; they recede below.
@@ -267,6 +270,9 @@ impl Sequence {
                 report.in_loop_contacts += stats.vertex_contacts + stats.edge_contacts + stats.collider_vertex_contacts;
                 report.in_loop_tested += stats.tested;
                 report.max_in_loop_correction = report.max_in_loop_correction.max(stats.max_correction);
+                if report_sliding {
+                    sliding.extend(stats.sliding.iter().map(|&(vertex, slide)| Sliding { vertex, normal: slide.normal, friction: slide.friction }));
+                }
                 report.held += stats.held.len();
                 suspects.extend_from_slice(&stats.pinched);
                 last_pinched = stats.pinched;
@@ -297,7 +303,7 @@ impl Sequence {
                 self_pass::in_loop(collision, pass, before, after, &refs, skin, clearance.as_ref(), report)?;
             }
             Ok(())
-        };
+        });
         let hook: Option<&mut dyn IterationHook> =
             if any_colliders || unified.is_some() || self_collision.is_some() { Some(&mut in_loop) } else { None };
         self.deformer.solver_mut().solve(input, &mut x, options.iterations, hook)?;

@@ -46,7 +46,12 @@
 //! the free vertices as the held ones stay, and it also vanishes where the
 //! hook holds the iteration. (Before, the held vertices' residual was left
 //! out but `A₁` took them as free and their whole aggregates went
-//! uncorrected.)
+//! uncorrected.) A held vertex the hook reports sliding along a surface
+//! (kinetic friction or none, [`super::IterationHook::sliding`]) is not
+//! fixed: it stays an unknown whose residual and correction keep only their
+//! part along that surface, its residual shortened by friction as the hook
+//! shortens a step ([`super::contacts`]), so the correction moves a sliding
+//! contact patch along the collider.
 //!
 //! Why the relaxation: on a real character (the MakeHuman body's fingers,
 //! strongly bent) the undamped iteration, plain or corrected, can fall into
@@ -62,6 +67,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::coarsest::Coarsest;
+use super::contacts::MovedVertices;
 use super::system::RowBlock;
 use crate::mesh::{aggregate_once, group_members};
 use crate::Result;
@@ -385,8 +391,12 @@ impl Coarse {
     /// Returns the squared norms of the residual (`g − x` before all that),
     /// of the accelerated step and of the new iterate's offset from `input`.
     ///
-    /// `held` gives the vertices a hook holds (ascending, and as a
-    /// per-vertex mask): their correction is fixed at 0, a Dirichlet
+    /// `contacts` gives the vertices the hook moved in the last iteration.
+    /// Those it left sliding along a surface are free unknowns: their step
+    /// enters the right-hand side as their contact admits it (along the
+    /// surface, less kinetic friction) and their row and correction keep
+    /// only their part along the surface. The others (`held`, stuck) have
+    /// their correction fixed at 0, a Dirichlet
     /// condition of the coarse problem. Their rows and columns leave `P`
     /// (`A₁` becomes `P_fᵀ(I − M)P_f` over the free vertices, factorised
     /// again when the held set changes), and their residual leaves the
@@ -397,52 +407,56 @@ impl Coarse {
         &mut self,
         x: &[Vec3],
         g: &mut [Vec3],
-        held: Option<(&[u32], &[bool])>,
+        contacts: &MovedVertices,
         previous: &mut [Vec3],
         extrapolation: (f32, Option<&[bool]>),
         input: &[Vec3],
     ) -> Sums {
         let (weight, unextrapolated) = extrapolation;
-        let error: Option<&[Vec3]> = match held {
-            None => {
-                let (offsets, columns, values) = (&self.offsets, &self.columns, &self.values);
-                let g = &*g;
-                self.free.first_rhs().par_iter_mut().enumerate().with_min_len(256).for_each(|(a, b)| {
-                    let mut sum = Vec3::ZERO;
-                    for k in offsets[a] as usize..offsets[a + 1] as usize {
-                        let j = columns[k] as usize;
-                        sum += (g[j] - x[j]) * values[k];
-                    }
-                    *b = sum;
-                });
-                Some(self.free.solve())
-            }
-            Some((vertices, mask)) => {
-                self.prepare_held(vertices, mask);
-                let Coarse { member_offsets, members, m, held, .. } = self;
-                match held.as_mut().and_then(|h| h.hierarchy.as_mut()) {
-                    // ω P_fᵀ M_ff (g − x): free rows, free columns.
-                    Some(hierarchy) => {
-                        let g = &*g;
-                        hierarchy.first_rhs().par_iter_mut().enumerate().with_min_len(256).for_each(|(a, b)| {
-                            let mut sum = Vec3::ZERO;
-                            for &i in &members[member_offsets[a] as usize..member_offsets[a + 1] as usize] {
-                                if mask[i as usize] {
-                                    continue;
-                                }
-                                for (j, v) in m.row(i as usize).filter(|&(j, _)| !mask[j]) {
-                                    sum += (g[j] - x[j]) * v;
-                                }
-                            }
-                            *b = sum * RELAXATION;
-                        });
-                        Some(hierarchy.solve())
-                    }
-                    None => None,
+        let stuck = contacts.held();
+        let with_contacts = stuck.is_some() || contacts.any_sliding();
+        let error: Option<&[Vec3]> = if !with_contacts {
+            let (offsets, columns, values) = (&self.offsets, &self.columns, &self.values);
+            let g = &*g;
+            self.free.first_rhs().par_iter_mut().enumerate().with_min_len(256).for_each(|(a, b)| {
+                let mut sum = Vec3::ZERO;
+                for k in offsets[a] as usize..offsets[a + 1] as usize {
+                    let j = columns[k] as usize;
+                    sum += (g[j] - x[j]) * values[k];
                 }
+                *b = sum;
+            });
+            Some(self.free.solve())
+        } else {
+            if let Some((vertices, mask)) = stuck {
+                self.prepare_held(vertices, mask);
+            }
+            let Coarse { member_offsets, members, m, held, free, .. } = self;
+            let hierarchy = match stuck {
+                Some(_) => held.as_mut().and_then(|h| h.hierarchy.as_mut()),
+                None => Some(free),
+            };
+            match hierarchy {
+                // ω P_fᵀ M_ff r over the free rows and columns, each sliding
+                // vertex's step as its contact admits it and its row along its surface.
+                Some(hierarchy) => {
+                    let g = &*g;
+                    hierarchy.first_rhs().par_iter_mut().enumerate().with_min_len(256).for_each(|(a, b)| {
+                        let mut sum = Vec3::ZERO;
+                        for &i in &members[member_offsets[a] as usize..member_offsets[a + 1] as usize] {
+                            let mut row = Vec3::ZERO;
+                            for (j, v) in m.row(i as usize) {
+                                row += contacts.admitted_step(j, g[j] - x[j]) * v;
+                            }
+                            sum += contacts.admitted_correction(i as usize, row);
+                        }
+                        *b = sum * RELAXATION;
+                    });
+                    Some(hierarchy.solve())
+                }
+                None => None,
             }
         };
-        let held = held.map(|h| h.1);
         let aggregate = &self.aggregate;
         // One pass for the step, the correction and the extrapolation, and
         // the norms, summed by fixed blocks in order.
@@ -457,14 +471,13 @@ impl Coarse {
             .map(|(((((block, g), x), previous), input), aggregate)| {
                 let (mut residual, mut step, mut offset) = (0.0f32, 0.0f32, 0.0f32);
                 let left_out = unextrapolated.map(|mask| &mask[block * APPLY_BLOCK..]);
-                let held = held.map(|mask| &mask[block * APPLY_BLOCK..]);
                 for (k, ((((gi, xi), pi), ii), &a)) in g.iter_mut().zip(x).zip(previous).zip(input).zip(aggregate).enumerate() {
                     let plain = *gi - *xi;
                     residual += plain.length_squared();
                     let carried = left_out.is_some_and(|mask| mask[k]);
-                    let fixed = held.is_some_and(|mask| mask[k]);
                     let correction = match error {
-                        Some(error) if !carried && !fixed => error[a as usize],
+                        Some(error) if !carried && with_contacts => contacts.admitted_correction(block * APPLY_BLOCK + k, error[a as usize]),
+                        Some(error) if !carried => error[a as usize],
                         _ => Vec3::ZERO,
                     };
                     let corrected = *xi + plain * RELAXATION + correction;

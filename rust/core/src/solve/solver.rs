@@ -8,7 +8,7 @@ use rayon::prelude::*;
 
 use super::chebyshev::Chebyshev;
 use super::coarse::Coarse;
-use super::contacts::MovedVertices;
+use super::contacts::{MovedVertices, Sliding};
 use super::constraint::{Constraint, Context};
 use super::stopping::{self, Tolerance};
 use super::system::{RowBlock, System, SystemKind};
@@ -29,6 +29,46 @@ pub trait IterationHook {
         before: &[Vec3],
         after: &mut [Vec3],
     ) -> Result<()>;
+
+    /// Of the vertices the last call moved, those it left free to slide
+    /// along a surface (contacts with kinetic friction or none). The
+    /// accelerated solver's next correction moves them along that surface;
+    /// the other moved vertices it keeps where the hook put them. Default:
+    /// none slides.
+    fn sliding(&self) -> &[Sliding] {
+        &[]
+    }
+}
+
+/// A hook that reports the vertices it leaves sliding
+/// ([`IterationHook::sliding`]): the closure fills the list it is given,
+/// empty at every call.
+pub struct SlidingHook<F> {
+    hook: F,
+    sliding: Vec<Sliding>,
+}
+
+impl<F> SlidingHook<F>
+where
+    F: FnMut(usize, &[Vec3], &mut [Vec3], &mut Vec<Sliding>) -> Result<()>,
+{
+    pub fn new(hook: F) -> Self {
+        SlidingHook { hook, sliding: Vec::new() }
+    }
+}
+
+impl<F> IterationHook for SlidingHook<F>
+where
+    F: FnMut(usize, &[Vec3], &mut [Vec3], &mut Vec<Sliding>) -> Result<()>,
+{
+    fn after_iteration(&mut self, iteration: usize, before: &[Vec3], after: &mut [Vec3]) -> Result<()> {
+        self.sliding.clear();
+        (self.hook)(iteration, before, after, &mut self.sliding)
+    }
+
+    fn sliding(&self) -> &[Sliding] {
+        &self.sliding
+    }
 }
 
 impl<F> IterationHook for F
@@ -408,7 +448,7 @@ impl Solver {
                 }
                 let weight = chebyshev.next_weight();
                 let unextrapolated = (!self.unextrapolated.is_empty()).then_some(&self.unextrapolated[..]);
-                let sums = coarse.correct(current, next, self.hook_moved.held(), &mut self.previous, (weight, unextrapolated), input);
+                let sums = coarse.correct(current, next, &self.hook_moved, &mut self.previous, (weight, unextrapolated), input);
                 // A residual that grew: the extrapolation overshot where the
                 // iteration is far from linear (see `chebyshev`); start again.
                 if sums.residual > last_residual {
@@ -425,7 +465,7 @@ impl Solver {
                 }
                 hook.after_iteration(iteration, current, next)?;
                 if accelerated {
-                    self.hook_moved.update(&self.before_hook, next);
+                    self.hook_moved.update(&self.before_hook, next, hook.sliding());
                     contacts_changed = self.hook_moved.changed();
                 }
                 // The hook moved the iterate: measure where it left it.

@@ -86,6 +86,7 @@ use super::ccd::{self, CcdParams};
 use super::collider::Collider;
 use super::planes::LocalPlanes;
 use super::clearance::Clearance;
+use super::friction::Slide;
 use super::skin::Skin;
 use crate::Result;
 
@@ -154,6 +155,12 @@ pub struct ContactStats {
     /// Vertices the rounds could not clear of colliders standing still, put
     /// back at their (clear) start positions instead, ascending.
     pub held: Vec<u32>,
+    /// Of the moved vertices, those whose last move was a vertex–triangle
+    /// projection that left them sliding along the collider (kinetic
+    /// friction or none), ascending, with its normal and friction; the
+    /// others were held by static friction, pushed by an edge or a collider
+    /// corner, put back, or pinched.
+    pub sliding: Vec<(u32, Slide)>,
     /// Detection rounds run.
     pub rounds: usize,
     /// Largest displacement applied to one vertex.

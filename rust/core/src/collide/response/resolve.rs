@@ -9,10 +9,41 @@ use rayon::prelude::*;
 use super::{d, ColliderMotion, ColliderSet, ContactStats, ResolveParams};
 use crate::collide::bvh::Bounds;
 use crate::collide::clearance::{Clearance, PLANE_REACH};
+use crate::collide::friction::{Hold, Slide};
 use crate::collide::planes::{Lift, LocalPlanes, VertexStep};
 use crate::collide::skin::Skin;
 use crate::mesh::validate_positions;
 use crate::{Error, Result};
+
+/// One move a pass made of a vertex.
+#[derive(Clone, Copy)]
+enum Move {
+    /// A vertex–triangle projection (or a lift along a plane), or a hold-back.
+    Projected(Hold),
+    /// A frictionless push out along an edge–edge or collider corner
+    /// contact's normal, by this change.
+    Pushed(Vec3),
+}
+
+/// Whether a vertex moved by `moves` (in order) is left sliding, and along
+/// what: a projection decides; a push slides along its own direction, or
+/// keeps a slide along a normal it follows (within about 8°); anything else,
+/// a hold-back included, leaves it stuck.
+fn sliding_after(moves: impl Iterator<Item = Move>) -> Option<Slide> {
+    let mut state: Option<Slide> = None;
+    let mut first = true;
+    for m in moves {
+        state = match (m, state) {
+            (Move::Projected(Hold::Sliding(slide)), _) => Some(slide),
+            (Move::Projected(Hold::Stuck), _) => None,
+            (Move::Pushed(delta), Some(slide)) if delta.dot(slide.normal) > 0.99 * delta.length() => Some(slide),
+            (Move::Pushed(delta), None) if first => delta.try_normalize().map(|normal| Slide { normal, friction: 0.0 }),
+            (Move::Pushed(_), _) => None,
+        };
+        first = false;
+    }
+    state
+}
 
 impl<'a> ColliderSet<'a> {
     /// Edge–edge and collider-vertex–skin-triangle corrections of one round,
@@ -108,7 +139,7 @@ impl<'a> ColliderSet<'a> {
         let (s, e) = (start[i as usize], end[i as usize]);
         match planes.map_or(VertexStep::Unknown, |(p, from)| p.vertex_step(i, from[i as usize], e, lift)) {
             VertexStep::Clear => false,
-            VertexStep::Lifted(_) => true,
+            VertexStep::Lifted(..) => true,
             VertexStep::Unknown => self.vertex_correction(s, e, params).is_some(),
         }
     }
@@ -183,6 +214,9 @@ impl<'a> ColliderSet<'a> {
         // first moved (most of a skin is not).
         let mut requested: Vec<(u32, Vec3)> = Vec::new();
         let mut moved = vec![false; n];
+        // How each move left its vertex, in the order of the moves: a vertex
+        // slides if the last move of it was a projection that let it slide.
+        let mut holds: Vec<(u32, Move)> = Vec::new();
         // The clearance and its planes hold for colliders standing still.
         let still = params.motion == ColliderMotion::AtCurrent;
         let clearance = clearance.filter(|c| still && c.is_valid_for(&self.colliders, n));
@@ -267,15 +301,15 @@ impl<'a> ColliderSet<'a> {
         for _ in 0..params.max_rounds.max(1) {
             stats.rounds += 1;
             // Skin vertices against collider triangles.
-            let updates: Vec<(u32, Vec3)> = active
+            let updates: Vec<(u32, (Vec3, Hold))> = active
                 .par_iter()
                 .filter_map(|&i| {
                     let (s, e) = (start[i as usize], end[i as usize]);
                     match planes.map_or(VertexStep::Unknown, |(p, from)| p.vertex_step(i, from[i as usize], e, lift)) {
                         VertexStep::Clear => None,
-                        VertexStep::Lifted(p) => {
+                        VertexStep::Lifted(p, hold) => {
                             lifted.fetch_add(1, Ordering::Relaxed);
-                            Some((i, p))
+                            Some((i, (p, hold)))
                         }
                         VertexStep::Unknown => self.vertex_correction(s, e, params).map(|p| (i, p)),
                     }
@@ -291,8 +325,9 @@ impl<'a> ColliderSet<'a> {
                 end[i as usize] = p;
             };
             let mut lifted_now: Vec<u32> = Vec::with_capacity(updates.len());
-            for (i, p) in updates {
+            for (i, (p, hold)) in updates {
                 apply(i, p, end);
+                holds.push((i, Move::Projected(hold)));
                 lifted_now.push(i);
             }
             // Skin edges against collider edges, skin triangles against
@@ -305,6 +340,7 @@ impl<'a> ColliderSet<'a> {
             stats.collider_vertex_contacts += fv;
             let mut pushed: Vec<u32> = Vec::with_capacity(shared.len());
             for (i, p) in shared {
+                holds.push((i, Move::Pushed(p - end[i as usize])));
                 apply(i, p, end);
                 pushed.push(i);
             }
@@ -339,6 +375,7 @@ impl<'a> ColliderSet<'a> {
                 // there, so a contact that held keeps holding while nothing moves the
                 // colliders, and nothing is pinched that has room (issue 29).
                 let held = self.hold_back(start, end, skin, params, pinched, &active, planes, lift);
+                holds.extend(held.iter().map(|&v| (v, Move::Projected(Hold::Stuck))));
                 stats.held = held;
                 pinched = Vec::new();
             }
@@ -358,6 +395,13 @@ impl<'a> ColliderSet<'a> {
             }
             stats.pinched = pinched;
         }
+        // Stable: each vertex's moves stay in order, its last one decides.
+        holds.sort_by_key(|&(i, _)| i);
+        stats.sliding = holds
+            .chunk_by(|a, b| a.0 == b.0)
+            .filter(|moves| stats.pinched.binary_search(&moves[0].0).is_err())
+            .filter_map(|moves| Some((moves[0].0, sliding_after(moves.iter().map(|m| m.1))?)))
+            .collect();
         requested.sort_unstable_by_key(|&(i, _)| i);
         for (i, asked) in requested {
             stats.moved.push(i);

@@ -8,6 +8,7 @@ use super::contact::open_side;
 use super::{d, ColliderMotion, ColliderSet, ResolveParams, VertexHit};
 use crate::collide::bvh::Bounds;
 use crate::collide::ccd;
+use crate::collide::friction::{friction, Hold, Slide};
 use crate::collide::geometry::{point_triangle_distance_squared, triangle_normal};
 use crate::collide::planes::resting_reference;
 use crate::collide::proximity;
@@ -15,7 +16,7 @@ use crate::collide::slab::Patch;
 
 impl<'a> ColliderSet<'a> {
     /// The projected end of the first vertex–triangle contact of `s → e`
-    /// that needs one. Not simply the earliest contact: one reported within
+    /// that needs one, and how friction left the vertex there. Not simply the earliest contact: one reported within
     /// the tolerance may need no correction, and the next one then decides.
     ///
     /// Candidates are tried in the order the path enters their leaf boxes
@@ -25,7 +26,7 @@ impl<'a> ColliderSet<'a> {
     /// entered later cannot come before it. A path that misses a leaf box
     /// cannot touch its triangle at all. A vertex pulled deep into a collider
     /// has a column of candidates but meets the nearest first.
-    pub(super) fn vertex_correction(&self, s: Vec3, e: Vec3, params: &ResolveParams) -> Option<Vec3> {
+    pub(super) fn vertex_correction(&self, s: Vec3, e: Vec3, params: &ResolveParams) -> Option<(Vec3, Hold)> {
         let motion = params.motion;
         let (from, to) = (Bounds::of_points(&[s]), Bounds::of_points(&[e]));
         let (s64, e64) = (d(s), d(e));
@@ -49,7 +50,7 @@ impl<'a> ColliderSet<'a> {
             }
         }
         order.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let mut best: Option<(f64, Vec3)> = None;
+        let mut best: Option<(f64, (Vec3, Hold))> = None;
         for (entry, c, t) in order {
             if best.is_some_and(|(toi, _)| entry > toi) {
                 break;
@@ -119,9 +120,9 @@ impl<'a> ColliderSet<'a> {
         })
     }
 
-    /// The projected end position for a vertex–triangle contact, or `None`
-    /// if the end already satisfies it.
-    pub(super) fn project_vertex(&self, s: Vec3, e: Vec3, h: &VertexHit, params: &ResolveParams) -> Option<Vec3> {
+    /// The projected end position for a vertex–triangle contact and how
+    /// friction left it there, or `None` if the end already satisfies it.
+    pub(super) fn project_vertex(&self, s: Vec3, e: Vec3, h: &VertexHit, params: &ResolveParams) -> Option<(Vec3, Hold)> {
         let col = self.colliders[h.collider];
         let settings = col.settings();
         let sep = settings.thickness as f64;
@@ -147,6 +148,7 @@ impl<'a> ColliderSet<'a> {
         let slack = self.slack(sep);
         let depth = sep + slack - dist;
         let mut out = e + depth * n;
+        let mut hold = Hold::Sliding(Slide { normal: n.as_vec3(), friction: 0.0 });
         if params.friction && (settings.static_friction > 0.0 || settings.kinetic_friction > 0.0) {
             // On a still collider a vertex resting on it is held where it
             // rests, not where this step crossed the surface (see
@@ -156,18 +158,11 @@ impl<'a> ColliderSet<'a> {
                 ColliderMotion::AtCurrent => resting_reference(point_triangle_distance_squared(s, a1, b1, c1).sqrt() - sep, slack, s, xt),
                 ColliderMotion::Swept => xt,
             };
-            let slip = (out - contact) - (q1 - qt);
-            let tangential = slip - slip.dot(n) * n;
-            let len = tangential.length();
-            if len > 0.0 {
-                if len < settings.static_friction as f64 * depth {
-                    out -= tangential;
-                } else {
-                    out -= tangential * (settings.kinetic_friction as f64 * depth / len).min(1.0);
-                }
-            }
+            let change;
+            (change, hold) = friction((out - contact) - (q1 - qt), n, depth, settings.static_friction as f64, settings.kinetic_friction as f64);
+            out -= change;
         }
         let out = out.as_vec3();
-        out.is_finite().then_some(out)
+        out.is_finite().then_some((out, hold))
     }
 }
