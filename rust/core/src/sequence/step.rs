@@ -7,7 +7,7 @@ use super::compliance::{compliant_skin, contact_targets, in_loop_clearance, ms_s
 use super::dynamics::{kinetic_energy, Dynamics, MAX_SUBSTEPS};
 use super::options::{accumulate, StepOptions, StepReport, StrainMode};
 use super::self_pass::{self, SelfPass};
-use super::strain_pass::{limit_strain_with_contacts, POST_STRAIN_SWEEPS, STRAIN_ROUNDS, STRAIN_ROUNDS_EARLY, STRAIN_TOLERANCE};
+use super::strain_pass::{limit_strain_with_contacts, POST_STRAIN_SWEEPS, STRAIN_EARLY_ITERATIONS, STRAIN_ROUNDS, STRAIN_ROUNDS_EARLY, STRAIN_TOLERANCE};
 use super::Sequence;
 use crate::collide::is_inside;
 use crate::collide::planes::LocalPlanes;
@@ -278,7 +278,9 @@ impl Sequence {
                 last_pinched = stats.pinched;
                 report.contact_work.in_loop_pass_ms += ms_since(started);
             }
-            if let Some(limits) = unified {
+            // Strain rounds in the last iterations only (`STRAIN_EARLY_ITERATIONS`):
+            // the earlier ones' are undone by the solve iterations after them.
+            if let Some(limits) = unified.filter(|_| iteration + STRAIN_EARLY_ITERATIONS >= last_iteration) {
                 let started = std::time::Instant::now();
                 // The multilevel projection only where the rounds have room to
                 // settle its large moves against the contacts: the last iteration.

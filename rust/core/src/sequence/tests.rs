@@ -326,6 +326,12 @@ mod strain {
     /// A sphere pressed into the skin with high friction, then dragged
     /// sideways: the skin it holds stretches the edges around it.
     fn drag(strain: Option<StrainOptions<'_>>) -> (StepReport, (usize, usize, usize), f32) {
+        drag_frames(strain, 10).pop().expect("the drag has frames")
+    }
+
+    /// [`drag`] with this many solve iterations, every frame's report, audit
+    /// and worst stretch.
+    fn drag_frames(strain: Option<StrainOptions<'_>>, iterations: usize) -> Vec<(StepReport, (usize, usize, usize), f32)> {
         let skin = grid(40, 40, 2.0);
         let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
         let (ball, tris) = sphere(0.3);
@@ -335,20 +341,20 @@ mod strain {
         let top = *path.last().unwrap();
         path.extend((1..=8).map(|k| top + Vec3::X * (0.05 * k as f32)));
         let mut ball_collider = Collider::new(&moved(&ball.positions, start), &tris, settings).unwrap();
-        let options = StepOptions { strain, ..StepOptions::new(10, Closeness::Uniform(0.5)) };
-        let mut last = (StepReport::default(), (0, 0, 0), 0.0);
+        let options = StepOptions { strain, ..StepOptions::new(iterations, Closeness::Uniform(0.5)) };
+        let mut frames = Vec::new();
         let limits = crate::strain::EdgeLimits::new(&polygon_edges(&skin), &skin.positions, MaxStretch::Uniform(0.0)).unwrap();
         for at in path {
             ball_collider.update(&moved(&ball.positions, at)).unwrap();
             let (x, report) = deformer.step(&skin.positions, &mut [&mut ball_collider], &options).unwrap();
             let audit = penetrations(&skin, &x, &[&ball_collider]);
             let stretch = limits.worst_stretch(&x);
-            last = (report, audit, stretch);
             if strain.is_some_and(|s| s.mode == StrainMode::Unified) {
-                assert_eq!(last.1, (0, 0, 0), "unified strain limiting left penetrations");
+                assert_eq!(audit, (0, 0, 0), "unified strain limiting left penetrations");
             }
+            frames.push((report, audit, stretch));
         }
-        last
+        frames
     }
 
     pub(super) fn polygon_edges(skin: &PolyMesh) -> Vec<[u32; 2]> {
@@ -372,6 +378,26 @@ mod strain {
         assert_eq!(audit, (0, 0, 0));
         assert!(stretch <= (1.0 + EPS) * 1.01, "edge stretched to {stretch}");
         assert!((report.worst_stretch - stretch).abs() < 1e-5);
+    }
+
+    /// Issue 29: early strain rounds run only in the few iterations just
+    /// before the last; an earlier iteration's would be undone by the solve
+    /// iterations after it, which pull the skin back over its limits. So
+    /// with 30 iterations a frame runs no more rounds than with 10 may (with
+    /// 2 in each of the 29 earlier iterations this drag ran up to 60), and
+    /// every frame still holds the limits.
+    #[test]
+    fn only_the_iterations_before_the_last_run_early_strain_rounds() {
+        use super::super::strain_pass::{STRAIN_ROUNDS, STRAIN_ROUNDS_EARLY};
+        let strain = StrainOptions { max_stretch: MaxStretch::Uniform(EPS), mode: StrainMode::Unified };
+        let frames = drag_frames(Some(strain), 30);
+        let rounds: Vec<usize> = frames.iter().map(|(report, _, _)| report.contact_work.strain_rounds).collect();
+        assert!(rounds.iter().any(|&r| r > 0), "the drag should need strain rounds: {rounds:?}");
+        // The last iteration's rounds and those of the two before it.
+        let most = STRAIN_ROUNDS + 2 * STRAIN_ROUNDS_EARLY;
+        assert!(rounds.iter().all(|&r| r <= most), "strain rounds per frame: {rounds:?}");
+        let worst: Vec<f32> = frames.iter().map(|&(_, _, stretch)| stretch).collect();
+        assert!(worst.iter().all(|&w| w <= (1.0 + EPS) * 1.01), "worst stretch per frame: {worst:?}");
     }
 
     #[test]
