@@ -59,23 +59,20 @@ def peak_mib() -> float:
 
 
 def one_size(name: str, zip_path: str, solver: str | None = None) -> dict:
-    user = tempfile.mkdtemp(prefix="tegument-scaling-user-")
-    os.environ["BLENDER_USER_RESOURCES"] = user
-    import bpy
-    import numpy as np
-
     sys.path.insert(0, str(ROOT / "demo"))
     import extension
+
+    user = extension.isolated_user_folder("tegument-scaling-user-")
+    import bpy
+    import numpy as np
     import scene as demo_scene
 
-    addon = extension.install(zip_path, user)
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.preferences.addon_enable(module=addon)
+    extension.install(zip_path, user)
     from bl_ext.user_default.tegument.deform import bake
     import tegument  # the wheel the extension bundles
 
     workdir = pathlib.Path(tempfile.mkdtemp(prefix="tegument-scaling-"))
-    bpy.ops.wm.save_as_mainfile(filepath=str(workdir / "scaling.blend"))
+    extension.new_blend(workdir / "scaling.blend")
     segments, rings = SIZES[name]
     started = time.perf_counter()
     limb, rig = demo_scene.build_limb(segments=segments, rings=rings, radius=0.25, length=2.0, heat_weights=False)

@@ -81,17 +81,14 @@ def main() -> int:
     parser.add_argument("--character-both", action="store_true",
                         help="bake the character with Converge on and off, alternating, each against Corrective Smooth in the same run")
     args = parser.parse_args()
-    user = tempfile.mkdtemp(prefix="tegument-bench-user-")
-    os.environ["BLENDER_USER_RESOURCES"] = user
-    import bpy
-    import numpy as np
-
     sys.path.insert(0, str(ROOT / "demo"))
     import extension
 
-    addon = extension.install(args.zip, user)  # Blender runs the wheel the extension bundles
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.preferences.addon_enable(module=addon)
+    user = extension.isolated_user_folder("tegument-bench-user-")
+    import bpy
+    import numpy as np
+
+    extension.install(args.zip, user)  # Blender runs the wheel the extension bundles
 
     rows = Rows()
     threads = os.cpu_count() or 1
@@ -120,6 +117,7 @@ def collisions(bpy, np, rows, threads, workdir, grid: int, frame_count: int) -> 
     Tegument with collisions, Cloth pinned towards the animation (collision
     quality 5), and Shrinkwrap (Outside) + Corrective Smooth, each timed per
     frame and audited with tegument.audit against the sphere at every frame."""
+    import extension
     import tegument
     from bl_ext.user_default.tegument.deform import bake
 
@@ -131,9 +129,7 @@ def collisions(bpy, np, rows, threads, workdir, grid: int, frame_count: int) -> 
         return (-0.3 + 0.04 * max(k - 5, 0), 0.05, -0.32 + 0.03 * rise)
 
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
-        bpy.ops.preferences.addon_enable(module="bl_ext.user_default.tegument")
-        bpy.ops.wm.save_as_mainfile(filepath=str(workdir / "collide.blend"))
+        extension.new_blend(workdir / "collide.blend")
         scene = bpy.context.scene
         scene.frame_start, scene.frame_end = 1, frame_count
         bpy.ops.mesh.primitive_grid_add(x_subdivisions=grid, y_subdivisions=grid, size=2.0)
@@ -260,6 +256,7 @@ def character(bpy, np, rows, threads, workdir, both_solvers: bool = False) -> No
     bench/collect.py says so instead of the character's lines."""
     import character as makehuman
     import character_demo
+    import extension
     import measures
     from bl_ext.user_default.tegument.deform import bake
 
@@ -273,9 +270,7 @@ def character(bpy, np, rows, threads, workdir, both_solvers: bool = False) -> No
     last = character_demo.POSE_FRAMES[1]
     frames = [2 + (i * 5) % (last - 1) for i in range(2 * (last - 1))]  # each frame twice, never two in a row
     for variant, label in CHARACTER_CASES.items():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
-        bpy.ops.preferences.addon_enable(module="bl_ext.user_default.tegument")
-        bpy.ops.wm.save_as_mainfile(filepath=str(workdir / f"character-{variant}.blend"))
+        extension.new_blend(workdir / f"character-{variant}.blend")
         obj, _ = character_demo.build(variant, workdir)
         scene = bpy.context.scene
         rest, corners, sizes = character_demo.rest_topology(obj)  # what Tegument deforms
@@ -384,6 +379,7 @@ def self_collision(bpy, np, rows, threads, workdir) -> None:
     Smooth and Pyramid Deform without and with Self Collision."""
     import character as makehuman
     import character_demo
+    import extension
     import measures
 
     try:
@@ -391,9 +387,7 @@ def self_collision(bpy, np, rows, threads, workdir) -> None:
     except makehuman.CharacterDataMissing as error:
         print(f"self-collision rows skipped: {error}")
         return
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.preferences.addon_enable(module="bl_ext.user_default.tegument")
-    bpy.ops.wm.save_as_mainfile(filepath=str(workdir / "self-collision.blend"))
+    extension.new_blend(workdir / "self-collision.blend")
     obj, _ = character_demo.build("obj", workdir)
     rest, corners, sizes = character_demo.rest_topology(obj)
     groups = measures.coincident_groups(rest)

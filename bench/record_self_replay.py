@@ -18,7 +18,6 @@ example's header.
 """
 
 import importlib
-import os
 import pathlib
 import sys
 import tempfile
@@ -29,19 +28,15 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 
 
 def record(zip_path: pathlib.Path, out: pathlib.Path) -> None:
-    user = tempfile.mkdtemp(prefix="tegument-replay-user-")
-    os.environ["BLENDER_USER_RESOURCES"] = user
-    import bpy
-
     sys.path.insert(0, str(ROOT / "demo"))
-    import character_demo
     import extension
 
+    user = extension.isolated_user_folder("tegument-replay-user-")
+    import character_demo
+
     addon = extension.install(zip_path, user)
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.preferences.addon_enable(module=addon)
     workdir = pathlib.Path(tempfile.mkdtemp(prefix="tegument-replay-"))
-    bpy.ops.wm.save_as_mainfile(filepath=str(workdir / "replay.blend"))
+    extension.new_blend(workdir / "replay.blend")
     bake = importlib.import_module(addon + ".deform.bake")
     evaluate = importlib.import_module(addon + ".deform.evaluate")
     frames: list[np.ndarray] = []

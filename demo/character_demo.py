@@ -27,9 +27,9 @@ import bpy
 import numpy as np
 
 import character
+import extension
 import measures
 
-ADDON = "bl_ext.user_default.tegument"
 POSE_FRAMES = (1, 12)  # rest keyed at 1, the hard pose at 12 (character.animate_pose)
 VARIANTS = ("obj", "gltf", "subdivided")
 
@@ -363,10 +363,7 @@ def run(out: pathlib.Path, stage) -> dict:
     folder.mkdir(parents=True, exist_ok=True)
     info: dict = {}
     with stage("character") as info:
-        bpy.ops.wm.read_factory_settings(use_empty=True)
-        bpy.ops.preferences.addon_enable(module=ADDON)
-        bpy.context.preferences.filepaths.save_version = 0  # no .blend1 beside the second save
-        bpy.ops.wm.save_as_mainfile(filepath=str(folder / "character.blend"))
+        extension.new_blend(folder / "character.blend")
         try:
             obj, rig = build("obj", folder)
         except character.CharacterDataMissing as error:

@@ -9,10 +9,36 @@ extension bundles.
 
 from __future__ import annotations
 
+import os
 import pathlib
 import sys
+import tempfile
 
 ADDON_MODULE = "bl_ext.user_default.tegument"
+
+
+def isolated_user_folder(prefix: str) -> str:
+    """A new temporary folder made Blender's user folder (``BLENDER_USER_RESOURCES``), so that
+    installing the extension leaves the user's own Blender untouched. Blender reads the variable
+    when ``bpy`` starts: call this before the first ``import bpy``. The caller removes the folder."""
+    if "bpy" in sys.modules:
+        raise RuntimeError("bpy was imported before its user folder was set: Blender would use the user's own")
+    user = tempfile.mkdtemp(prefix=prefix)
+    os.environ["BLENDER_USER_RESOURCES"] = user
+    return user
+
+
+def new_blend(path: str | pathlib.Path) -> None:
+    """An empty scene with the add-on enabled, saved as ``path`` first, so that the add-on's ``//``
+    paths (its caches) land beside it."""
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.preferences.addon_enable(module=ADDON_MODULE)
+    # Factory settings bring back .blend1 backups; these scripts save their files again at the end.
+    bpy.context.preferences.filepaths.save_version = 0
+    pathlib.Path(path).parent.mkdir(parents=True, exist_ok=True)
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
 
 
 def bundled_site_packages(user_resources: str | pathlib.Path) -> pathlib.Path:

@@ -15,10 +15,10 @@ from __future__ import annotations
 import pathlib
 
 import bpy
+import extension
 import numpy as np
 from scene import add_sphere, world_mesh
 
-ADDON = "bl_ext.user_default.tegument"
 FPS = 24
 AUDIT_KEYS = ("vertices_inside", "edges_crossing", "collider_edges_crossing")
 
@@ -27,15 +27,10 @@ AUDIT_KEYS = ("vertices_inside", "edges_crossing", "collider_edges_crossing")
 
 def fresh_file(folder: pathlib.Path, name: str, frames: int) -> None:
     """An empty scene saved as ``folder/name.blend``, with the extension enabled."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.preferences.addon_enable(module=ADDON)
-    # Factory settings bring back .blend1 backups; the demo saves each file twice.
-    bpy.context.preferences.filepaths.save_version = 0
+    extension.new_blend(folder / f"{name}.blend")
     scene = bpy.context.scene
     scene.frame_start, scene.frame_end = 1, frames
     scene.render.fps, scene.render.fps_base = FPS, 1.0
-    folder.mkdir(parents=True, exist_ok=True)
-    bpy.ops.wm.save_as_mainfile(filepath=str(folder / f"{name}.blend"))
 
 
 def grid(subdivisions: int, size: float, name: str = "Skin"):

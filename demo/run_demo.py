@@ -32,7 +32,6 @@ import pathlib
 import platform
 import shutil
 import sys
-import tempfile
 import time
 
 HERE = pathlib.Path(__file__).resolve().parent
@@ -184,33 +183,20 @@ def main() -> int:
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
 
-    user = tempfile.mkdtemp(prefix="tegument-demo-user-")
-    os.environ["BLENDER_USER_RESOURCES"] = user  # before bpy starts: keep the user's Blender untouched
+    sys.path.insert(0, str(HERE))
+    import extension
+
+    user = extension.isolated_user_folder("tegument-demo-user-")
     try:
         return run(args, out, user)
     finally:
         shutil.rmtree(user, ignore_errors=True)
 
 
-def bundled_wheel(user: str):
-    """The ``tegument`` module of the wheel the installed extension carries (not one that happens
-    to be installed in the Python running the demo), so every figure comes from what users install."""
-    import importlib
-
-    site = pathlib.Path(user, "extensions", ".local", "lib", f"python{sys.version_info[0]}.{sys.version_info[1]}", "site-packages")
-    if not (site / "tegument").is_dir():
-        sys.exit(f"error: the extension's wheel was not unpacked into {site}")
-    sys.path.insert(0, str(site))
-    for name in [n for n in sys.modules if n == "tegument" or n.startswith("tegument.")]:
-        del sys.modules[name]
-    return importlib.import_module("tegument")
-
-
 def run(args, out: pathlib.Path, user: str) -> int:
     import bpy
     import numpy as np
 
-    sys.path.insert(0, str(HERE))
     import extension
     import flesh
     import pictures
@@ -228,13 +214,9 @@ def run(args, out: pathlib.Path, user: str) -> int:
             sys.exit(f"error: {error}")
 
     with stage("scene") as info:
-        demo_scene.clear()
-        bpy.ops.preferences.addon_enable(module=extension.ADDON_MODULE)
-        # Saved first, so the add-on's "//" paths (cache, warp sequence) land in the output folder;
-        # no .blend1 backup when it is saved again at the end (the preferences are the isolated ones).
-        bpy.context.preferences.filepaths.save_version = 0
+        # Saved first, so the add-on's "//" paths (cache, warp sequence) land in the output folder.
         blend = out / "demo.blend"
-        bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+        extension.new_blend(blend)
         scene = bpy.context.scene
         scene.frame_start, scene.frame_end = first, last
         limb, rig = demo_scene.build_limb(radius=LIMB_RADIUS)
@@ -254,7 +236,7 @@ def run(args, out: pathlib.Path, user: str) -> int:
         # skin inside it (skinning only) or kept outside it (Tegument) shows.
         contact = demo_scene.pressed_contact_point(BEND_DEG, PRESS_ALONG, centre, BODY_RADIUS)
         contact_camera = demo_scene.add_camera("Contact", (contact[0] + 0.15, contact[1] - 0.35, 1.6), contact, lens=55.0)
-        tegument = bundled_wheel(user)
+        import tegument  # the wheel the extension bundles: extension.install made sure
 
         info.update(limb_vertices=len(limb.data.vertices), body_vertices=len(body.data.vertices),
                     frames=len(frames), bend_degrees=BEND_DEG, twist_degrees=TWIST_DEG,

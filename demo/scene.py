@@ -18,10 +18,6 @@ import numpy as np
 UV_MARGIN = 0.02
 
 
-def clear() -> None:
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-
-
 def tube_uv_scale(radius: float, length: float) -> float:
     """UV units per scene unit: the same in both directions, so a round feature painted in UV
     space is round on the rest surface; the side chart leaves room beside it for the two caps."""

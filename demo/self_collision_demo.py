@@ -23,11 +23,9 @@ import os
 import pathlib
 import shutil
 import sys
-import tempfile
 import time
 
 HERE = pathlib.Path(__file__).resolve().parent
-ADDON = "bl_ext.user_default.tegument"
 FRAMES = 12
 BEND_DEGREES = 150.0
 RENDER_SAMPLES = 16
@@ -37,13 +35,10 @@ SIZE = (360, 300)  # each of the three pictures, pixels
 def _scene(folder: pathlib.Path):
     import bpy
 
+    import extension
     import scene as demo_scene
 
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.preferences.addon_enable(module=ADDON)
-    bpy.context.preferences.filepaths.save_version = 0
-    folder.mkdir(parents=True, exist_ok=True)
-    bpy.ops.wm.save_as_mainfile(filepath=str(folder / "self_collision.blend"))
+    extension.new_blend(folder / "self_collision.blend")
     limb, rig = demo_scene.build_limb("Limb", segments=32, rings=48, radius=0.25, length=2.0, heat_weights=False)
     demo_scene.animate_bend(rig, 1, FRAMES, angle_deg=BEND_DEGREES)
     bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, FRAMES
@@ -245,14 +240,11 @@ def main() -> int:
     args = parser.parse_args()
     if not args.zip or not args.zip.is_file():
         sys.exit("error: no extension zip: `make extension`, then --zip dist/tegument-<version>-linux_x64.zip")
-    user = tempfile.mkdtemp(prefix="tegument-demo-user-")
-    os.environ["BLENDER_USER_RESOURCES"] = user  # before bpy starts: keep the user's Blender untouched
+    sys.path.insert(0, str(HERE))
+    import extension
+
+    user = extension.isolated_user_folder("tegument-demo-user-")
     try:
-        import bpy  # noqa: F401
-
-        sys.path.insert(0, str(HERE))
-        import extension
-
         extension.install(args.zip, user)
         out = args.out.resolve()
         out.mkdir(parents=True, exist_ok=True)
