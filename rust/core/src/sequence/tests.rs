@@ -412,6 +412,18 @@ mod strain {
         assert!(worst.iter().all(|&w| w <= (1.0 + EPS) * 1.01), "worst stretch per frame: {worst:?}");
     }
 
+    /// The drag limited to `EPS` with Converge and a count of `iterations`:
+    /// per frame the iterations the solve ran, the strain rounds and the
+    /// worst stretch.
+    fn converge_drag(iterations: usize) -> (Vec<usize>, Vec<usize>, Vec<f32>) {
+        let strain = StrainOptions { max_stretch: MaxStretch::Uniform(EPS), mode: StrainMode::Unified };
+        let frames = drag_frames_solved(Some(strain), iterations, true);
+        let ran = frames.iter().map(|&(_, ran)| ran).collect();
+        let rounds = frames.iter().map(|((report, _, _), _)| report.contact_work.strain_rounds).collect();
+        let worst = frames.iter().map(|&((_, _, stretch), _)| stretch).collect();
+        (ran, rounds, worst)
+    }
+
     /// With Converge a solve stops by its rule, before or after its
     /// iteration count (the count is a limit counted in work on small
     /// meshes: 24 here); the strain rounds run where it stops (the solver
@@ -420,11 +432,8 @@ mod strain {
     /// below catch what that broke.
     #[test]
     fn unified_strain_limits_hold_when_converge_stops_the_solve_early() {
-        let strain = StrainOptions { max_stretch: MaxStretch::Uniform(EPS), mode: StrainMode::Unified };
         let iterations = crate::pyramid::ACCELERATED_ITERATIONS;
-        let frames = drag_frames_solved(Some(strain), iterations, true);
-        let ran: Vec<usize> = frames.iter().map(|&(_, ran)| ran).collect();
-        let worst: Vec<f32> = frames.iter().map(|&((_, _, stretch), _)| stretch).collect();
+        let (ran, _, worst) = converge_drag(iterations);
         assert!(ran.iter().any(|&r| r < iterations), "no frame stopped early, so this tests nothing: {ran:?}");
         assert!(worst.iter().all(|&w| w <= (1.0 + EPS) * 1.01), "worst stretch per frame: {worst:?} (iterations {ran:?})");
     }
@@ -438,12 +447,8 @@ mod strain {
     /// 1.107, 4–6 rounds a frame.
     #[test]
     fn unified_strain_limits_hold_when_converge_stops_long_before_the_count() {
-        let strain = StrainOptions { max_stretch: MaxStretch::Uniform(EPS), mode: StrainMode::Unified };
         let iterations = 40;
-        let frames = drag_frames_solved(Some(strain), iterations, true);
-        let ran: Vec<usize> = frames.iter().map(|&(_, ran)| ran).collect();
-        let worst: Vec<f32> = frames.iter().map(|&((_, _, stretch), _)| stretch).collect();
-        let rounds: Vec<usize> = frames.iter().map(|((report, _, _), _)| report.contact_work.strain_rounds).collect();
+        let (ran, rounds, worst) = converge_drag(iterations);
         println!("iterations per frame {ran:?}, strain rounds {rounds:?}, worst stretch {worst:?}");
         assert!(ran.iter().any(|&r| r + 3 < iterations), "no solve stopped before the count's last iterations, so this tests nothing: {ran:?}");
         assert!(worst.iter().all(|&w| w <= (1.0 + EPS) * 1.01), "worst stretch per frame: {worst:?} (iterations {ran:?})");
@@ -459,12 +464,8 @@ mod strain {
     #[test]
     fn a_converge_solve_past_its_count_runs_the_full_strain_rounds_once() {
         use super::super::strain_pass::{STRAIN_EARLY_ITERATIONS, STRAIN_ROUNDS, STRAIN_ROUNDS_EARLY};
-        let strain = StrainOptions { max_stretch: MaxStretch::Uniform(EPS), mode: StrainMode::Unified };
         let iterations = crate::pyramid::ACCELERATED_ITERATIONS;
-        let frames = drag_frames_solved(Some(strain), iterations, true);
-        let ran: Vec<usize> = frames.iter().map(|&(_, ran)| ran).collect();
-        let rounds: Vec<usize> = frames.iter().map(|((report, _, _), _)| report.contact_work.strain_rounds).collect();
-        let worst: Vec<f32> = frames.iter().map(|&((_, _, stretch), _)| stretch).collect();
+        let (ran, rounds, worst) = converge_drag(iterations);
         println!("iterations per frame {ran:?}, strain rounds {rounds:?}, worst stretch {worst:?}");
         assert!(ran.iter().any(|&r| r > iterations), "no solve ran past its count, so this tests nothing: {ran:?}");
         let most = STRAIN_ROUNDS + STRAIN_EARLY_ITERATIONS * STRAIN_ROUNDS_EARLY;
