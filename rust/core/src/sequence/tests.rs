@@ -444,7 +444,7 @@ mod strain {
     /// the frames whose solves stopped after 25, 20 and 5 iterations, which
     /// left edges at 1.35–1.46× their rest length (limit 1.1). Since the
     /// rounds' iterations follow where the rule is met: every frame within
-    /// 1.107, 4–6 rounds a frame.
+    /// 1.108, 4–6 rounds a frame.
     #[test]
     fn unified_strain_limits_hold_when_converge_stops_long_before_the_count() {
         let iterations = 40;
