@@ -1072,3 +1072,74 @@ fn an_accelerated_solve_does_not_stop_while_its_hook_moves_other_vertices() {
     assert!(still_iterations < 20, "a hook that moves nothing: stopped after {still_iterations}");
     assert!(deformer.last_iterations() > wandering, "stopped after {} while the hook moved new vertices until {wandering}", deformer.last_iterations());
 }
+
+/// A hook that records what every call was told, and floors the skin as
+/// [`floor_hook`] does, so the solve has something to converge with.
+struct RecordingHook {
+    floor: f32,
+    closing: usize,
+    told: Vec<crate::solve::Iteration>,
+}
+
+impl crate::solve::IterationHook for RecordingHook {
+    fn after_iteration(&mut self, iteration: crate::solve::Iteration, _before: &[Vec3], after: &mut [Vec3]) -> crate::Result<()> {
+        self.told.push(iteration);
+        for p in after.iter_mut() {
+            p.y = p.y.max(self.floor);
+        }
+        Ok(())
+    }
+
+    fn closing_iterations(&self) -> usize {
+        self.closing
+    }
+}
+
+/// Issue 29: a hook whose work counts only at the end of a solve (strain
+/// limits' rounds) is told how many iterations follow each one, where the
+/// solver knows. Where the count ends the solve it always knows; where the
+/// stopping rule ends it, the hook's closing iterations follow once the rule
+/// is met, each told how many follow it, the last 0; a hook with none
+/// leaves the solve stopping where the rule is met, as before.
+#[test]
+fn the_hook_is_told_which_iterations_end_the_solve() {
+    let length = 4.0;
+    let mesh = cylinder(32, 40, 0.5, length);
+    let input = candy_wrapper(&mesh, length, 0.0, 90f32.to_radians());
+    let floor = input.iter().map(|p| p.y).fold(f32::MAX, f32::min) + 0.3;
+    let start: Vec<Vec3> = input.iter().map(|p| Vec3::new(p.x, p.y.max(floor), p.z)).collect();
+    let mut deformer = accelerated(&mesh);
+    let closeness = Closeness::Uniform(0.05);
+    let run = |deformer: &mut PyramidDeformer, iterations: usize, closing: usize| {
+        let mut hook = RecordingHook { floor, closing, told: Vec::new() };
+        let mut x = start.clone();
+        deformer.solve_into(&start, &mut x, iterations, closeness, Some(&mut hook)).unwrap();
+        assert!(x.iter().all(|p| p.y >= floor));
+        hook.told
+    };
+    let remaining = |told: &[crate::solve::Iteration]| told.iter().map(|t| t.remaining).collect::<Vec<_>>();
+    // The count ends it: every iteration knows.
+    let told = run(&mut deformer, 7, 3);
+    assert_eq!(told.iter().map(|t| t.index).collect::<Vec<_>>(), (0..7).collect::<Vec<_>>());
+    assert_eq!(remaining(&told), (0..7).rev().map(Some).collect::<Vec<_>>());
+    // The rule ends it, long before its limit.
+    deformer.set_tolerance(Some(0.02)).unwrap();
+    let told = run(&mut deformer, 1000, 0);
+    let met = deformer.last_iterations();
+    assert!(met < 500, "the rule never stopped the solve: {met}");
+    assert_eq!(remaining(&told), vec![None; met], "until the rule is met the solver cannot know");
+    // With closing iterations they follow where the rule was met, told.
+    let told = run(&mut deformer, 1000, 3);
+    assert_eq!(deformer.last_iterations(), met + 3);
+    let mut expected = vec![None; met];
+    expected.extend([Some(2), Some(1), Some(0)]);
+    assert_eq!(remaining(&told), expected);
+    assert!(told.last().unwrap().is_last());
+    // Near the limit the limit ends the closing iterations, and is known.
+    let limit = crate::solve::iteration_limit(4, mesh.positions.len());
+    let told = run(&mut deformer, 4, 3);
+    assert!(limit < met, "the limit should come first: {limit} against {met}");
+    assert_eq!(told.len(), limit);
+    assert_eq!(remaining(&told)[limit - 4..], [Some(3), Some(2), Some(1), Some(0)]);
+    assert!(remaining(&told)[..limit - 4].iter().all(Option::is_none));
+}

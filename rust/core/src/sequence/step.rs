@@ -15,7 +15,7 @@ use crate::collide::{Clearance, Collider, ColliderSet, ColliderSettings, Resolve
 use crate::mesh::validate_positions;
 use crate::pyramid::MAX_ITERATIONS;
 use crate::pyramid::PyramidDeformer;
-use crate::solve::{ConstraintId, IterationHook, Sliding, SlidingHook, Targets};
+use crate::solve::{ConstraintId, Iteration, IterationHook, Sliding, SlidingHook, Targets};
 use crate::strain::{EdgeLimits, Hierarchy};
 use crate::{Error, Result};
 
@@ -247,7 +247,6 @@ impl Sequence {
         }
         let levels = self.strain_levels.as_ref().filter(|_| unified.is_some());
         let any_colliders = !colliders.is_empty();
-        let last_iteration = options.iterations.saturating_sub(1);
         // Where the skin is, at the start of the in-loop passes, relative to
         // the colliders: the passes skip what cannot have reached them since,
         // and lift what the solve pulls back in along the colliders' planes.
@@ -257,7 +256,7 @@ impl Sequence {
         // Only where the colliders' pass is the only one that moves the skin
         // does its account of which vertices slide hold for the iteration.
         let report_sliding = unified.is_none() && compliant.is_empty() && self_collision.is_none();
-        let mut in_loop = SlidingHook::new(|iteration: usize, before: &[Vec3], after: &mut [Vec3], sliding: &mut Vec<Sliding>| -> Result<()> {
+        let mut in_loop = SlidingHook::new(|iteration: Iteration, before: &[Vec3], after: &mut [Vec3], sliding: &mut Vec<Sliding>| -> Result<()> {
             if any_colliders {
                 let started = std::time::Instant::now();
                 // Compliant colliders stand still here; they recede below.
@@ -278,13 +277,18 @@ impl Sequence {
                 last_pinched = stats.pinched;
                 report.contact_work.in_loop_pass_ms += ms_since(started);
             }
-            // Strain rounds in the last iterations only (`STRAIN_EARLY_ITERATIONS`):
-            // the earlier ones' are undone by the solve iterations after them.
-            if let Some(limits) = unified.filter(|_| iteration + STRAIN_EARLY_ITERATIONS >= last_iteration) {
+            // Strain rounds in the iteration that ends the solve and the
+            // `STRAIN_EARLY_ITERATIONS` before it only: the earlier ones' are
+            // undone by the solve iterations after them. The multilevel
+            // projection only where the rounds have room to settle its large
+            // moves against the contacts: the last iteration.
+            let strain_rounds = match iteration.remaining {
+                Some(0) => Some((STRAIN_ROUNDS, levels)),
+                Some(remaining) if remaining <= STRAIN_EARLY_ITERATIONS => Some((STRAIN_ROUNDS_EARLY, None)),
+                _ => None,
+            };
+            if let (Some(limits), Some((rounds, levels))) = (unified, strain_rounds) {
                 let started = std::time::Instant::now();
-                // The multilevel projection only where the rounds have room to
-                // settle its large moves against the contacts: the last iteration.
-                let (rounds, levels) = if iteration >= last_iteration { (STRAIN_ROUNDS, levels) } else { (STRAIN_ROUNDS_EARLY, None) };
                 let pass = limit_strain_with_contacts(limits, levels, colliders, after, skin, &inverse_mass, rounds, clearance.as_ref())?;
                 suspects.extend_from_slice(&pass.pinched);
                 last_pinched.extend(pass.pinched);
@@ -305,7 +309,11 @@ impl Sequence {
                 self_pass::in_loop(collision, pass, before, after, &refs, skin, clearance.as_ref(), report)?;
             }
             Ok(())
-        });
+        })
+        // Where Converge's stopping rule ends the solve, the strain rounds'
+        // iterations follow once it is met: measured by the rule, the rounds
+        // (undone by the next iteration) would keep it from being met.
+        .closing(if unified.is_some() { STRAIN_EARLY_ITERATIONS + 1 } else { 0 });
         let hook: Option<&mut dyn IterationHook> =
             if any_colliders || unified.is_some() || self_collision.is_some() { Some(&mut in_loop) } else { None };
         self.deformer.solver_mut().solve(input, &mut x, options.iterations, hook)?;

@@ -33,7 +33,7 @@ mod targets;
 pub use closeness::Closeness;
 pub use constraint::{Constraint, Context, DiagonalChunk, Rows};
 pub use contacts::Sliding;
-pub use solver::{ConstraintId, IterationHook, Solver, SlidingHook};
+pub use solver::{ConstraintId, Iteration, IterationHook, Solver, SlidingHook};
 pub use stopping::{limit as iteration_limit, Tolerance, MAX_WORK_FACTOR, WORK_VERTICES};
 pub use system::SystemKind;
 pub use targets::Targets;

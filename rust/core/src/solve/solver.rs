@@ -19,13 +19,35 @@ use crate::{Error, Result};
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ConstraintId(usize);
 
+/// Where an iteration stands in its solve, as [`IterationHook::after_iteration`]
+/// is told: a hook whose work only counts at the end of a solve (strain
+/// limits' full rounds) does it where the solve ends, whatever ends it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Iteration {
+    /// 0 for the first.
+    pub index: usize,
+    /// How many iterations follow this one where the solver knows: where
+    /// the count (or limit) ends the solve, and after its stopping rule is
+    /// met (then the hook's [`IterationHook::closing_iterations`] follow).
+    /// `None` while the stopping rule may still end the solve.
+    pub remaining: Option<usize>,
+}
+
+impl Iteration {
+    /// Whether the solve ends after this iteration: nothing after the hook
+    /// moves the iterate.
+    pub fn is_last(&self) -> bool {
+        self.remaining == Some(0)
+    }
+}
+
 /// Runs after every iteration with the positions before and after it; may move
 /// vertices of `after`. This is where the second collision pass (seed 000,
 /// Algorithm 2) plugs in: detect and resolve along the path `before → after`.
 pub trait IterationHook {
     fn after_iteration(
         &mut self,
-        iteration: usize,
+        iteration: Iteration,
         before: &[Vec3],
         after: &mut [Vec3],
     ) -> Result<()>;
@@ -38,6 +60,16 @@ pub trait IterationHook {
     fn sliding(&self) -> &[Sliding] {
         &[]
     }
+
+    /// Iterations the solve runs after its stopping rule is met (within its
+    /// limit), each told how many follow it ([`Iteration::remaining`]): for
+    /// a hook whose work counts only in a solve's last iterations, so that
+    /// it is not measured by the rule (that work is undone by the iteration
+    /// after it, and the rule would not see the steps shrink). Default: 0,
+    /// the solve stops where its rule is met.
+    fn closing_iterations(&self) -> usize {
+        0
+    }
 }
 
 /// A hook that reports the vertices it leaves sliding
@@ -46,22 +78,28 @@ pub trait IterationHook {
 pub struct SlidingHook<F> {
     hook: F,
     sliding: Vec<Sliding>,
+    closing: usize,
 }
 
 impl<F> SlidingHook<F>
 where
-    F: FnMut(usize, &[Vec3], &mut [Vec3], &mut Vec<Sliding>) -> Result<()>,
+    F: FnMut(Iteration, &[Vec3], &mut [Vec3], &mut Vec<Sliding>) -> Result<()>,
 {
     pub fn new(hook: F) -> Self {
-        SlidingHook { hook, sliding: Vec::new() }
+        SlidingHook { hook, sliding: Vec::new(), closing: 0 }
+    }
+
+    /// The hook with [`IterationHook::closing_iterations`] answering `closing`.
+    pub fn closing(self, closing: usize) -> Self {
+        SlidingHook { closing, ..self }
     }
 }
 
 impl<F> IterationHook for SlidingHook<F>
 where
-    F: FnMut(usize, &[Vec3], &mut [Vec3], &mut Vec<Sliding>) -> Result<()>,
+    F: FnMut(Iteration, &[Vec3], &mut [Vec3], &mut Vec<Sliding>) -> Result<()>,
 {
-    fn after_iteration(&mut self, iteration: usize, before: &[Vec3], after: &mut [Vec3]) -> Result<()> {
+    fn after_iteration(&mut self, iteration: Iteration, before: &[Vec3], after: &mut [Vec3]) -> Result<()> {
         self.sliding.clear();
         (self.hook)(iteration, before, after, &mut self.sliding)
     }
@@ -69,19 +107,24 @@ where
     fn sliding(&self) -> &[Sliding] {
         &self.sliding
     }
+
+    fn closing_iterations(&self) -> usize {
+        self.closing
+    }
 }
 
+/// A plain closure is told the iteration's index only.
 impl<F> IterationHook for F
 where
     F: FnMut(usize, &[Vec3], &mut [Vec3]) -> Result<()>,
 {
     fn after_iteration(
         &mut self,
-        iteration: usize,
+        iteration: Iteration,
         before: &[Vec3],
         after: &mut [Vec3],
     ) -> Result<()> {
-        self(iteration, before, after)
+        self(iteration.index, before, after)
     }
 }
 
@@ -415,9 +458,21 @@ impl Solver {
             None => iterations,
         };
         self.last_iterations = limit;
+        // Once the rule is met, the hook's closing iterations follow (within
+        // the limit): `end` is then the last iteration's index.
+        let closing = hook.as_deref().map_or(0, |h| h.closing_iterations());
+        let mut end: Option<usize> = None;
         // Ping-pong between the caller's buffer and our own, copying at most once.
         let mut in_work = false;
-        for iteration in 0..limit {
+        for index in 0..limit {
+            let remaining = match (end, &stop) {
+                (Some(end), _) => Some(end - index),
+                (None, None) => Some(limit - 1 - index),
+                // The rule may still end the solve, unless the limit would
+                // end the closing iterations after it anyway.
+                (None, Some(_)) => (index + closing >= limit - 1).then(|| limit - 1 - index),
+            };
+            let iteration = Iteration { index, remaining };
             let (current, next): (&[Vec3], &mut [Vec3]) = if in_work {
                 (&self.work, &mut *positions)
             } else {
@@ -474,13 +529,20 @@ impl Solver {
                 }
             }
             in_work = !in_work;
-            if let (Some(rule), Some((step, offset))) = (stop.as_mut(), step_norms) {
+            if iteration.is_last() {
+                self.last_iterations = index + 1;
+                break;
+            }
+            if let (Some(rule), Some((step, offset)), None) = (stop.as_mut(), step_norms, end) {
                 let rms = |sum: f64| (sum / self.vertex_count as f64).sqrt();
                 // Never while contacts still appear or let go: the steps
                 // measure a map that is still changing.
                 if rule.converged(rms(step), rms(offset)) && !contacts_changed {
-                    self.last_iterations = iteration + 1;
-                    break;
+                    if closing == 0 {
+                        self.last_iterations = index + 1;
+                        break;
+                    }
+                    end = Some((index + closing).min(limit - 1));
                 }
             }
         }
