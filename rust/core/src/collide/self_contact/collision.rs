@@ -173,8 +173,37 @@ impl SelfCollision {
         if focus.is_some_and(Focus::is_empty) {
             return Vec::new();
         }
-        let bounds = NodeBounds::new(&self.tree, motion, takes_part);
-        Gather { tree: &self.tree, owns: &self.owns, bounds: &bounds, motion: *motion, reach: reach + self.rounding, cull, takes_part, accept, focus }.run()
+        let bounds = self.bounds(motion, takes_part);
+        self.gather_with(&bounds, motion, reach, cull, takes_part, accept, focus)
+    }
+
+    /// The patch tree's bounds over `motion`.
+    pub(super) fn bounds(&self, motion: &Motion<'_>, takes_part: Option<&[bool]>) -> NodeBounds {
+        NodeBounds::new(&self.tree, motion, takes_part)
+    }
+
+    /// [`Self::bounds`] made again for `motion` from those of a motion
+    /// that differed only at the vertices flagged in `changed`.
+    pub(super) fn refit_bounds(&self, bounds: &mut NodeBounds, motion: &Motion<'_>, takes_part: Option<&[bool]>, changed: &[bool]) {
+        bounds.refit_around(&self.tree, motion, takes_part, changed);
+    }
+
+    /// [`Self::gather`] with the tree's bounds over `motion` already made.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn gather_with(
+        &self,
+        bounds: &NodeBounds,
+        motion: &Motion<'_>,
+        reach: f32,
+        cull: bool,
+        takes_part: Option<&[bool]>,
+        accept: &(dyn Fn(&[u32], &[u32]) -> bool + Sync),
+        focus: Option<&Focus>,
+    ) -> Vec<ElementPair> {
+        if focus.is_some_and(Focus::is_empty) {
+            return Vec::new();
+        }
+        Gather { tree: &self.tree, owns: &self.owns, bounds, motion: *motion, reach: reach + self.rounding, cull, takes_part, accept, focus }.run()
     }
 
     /// The triangles (tree positions) with a corner among `vertices`.

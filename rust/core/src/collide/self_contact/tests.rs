@@ -227,6 +227,10 @@ fn the_in_loop_pass_reuses_its_candidates_and_holds_back_what_it_cannot_clear() 
     }
     assert!(total.contacts > 0);
     assert!(total.gathers < 10, "every pass gathered the whole skin again: {total:?}");
+    // The work figures the benchmarks print: every contact was a pair tested
+    // by CCD, every pair tested one of the lists' pairs scanned.
+    assert!(total.pairs_tested >= total.contacts && total.pairs_scanned >= total.pairs_tested, "{total:?}");
+    assert!(total.gathers > 0 && total.whole_gather_ms > 0.0 && total.rounds_ms > 0.0, "{total:?}");
 }
 
 /// An in-loop gathering sizes each vertex's margin by the iteration that
@@ -465,7 +469,7 @@ fn a_motion_matched_along_the_gathered_paths_finds_every_pair_within_reach() {
         x.iter().enumerate().map(|(v, p)| *p + 0.015 * Vec3::new((v as f32 * 1.3 + seed).sin(), (v as f32 * 2.1 + seed).cos(), (v as f32 * 0.7 + seed).sin()) / 3f32.sqrt()).collect()
     };
     let (before, after) = (wobble(drop(0.5), 0.3), wobble(drop(1.0), 1.7));
-    collision.in_loop_crossings(&mut state, &before, &after, None, &SETTINGS, &none, None).unwrap();
+    collision.in_loop_crossings(&mut state, &before, &after, None, &SETTINGS, &none, None, &mut SelfStats::default()).unwrap();
     let (start, _, _, kept) = state.as_ref().unwrap().parts();
     assert_eq!(start, still.as_slice(), "gathered again: the motion was not matched along the paths");
     assert_eq!(kept, listed.as_slice());
