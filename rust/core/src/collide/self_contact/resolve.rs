@@ -616,14 +616,13 @@ impl Pass<'_> {
     }
 
     fn gather(&self, motion: &Motion<'_>, focus: Option<&Focus>) -> Vec<ElementPair> {
-        let accept = self.accept();
-        self.collision.gather(motion, self.settings.thickness, true, self.takes_part, &accept, focus)
+        self.gather_with(None, motion, focus)
     }
 
-    /// [`Self::gather`] with the tree's bounds over `motion` already made.
-    fn gather_with(&self, bounds: &NodeBounds, motion: &Motion<'_>, focus: Option<&Focus>) -> Vec<ElementPair> {
+    /// [`Self::gather`] with the tree's bounds over `motion`, if already made.
+    fn gather_with(&self, bounds: Option<&NodeBounds>, motion: &Motion<'_>, focus: Option<&Focus>) -> Vec<ElementPair> {
         let accept = self.accept();
-        self.collision.gather_with(bounds, motion, self.settings.thickness, true, self.takes_part, &accept, focus)
+        self.collision.gather(motion, self.settings.thickness, true, self.takes_part, &accept, focus, bounds)
     }
 
     /// The candidates of `start → end` with these margins; pairs that
@@ -631,7 +630,7 @@ impl Pass<'_> {
     fn candidates(&self, start: &[Vec3], end: &[Vec3], margin: Vec<f32>) -> Candidates {
         let motion = Motion { start, end, margin: &margin };
         let bounds = self.collision.bounds(&motion, self.takes_part);
-        let pairs = self.gather_with(&bounds, &motion, None);
+        let pairs = self.gather_with(Some(&bounds), &motion, None);
         let distance: Vec<f32> = pairs.par_iter().map(|pair| distance(pair, end)).collect();
         Candidates { start: start.to_vec(), reference: end.to_vec(), margin, pairs, distance, bounds }
     }
@@ -704,7 +703,7 @@ impl Pass<'_> {
         // only such leaves, are what a fresh fit gives.
         let motion = Motion { start: &c.start, end: &c.reference, margin: &c.margin };
         self.collision.refit_bounds(&mut c.bounds, &motion, self.takes_part, left);
-        let found: Vec<ElementPair> = self.gather_with(&c.bounds, &motion, Some(&focus)).into_iter().filter(|p| touches(p)).collect();
+        let found: Vec<ElementPair> = self.gather_with(Some(&c.bounds), &motion, Some(&focus)).into_iter().filter(|p| touches(p)).collect();
         let reference = &c.reference;
         let found_distance: Vec<f32> = found.par_iter().map(|pair| distance(pair, reference)).collect();
         c.pairs = pairs;

@@ -312,7 +312,7 @@ fn a_gathering_around_some_vertices_lists_exactly_the_whole_gatherings_pairs_tha
     let margin = vec![0.002; end.len()];
     let motion = Motion { start: &mesh.positions, end: &end, margin: &margin };
     let accept = |a: &[u32], b: &[u32]| !collision.excluded(a, b);
-    let whole = collision.gather(&motion, SETTINGS.thickness, true, None, &accept, None);
+    let whole = collision.gather(&motion, SETTINGS.thickness, true, None, &accept, None, None);
     // Around a few vertices of each sheet, near the middle and at a corner.
     let mut flags = vec![false; end.len()];
     for v in [half / 2, half / 2 + 1, 0, half + half / 2, end.len() - 1] {
@@ -320,14 +320,14 @@ fn a_gathering_around_some_vertices_lists_exactly_the_whole_gatherings_pairs_tha
     }
     let touches = |pair: &super::gather::ElementPair| pair.corners.iter().any(|&v| flags[v as usize]);
     let mut expected: Vec<_> = whole.iter().copied().filter(touches).collect();
-    let mut found: Vec<_> = collision.gather(&motion, SETTINGS.thickness, true, None, &accept, Some(&collision.focus_around(&flags))).into_iter().filter(touches).collect();
+    let mut found: Vec<_> = collision.gather(&motion, SETTINGS.thickness, true, None, &accept, Some(&collision.focus_around(&flags)), None).into_iter().filter(touches).collect();
     assert!(!expected.is_empty(), "the sag brings the middle within reach");
     expected.sort_unstable();
     found.sort_unstable();
     assert_eq!(found, expected);
     // Nothing in focus: nothing to list.
     let none = collision.focus_around(&vec![false; end.len()]);
-    assert!(collision.gather(&motion, SETTINGS.thickness, true, None, &accept, Some(&none)).is_empty());
+    assert!(collision.gather(&motion, SETTINGS.thickness, true, None, &accept, Some(&none), None).is_empty());
 }
 
 #[test]
@@ -353,7 +353,7 @@ fn whole_gathering(collision: &SelfCollision, candidates: &Candidates) -> Vec<su
     use super::bounds::Motion;
     let (start, reference, margin, _) = candidates.parts();
     let accept = |a: &[u32], b: &[u32]| !collision.excluded(a, b);
-    collision.gather(&Motion { start, end: reference, margin }, SETTINGS.thickness, true, None, &accept, None)
+    collision.gather(&Motion { start, end: reference, margin }, SETTINGS.thickness, true, None, &accept, None, None)
 }
 
 #[test]
@@ -475,7 +475,7 @@ fn a_motion_matched_along_the_gathered_paths_finds_every_pair_within_reach() {
     assert_eq!(kept, listed.as_slice());
     let accept = |a: &[u32], b: &[u32]| !collision.excluded(a, b);
     let zero = vec![0.0; still.len()];
-    let needed = collision.gather(&Motion { start: &before, end: &after, margin: &zero }, SETTINGS.thickness, true, None, &accept, None);
+    let needed = collision.gather(&Motion { start: &before, end: &after, margin: &zero }, SETTINGS.thickness, true, None, &accept, None, None);
     assert!(!needed.is_empty(), "the motion brings the sheets within reach");
     let missing: Vec<_> = needed.iter().filter(|p| !listed.contains(p)).collect();
     assert!(missing.is_empty(), "{} of {} pairs within reach not listed: {:?}", missing.len(), needed.len(), &missing[..missing.len().min(5)]);
