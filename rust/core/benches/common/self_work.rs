@@ -20,7 +20,22 @@ pub fn cpu_seconds() -> Option<f64> {
 /// A step's self-collision phases and gatherings, as one line's tail.
 pub fn work_line(w: &SelfWork) -> String {
     format!(
-        "phases ms: begin {:.1}, first pass {:.1}, in-loop rounds {:.1}, in-loop fail-safe {:.1}, tangles {:.1}; gathers {} whole + {} around, most candidates {}",
-        w.begin_ms, w.first_pass_ms, w.in_loop_rounds_ms, w.in_loop_fail_safe_ms, w.tangles_ms, w.gathers, w.gathers_around, w.most_candidates
+        "phases ms: begin {:.1}, first pass {:.1}, in-loop rounds {:.1}, in-loop fail-safe {:.1}, tangles {:.1}; gathers {} whole + {} around, most candidates {}; \
+         within, ms: first gathers {:.1}, in-loop gathers {:.1}, around {:.1}, round tests {:.1}, fail-safe checks {:.1}; pairs scanned {}, tested {}",
+        w.begin_ms,
+        w.first_pass_ms,
+        w.in_loop_rounds_ms,
+        w.in_loop_fail_safe_ms,
+        w.tangles_ms,
+        w.gathers,
+        w.gathers_around,
+        w.most_candidates,
+        w.first_gather_ms,
+        w.in_loop_gather_ms,
+        w.around_gather_ms,
+        w.rounds_ms,
+        w.fail_safe_checks_ms,
+        w.pairs_scanned,
+        w.pairs_tested
     )
 }

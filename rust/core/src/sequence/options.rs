@@ -180,6 +180,19 @@ pub struct SelfWork {
     pub gathers_around: usize,
     /// The most candidate pairs one pass held.
     pub most_candidates: usize,
+    /// Within the phases above: the first passes' gatherings over the whole
+    /// skin, the in-loop passes' ones, the gatherings around a few
+    /// vertices (of both), the rounds' pair tests and projections (of
+    /// both), and the fail-safes' checks of the skin (of both).
+    pub first_gather_ms: f64,
+    pub in_loop_gather_ms: f64,
+    pub around_gather_ms: f64,
+    pub rounds_ms: f64,
+    pub fail_safe_checks_ms: f64,
+    /// Candidate pairs the rounds and fail-safe checks went over (each its
+    /// whole list, over the step), and of those the pairs tested by CCD.
+    pub pairs_scanned: usize,
+    pub pairs_tested: usize,
 }
 
 /// Adds a substep's first-pass figures to the frame's.

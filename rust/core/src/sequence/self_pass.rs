@@ -23,7 +23,7 @@ use glam::Vec3;
 
 use super::options::{SelfOptions, StepReport};
 use super::Sequence;
-use crate::collide::{Candidates, Clearance, Collider, ColliderSet, ResolveParams, SelfCollision, SelfSettings, Skin, Tangles};
+use crate::collide::{Candidates, Clearance, Collider, ColliderSet, ResolveParams, SelfCollision, SelfSettings, SelfStats, Skin, Tangles};
 use crate::mesh::MeshInput;
 use crate::{Error, Result};
 
@@ -107,11 +107,23 @@ fn milliseconds(since: Instant) -> f64 {
     1000.0 * since.elapsed().as_secs_f64()
 }
 
-/// Adds a pass's gatherings and candidate count to the report's figures.
-fn count_work(report: &mut StepReport, gathers: usize, around: usize, candidates: Option<&Candidates>) {
-    report.self_work.gathers += gathers;
-    report.self_work.gathers_around += around;
-    report.self_work.most_candidates = report.self_work.most_candidates.max(candidates.map_or(0, Candidates::len));
+/// Adds a pass's gatherings, candidate count and work to the report's
+/// figures; `first`: whether it is the first pass.
+fn count_work(report: &mut StepReport, stats: &SelfStats, first: bool, candidates: Option<&Candidates>) {
+    let work = &mut report.self_work;
+    work.gathers += stats.gathers;
+    work.gathers_around += stats.gathers_around;
+    work.most_candidates = work.most_candidates.max(candidates.map_or(0, Candidates::len));
+    if first {
+        work.first_gather_ms += stats.whole_gather_ms;
+    } else {
+        work.in_loop_gather_ms += stats.whole_gather_ms;
+    }
+    work.around_gather_ms += stats.around_gather_ms;
+    work.rounds_ms += stats.rounds_ms;
+    work.fail_safe_checks_ms += stats.fail_safe_ms;
+    work.pairs_scanned += stats.pairs_scanned;
+    work.pairs_tested += stats.pairs_tested;
 }
 
 
@@ -134,9 +146,13 @@ pub(super) fn first_pass(
     // ended) paired up the character's closing fold by the million: 9.8M
     // candidates where the least margins list 76k (issue 30, eighth round).
     let least = vec![0.0; x.len()];
+    let gathering = Instant::now();
     pass.candidates = Some(collision.candidates(x_n, x, &least, &pass.settings, &pass.tangles, part)?);
-    let stats = collision.resolve_path(&mut pass.candidates, x_n, x, &pass.settings, &pass.tangles, part)?;
-    count_work(report, 1 + stats.gathers, stats.gathers_around, pass.candidates.as_ref());
+    let gathered_ms = milliseconds(gathering);
+    let mut stats = collision.resolve_path(&mut pass.candidates, x_n, x, &pass.settings, &pass.tangles, part)?;
+    stats.gathers += 1;
+    stats.whole_gather_ms += gathered_ms;
+    count_work(report, &stats, true, pass.candidates.as_ref());
     report.self_work.first_pass_ms += milliseconds(began);
     report.self_contacts += stats.contacts;
     report.self_held += stats.held.len();
@@ -168,7 +184,7 @@ pub(super) fn in_loop(
     let (settings, tangles, part) = (&pass.settings, &pass.tangles, pass.takes_part.as_deref());
     let stats = collision.resolve_in_loop(&mut pass.candidates, before, after, settings, tangles, part)?;
     report.self_contacts += stats.contacts;
-    count_work(report, stats.gathers, stats.gathers_around, pass.candidates.as_ref());
+    count_work(report, &stats, false, pass.candidates.as_ref());
     let set = ColliderSet::new(colliders.iter().copied());
     let params = ResolveParams::in_loop();
     if !colliders.is_empty() && stats.contacts > 0 {
@@ -181,13 +197,15 @@ pub(super) fn in_loop(
     let began = Instant::now();
     let mut touching: Option<Vec<bool>> = None;
     let mut last: Vec<u32> = Vec::new();
+    let mut checks = SelfStats::default();
     loop {
-        let mut bad = collision.in_loop_crossings(&mut pass.candidates, before, after, touching.as_deref(), settings, tangles, part)?;
+        let mut bad = collision.in_loop_crossings(&mut pass.candidates, before, after, touching.as_deref(), settings, tangles, part, &mut checks)?;
         bad.extend(set.violations(before, after, skin, &last, &params));
         bad.retain(|&v| after[v as usize] != before[v as usize]);
         bad.sort_unstable();
         bad.dedup();
         if bad.is_empty() {
+            count_work(report, &checks, false, pass.candidates.as_ref());
             report.self_work.in_loop_fail_safe_ms += milliseconds(began);
             return Ok(());
         }

@@ -108,6 +108,7 @@ impl Span {
 }
 
 /// The bounds of every node of a tree over one motion.
+#[derive(Debug, Clone)]
 pub(super) struct NodeBounds {
     pub span: Vec<Span>,
     pub cone: Vec<Cone>,
@@ -256,8 +257,33 @@ impl NodeBounds {
     /// triangle at tree position `p` is tested at all (None: all are).
     pub(super) fn new(tree: &PatchTree, motion: &Motion<'_>, takes_part: Option<&[bool]>) -> Self {
         let count = tree.nodes.len();
-        let leaf_bounds: Vec<(Span, Cone, bool)> = tree
-            .leaves
+        let mut bounds = NodeBounds { span: vec![Span::EMPTY; count], cone: vec![Cone::EMPTY; count], active: vec![false; count] };
+        bounds.fit_leaves(tree, motion, takes_part, &tree.leaves);
+        bounds.fit_parents(tree, None);
+        bounds
+    }
+
+    /// The bounds [`Self::new`] gives for `motion`, from those of a motion
+    /// that differed from it only at the vertices flagged in `changed`: only
+    /// the leaves with such a corner and their ancestors are fitted again.
+    /// Every node is the same function of its leaves' triangles as in
+    /// `new`, evaluated in the same order, and a leaf with no changed corner
+    /// has the same triangles' paths and margins: the result is `new`'s, bit
+    /// for bit.
+    pub(super) fn refit_around(&mut self, tree: &PatchTree, motion: &Motion<'_>, takes_part: Option<&[bool]>, changed: &[bool]) {
+        let touched = |p: usize| tree.triangles[p].iter().any(|&v| changed[v as usize]);
+        let leaves: Vec<u32> = tree.leaves.par_iter().with_min_len(256).filter(|&&leaf| tree.nodes[leaf as usize].range().any(touched)).copied().collect();
+        self.fit_leaves(tree, motion, takes_part, &leaves);
+        let mut dirty = vec![false; tree.nodes.len()];
+        for &leaf in &leaves {
+            dirty[leaf as usize] = true;
+        }
+        self.fit_parents(tree, Some(&mut dirty));
+    }
+
+    /// Fits the bounds of these leaves.
+    fn fit_leaves(&mut self, tree: &PatchTree, motion: &Motion<'_>, takes_part: Option<&[bool]>, leaves: &[u32]) {
+        let fitted: Vec<(Span, Cone, bool)> = leaves
             .par_iter()
             .with_min_len(64)
             .map(|&leaf| {
@@ -272,22 +298,32 @@ impl NodeBounds {
                 (span, cone, active)
             })
             .collect();
-        let mut bounds = NodeBounds { span: vec![Span::EMPTY; count], cone: vec![Cone::EMPTY; count], active: vec![false; count] };
-        for (&leaf, (span, cone, active)) in tree.leaves.iter().zip(leaf_bounds) {
+        for (&leaf, (span, cone, active)) in leaves.iter().zip(fitted) {
             let i = leaf as usize;
-            (bounds.span[i], bounds.cone[i], bounds.active[i]) = (span, cone, active);
+            (self.span[i], self.cone[i], self.active[i]) = (span, cone, active);
         }
-        for i in (0..count).rev() {
+    }
+
+    /// Fits every inner node from its children (children come after their
+    /// parent in the tree's order), or only those above a `dirty` node,
+    /// flagging them dirty in turn.
+    fn fit_parents(&mut self, tree: &PatchTree, mut dirty: Option<&mut [bool]>) {
+        for i in (0..tree.nodes.len()).rev() {
             let node = tree.nodes[i];
             if node.is_leaf() {
                 continue;
             }
             let (l, r) = (node.left as usize, node.left as usize + 1);
-            bounds.span[i] = bounds.span[l].union(bounds.span[r]);
-            bounds.cone[i] = bounds.cone[l].union(bounds.cone[r]);
-            bounds.active[i] = bounds.active[l] || bounds.active[r];
+            if let Some(d) = dirty.as_deref_mut() {
+                if !(d[l] || d[r]) {
+                    continue;
+                }
+                d[i] = true;
+            }
+            self.span[i] = self.span[l].union(self.span[r]);
+            self.cone[i] = self.cone[l].union(self.cone[r]);
+            self.active[i] = self.active[l] || self.active[r];
         }
-        bounds
     }
 
     /// Whether node `i` provably cannot touch itself anywhere over the
@@ -432,6 +468,31 @@ mod tests {
     use crate::collide::self_contact::tree::loop_index;
     use crate::mesh::shapes::grid;
     use crate::mesh::MeshInput;
+
+    #[test]
+    fn bounds_refitted_around_a_few_vertices_are_those_fitted_afresh() {
+        let g = grid(24, 24, 1.0);
+        let tree = PatchTree::of_mesh(g.input());
+        let n = g.positions.len();
+        let bent: Vec<Vec3> = g.positions.iter().map(|p| Vec3::new(p.x, p.y, 0.3 * (2.0 * p.x).sin() * p.y)).collect();
+        let margin: Vec<f32> = (0..n).map(|v| 1e-3 * (v % 7) as f32).collect();
+        let mut bounds = NodeBounds::new(&tree, &Motion { start: &g.positions, end: &bent, margin: &margin }, None);
+        // A few vertices get a new start, end and margin, as a gathering
+        // around them gives them.
+        let changed: Vec<bool> = (0..n).map(|v| v % 97 == 5 || v == n / 2).collect();
+        let (mut start, mut end, mut wider) = (g.positions.clone(), bent.clone(), margin.clone());
+        for v in (0..n).filter(|&v| changed[v]) {
+            start[v] += Vec3::new(0.01, -0.02, 0.03);
+            end[v] += Vec3::new(-0.04, 0.0, 0.2);
+            wider[v] = 0.05;
+        }
+        let moved = Motion { start: &start, end: &end, margin: &wider };
+        let before = format!("{bounds:?}");
+        bounds.refit_around(&tree, &moved, None, &changed);
+        let afresh = NodeBounds::new(&tree, &moved, None);
+        assert_ne!(before, format!("{afresh:?}"), "the change must show in the bounds");
+        assert_eq!(format!("{bounds:?}"), format!("{afresh:?}"), "refitted around the changed vertices, bit for bit");
+    }
 
     #[test]
     fn a_flat_grid_cannot_touch_itself_a_folded_one_can() {

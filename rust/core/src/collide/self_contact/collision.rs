@@ -113,7 +113,7 @@ impl SelfCollision {
             let motion = Motion { start: &self.rest, end: &self.rest, margin: &zero };
             let exclusion = &self.exclusion;
             let accept = |a: &[u32], b: &[u32]| !exclusion.excluded(a, b);
-            let pairs = self.gather(&motion, thickness, true, None, &accept, None);
+            let pairs = self.gather(&motion, thickness, true, None, &accept, None, None);
             let close: Vec<(ElementPair, f32)> = pairs
                 .into_par_iter()
                 .filter_map(|pair| {
@@ -160,7 +160,9 @@ impl SelfCollision {
     }
 
     /// Runs a gathering over `motion` (only pairs with a triangle in
-    /// `focus`, if given).
+    /// `focus`, if given), with the tree's `bounds` over it if already
+    /// made ([`Self::bounds`]), else fitting them.
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn gather(
         &self,
         motion: &Motion<'_>,
@@ -169,12 +171,31 @@ impl SelfCollision {
         takes_part: Option<&[bool]>,
         accept: &(dyn Fn(&[u32], &[u32]) -> bool + Sync),
         focus: Option<&Focus>,
+        bounds: Option<&NodeBounds>,
     ) -> Vec<ElementPair> {
         if focus.is_some_and(Focus::is_empty) {
             return Vec::new();
         }
-        let bounds = NodeBounds::new(&self.tree, motion, takes_part);
-        Gather { tree: &self.tree, owns: &self.owns, bounds: &bounds, motion: *motion, reach: reach + self.rounding, cull, takes_part, accept, focus }.run()
+        let fitted;
+        let bounds = match bounds {
+            Some(b) => b,
+            None => {
+                fitted = self.bounds(motion, takes_part);
+                &fitted
+            }
+        };
+        Gather { tree: &self.tree, owns: &self.owns, bounds, motion: *motion, reach: reach + self.rounding, cull, takes_part, accept, focus }.run()
+    }
+
+    /// The patch tree's bounds over `motion`.
+    pub(super) fn bounds(&self, motion: &Motion<'_>, takes_part: Option<&[bool]>) -> NodeBounds {
+        NodeBounds::new(&self.tree, motion, takes_part)
+    }
+
+    /// [`Self::bounds`] made again for `motion` from those of a motion
+    /// that differed only at the vertices flagged in `changed`.
+    pub(super) fn refit_bounds(&self, bounds: &mut NodeBounds, motion: &Motion<'_>, takes_part: Option<&[bool]>, changed: &[bool]) {
+        bounds.refit_around(&self.tree, motion, takes_part, changed);
     }
 
     /// The triangles (tree positions) with a corner among `vertices`.

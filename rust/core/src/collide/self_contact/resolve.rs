@@ -46,11 +46,12 @@
 //! each other, so that an intersection the input already had can come apart.
 
 use std::collections::BTreeMap;
+use std::time::Instant;
 
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
-use super::bounds::Motion;
+use super::bounds::{Motion, NodeBounds};
 use super::collision::{distance, SelfCollision};
 use super::contact::{correction, first_contact, ContactParams};
 use super::gather::{ElementPair, Focus};
@@ -172,7 +173,9 @@ impl Tangles {
 }
 
 /// The candidate pairs of a stretch of motion (see the module
-/// documentation), shared by the passes of a substep.
+/// documentation), shared by the passes of a substep: all with the same
+/// settings, tangles and weights, under which the pairs it keeps were
+/// listed and its tree bounds fitted.
 #[derive(Debug, Clone)]
 pub struct Candidates {
     /// Where the straight paths start, and where they end: the state the
@@ -184,6 +187,12 @@ pub struct Candidates {
     pairs: Vec<ElementPair>,
     /// Each pair's distance at `reference`.
     distance: Vec<f32>,
+    /// The patch tree's bounds over these paths and margins, refitted where
+    /// a gathering around a few vertices changes theirs: only the leaves
+    /// holding them and the nodes above are fitted again, where fitting the
+    /// whole tree for each such gathering made up about a tenth of the
+    /// character's straight frames (issue 30, tenth round).
+    bounds: NodeBounds,
 }
 
 impl Candidates {
@@ -309,13 +318,27 @@ enum Gathered {
 }
 
 impl SelfStats {
-    fn count(&mut self, gathered: Gathered) {
+    /// Counts a gathering that took `ms`.
+    fn count(&mut self, gathered: Gathered, ms: f64) {
         match gathered {
             Gathered::Nothing => {}
-            Gathered::Around => self.gathers_around += 1,
-            Gathered::Whole => self.gathers += 1,
+            Gathered::Around => {
+                self.gathers_around += 1;
+                self.around_gather_ms += ms;
+            }
+            Gathered::Whole => {
+                self.gathers += 1;
+                self.whole_gather_ms += ms;
+            }
         }
     }
+}
+
+/// Runs `f`, returning what it returned and how long it took (wall-clock ms).
+fn timed<T>(f: impl FnOnce() -> T) -> (T, f64) {
+    let began = Instant::now();
+    let out = f();
+    (out, 1000.0 * began.elapsed().as_secs_f64())
 }
 
 /// What one pass works with.
@@ -408,8 +431,9 @@ impl SelfCollision {
         let fits = |c: &Candidates, end: &[Vec3]| c.start.as_slice() == start && c.holds(&[end]);
         if !candidates.as_ref().is_some_and(|c| fits(c, end)) {
             let margin = candidates.take().map_or_else(|| vec![self.margin_floor(settings); self.vertex_count], |c| c.margin);
-            *candidates = Some(pass.candidates(start, end, margin));
-            stats.gathers += 1;
+            let (gathered, ms) = timed(|| pass.candidates(start, end, margin));
+            *candidates = Some(gathered);
+            stats.count(Gathered::Whole, ms);
         }
         let mut moved: Option<Vec<bool>> = None;
         let mut converged = false;
@@ -417,7 +441,7 @@ impl SelfCollision {
             stats.rounds += 1;
             let current = candidates.as_ref().expect("gathered");
             debug_assert!(current.start.as_slice() == start, "the candidates are of this path");
-            let (contacts, changes) = pass.round(&current.pairs, start, end, moved.as_deref(), |_| false);
+            let (contacts, changes) = pass.round(&current.pairs, start, end, moved.as_deref(), |_| false, &mut stats);
             stats.contacts += contacts;
             if changes.is_empty() {
                 converged = true;
@@ -439,15 +463,16 @@ impl SelfCollision {
             }
             let margin: Vec<f32> = (0..end.len()).map(|v| if left[v] { c.margin[v].max((end[v] - c.reference[v]).length()) } else { c.margin[v] }).collect();
             if count <= end.len() / AROUND_FIRST_PASS {
-                pass.gather_around(c, &left, start, end, &margin);
-                stats.gathers_around += 1;
+                let ((), ms) = timed(|| pass.gather_around(c, &left, start, end, &margin));
+                stats.count(Gathered::Around, ms);
                 // The pairs listed again have a corner among `left`: the
                 // next round looks at them, as at every pair of a moved vertex.
                 flags.iter_mut().zip(&left).for_each(|(f, l)| *f |= l);
                 moved = Some(flags);
             } else {
-                *candidates = Some(pass.candidates(start, end, margin));
-                stats.gathers += 1;
+                let (gathered, ms) = timed(|| pass.candidates(start, end, margin));
+                *candidates = Some(gathered);
+                stats.count(Gathered::Whole, ms);
                 moved = None;
             }
         }
@@ -466,7 +491,7 @@ impl SelfCollision {
         let pass = self.pass(settings, tangles, takes_part)?;
         let zero = vec![0.0; self.vertex_count];
         let pairs = pass.gather(&Motion { start, end, margin: &zero }, None);
-        Ok(pass.crossing_corners(&pairs, start, end, None))
+        Ok(pass.crossing_corners(&pairs, start, end, None).0)
     }
 
     /// Makes the in-loop motion `before → after` free of new
@@ -489,13 +514,14 @@ impl SelfCollision {
         let pass = self.pass(settings, tangles, takes_part)?;
         let requested = after.to_vec();
         let mut stats = SelfStats::default();
-        stats.count(pass.ensure(candidates, before, after));
+        let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
+        stats.count(gathered, ms);
         let mut moved: Option<Vec<bool>> = None;
         for _ in 0..SELF_ROUNDS {
             stats.rounds += 1;
             let current = candidates.as_ref().expect("ensured");
             let skip = |k: usize| current.proves_apart(k, before, after, &pass);
-            let (contacts, changes) = pass.round(&current.pairs, before, after, moved.as_deref(), skip);
+            let (contacts, changes) = pass.round(&current.pairs, before, after, moved.as_deref(), skip, &mut stats);
             stats.contacts += contacts;
             if changes.is_empty() {
                 break;
@@ -506,9 +532,9 @@ impl SelfCollision {
                 flags[v as usize] = true;
             }
             moved = Some(flags);
-            let gathered = pass.ensure(candidates, before, after);
+            let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
             if gathered != Gathered::Nothing {
-                stats.count(gathered);
+                stats.count(gathered, ms);
                 moved = None;
             }
         }
@@ -518,7 +544,7 @@ impl SelfCollision {
 
     /// The fail-safe's check in the in-loop passes: the vertices (of pairs
     /// touching `touching`, or all) of pairs whose paths `before → after`
-    /// may cross.
+    /// may cross. Its work is added to `stats`.
     #[allow(clippy::too_many_arguments)]
     pub fn in_loop_crossings(
         &self,
@@ -529,9 +555,12 @@ impl SelfCollision {
         settings: &SelfSettings,
         tangles: &Tangles,
         takes_part: Option<&[bool]>,
+        stats: &mut SelfStats,
     ) -> Result<Vec<u32>> {
         let pass = self.pass(settings, tangles, takes_part)?;
-        pass.ensure(candidates, before, after);
+        let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
+        stats.count(gathered, ms);
+        let began = Instant::now();
         let current = candidates.as_ref().expect("ensured");
         let open: Vec<ElementPair> = (0..current.pairs.len())
             .into_par_iter()
@@ -539,7 +568,11 @@ impl SelfCollision {
             .filter(|&k| !current.proves_apart(k, before, after, &pass))
             .map(|k| current.pairs[k])
             .collect();
-        Ok(pass.crossing_corners(&open, before, after, touching))
+        let (bad, tested) = pass.crossing_corners(&open, before, after, touching);
+        stats.pairs_scanned += current.pairs.len();
+        stats.pairs_tested += tested;
+        stats.fail_safe_ms += 1000.0 * began.elapsed().as_secs_f64();
+        Ok(bad)
     }
 
     /// [`Self::in_loop_crossings`] until none is left, putting each crossing
@@ -557,8 +590,9 @@ impl SelfCollision {
     ) -> Result<Vec<u32>> {
         let mut held = Vec::new();
         let mut touching: Option<Vec<bool>> = None;
+        let mut work = SelfStats::default();
         loop {
-            let bad = self.in_loop_crossings(candidates, before, after, touching.as_deref(), settings, tangles, takes_part)?;
+            let bad = self.in_loop_crossings(candidates, before, after, touching.as_deref(), settings, tangles, takes_part, &mut work)?;
             if bad.is_empty() {
                 break;
             }
@@ -582,16 +616,23 @@ impl Pass<'_> {
     }
 
     fn gather(&self, motion: &Motion<'_>, focus: Option<&Focus>) -> Vec<ElementPair> {
+        self.gather_with(None, motion, focus)
+    }
+
+    /// [`Self::gather`] with the tree's bounds over `motion`, if already made.
+    fn gather_with(&self, bounds: Option<&NodeBounds>, motion: &Motion<'_>, focus: Option<&Focus>) -> Vec<ElementPair> {
         let accept = self.accept();
-        self.collision.gather(motion, self.settings.thickness, true, self.takes_part, &accept, focus)
+        self.collision.gather(motion, self.settings.thickness, true, self.takes_part, &accept, focus, bounds)
     }
 
     /// The candidates of `start → end` with these margins; pairs that
     /// cannot come within their separation near the end are dropped.
     fn candidates(&self, start: &[Vec3], end: &[Vec3], margin: Vec<f32>) -> Candidates {
-        let pairs = self.gather(&Motion { start, end, margin: &margin }, None);
+        let motion = Motion { start, end, margin: &margin };
+        let bounds = self.collision.bounds(&motion, self.takes_part);
+        let pairs = self.gather_with(Some(&bounds), &motion, None);
         let distance: Vec<f32> = pairs.par_iter().map(|pair| distance(pair, end)).collect();
-        Candidates { start: start.to_vec(), reference: end.to_vec(), margin, pairs, distance }
+        Candidates { start: start.to_vec(), reference: end.to_vec(), margin, pairs, distance, bounds }
     }
 
     /// Gathers the in-loop candidates again if the motion `before → after`
@@ -657,7 +698,12 @@ impl Pass<'_> {
         let touches = |pair: &ElementPair| pair.corners.iter().any(|&v| left[v as usize]);
         let (pairs, kept_distance): (Vec<ElementPair>, Vec<f32>) = c.pairs.iter().zip(&c.distance).filter(|(pair, _)| !touches(pair)).map(|(p, d)| (*p, *d)).unzip();
         let focus = self.collision.focus_around(left);
-        let found: Vec<ElementPair> = self.gather(&Motion { start: &c.start, end: &c.reference, margin: &c.margin }, Some(&focus)).into_iter().filter(|p| touches(p)).collect();
+        // Only the vertices `left` changed path or margin: the bounds of the
+        // leaves without one of them as a corner, and of the nodes above
+        // only such leaves, are what a fresh fit gives.
+        let motion = Motion { start: &c.start, end: &c.reference, margin: &c.margin };
+        self.collision.refit_bounds(&mut c.bounds, &motion, self.takes_part, left);
+        let found: Vec<ElementPair> = self.gather_with(Some(&c.bounds), &motion, Some(&focus)).into_iter().filter(|p| touches(p)).collect();
         let reference = &c.reference;
         let found_distance: Vec<f32> = found.par_iter().map(|pair| distance(pair, reference)).collect();
         c.pairs = pairs;
@@ -667,7 +713,8 @@ impl Pass<'_> {
     }
 
     /// One round: the corrections of every pair touching a moved vertex (or
-    /// all) and not proven apart by `skip`, averaged per vertex.
+    /// all) and not proven apart by `skip`, averaged per vertex. Its work
+    /// is added to `stats`.
     fn round(
         &self,
         pairs: &[ElementPair],
@@ -675,19 +722,37 @@ impl Pass<'_> {
         end: &[Vec3],
         moved: Option<&[bool]>,
         skip: impl Fn(usize) -> bool + Sync,
+        stats: &mut SelfStats,
     ) -> (usize, Vec<(u32, Vec3)>) {
-        let found: Vec<(usize, [DVec3; 4])> = (0..pairs.len())
+        let began = Instant::now();
+        // Folded per chunk and concatenated in order: the same corrections,
+        // in the same order, as a plain filter, with the count of pairs tested.
+        let (tested, found): (usize, Vec<(usize, [DVec3; 4])>) = (0..pairs.len())
             .into_par_iter()
             .with_min_len(256)
             .filter(|&k| moved.is_none_or(|m| pairs[k].corners.iter().any(|&v| m[v as usize])))
             .filter(|&k| !skip(k))
-            .filter_map(|k| {
-                let pair = &pairs[k];
-                let separation = self.collision.pair_separation(pair);
-                let hit = first_contact(pair, start, end, separation, self.params.tolerance)?;
-                correction(pair, start, end, &hit, separation, &self.params).map(|c| (k, c))
-            })
-            .collect();
+            .fold(
+                || (0, Vec::new()),
+                |(tested, mut found), k| {
+                    let pair = &pairs[k];
+                    let separation = self.collision.pair_separation(pair);
+                    let hit = first_contact(pair, start, end, separation, self.params.tolerance);
+                    if let Some(c) = hit.and_then(|hit| correction(pair, start, end, &hit, separation, &self.params)) {
+                        found.push((k, c));
+                    }
+                    (tested + 1, found)
+                },
+            )
+            .reduce(
+                || (0, Vec::new()),
+                |(a, mut left), (b, right)| {
+                    left.extend(right);
+                    (a + b, left)
+                },
+            );
+        stats.pairs_scanned += pairs.len();
+        stats.pairs_tested += tested;
         let mut sum: BTreeMap<u32, (DVec3, u32)> = BTreeMap::new();
         for (k, deltas) in &found {
             for (&v, delta) in pairs[*k].corners.iter().zip(deltas) {
@@ -703,24 +768,30 @@ impl Pass<'_> {
                 p.is_finite().then_some((v, p))
             })
             .collect();
+        stats.rounds_ms += 1000.0 * began.elapsed().as_secs_f64();
         (found.len(), changes)
     }
 
     /// The corners (of pairs touching `touching`, or all) of `pairs` whose
-    /// paths may cross, leaving out pairs none of whose corners moved.
-    fn crossing_corners(&self, pairs: &[ElementPair], start: &[Vec3], end: &[Vec3], touching: Option<&[bool]>) -> Vec<u32> {
+    /// paths may cross, leaving out pairs none of whose corners moved; and
+    /// how many pairs were tested.
+    fn crossing_corners(&self, pairs: &[ElementPair], start: &[Vec3], end: &[Vec3], touching: Option<&[bool]>) -> (Vec<u32>, usize) {
         let moved = |v: u32| start[v as usize] != end[v as usize];
-        let mut bad: Vec<u32> = pairs
+        let tested: Vec<&ElementPair> = pairs
             .par_iter()
             .with_min_len(256)
             .filter(|pair| touching.is_none_or(|t| pair.corners.iter().any(|&v| t[v as usize])))
             .filter(|pair| pair.corners.iter().any(|&v| moved(v)))
+            .collect();
+        let mut bad: Vec<u32> = tested
+            .par_iter()
+            .with_min_len(256)
             .filter(|pair| first_contact(pair, start, end, 0.0, self.params.tolerance).is_some())
             .flat_map_iter(|pair| pair.corners.into_iter().filter(|&v| moved(v)))
             .collect();
         bad.sort_unstable();
         bad.dedup();
-        bad
+        (bad, tested.len())
     }
 
     /// The first pass's fail-safe: puts the corners of crossing pairs back at
@@ -735,10 +806,17 @@ impl Pass<'_> {
         let mut held = Vec::new();
         let mut batch: Option<Vec<bool>> = None;
         loop {
-            let focus = batch.as_deref().map(|b| self.collision.focus_around(b));
-            let pairs = self.gather(&Motion { start, end, margin: &zero }, focus.as_ref());
-            stats.count(if focus.is_some() { Gathered::Around } else { Gathered::Whole });
-            let bad = self.crossing_corners(&pairs, start, end, batch.as_deref());
+            let ((focus, pairs), ms) = timed(|| {
+                let focus = batch.as_deref().map(|b| self.collision.focus_around(b));
+                let pairs = self.gather(&Motion { start, end, margin: &zero }, focus.as_ref());
+                (focus, pairs)
+            });
+            stats.count(if focus.is_some() { Gathered::Around } else { Gathered::Whole }, ms);
+            let began = Instant::now();
+            let (bad, tested) = self.crossing_corners(&pairs, start, end, batch.as_deref());
+            stats.pairs_scanned += pairs.len();
+            stats.pairs_tested += tested;
+            stats.fail_safe_ms += 1000.0 * began.elapsed().as_secs_f64();
             if bad.is_empty() {
                 break;
             }

@@ -67,6 +67,19 @@ pub struct SelfStats {
     pub gathers_around: usize,
     /// Largest correction of one vertex.
     pub max_correction: f32,
+    /// Where the pass's time went, wall-clock milliseconds (for traces and
+    /// benchmarks, never for decisions): gatherings over the whole skin,
+    /// gatherings around a few vertices, the rounds' pair tests and
+    /// projections, the fail-safe's checks (their gatherings included).
+    pub whole_gather_ms: f64,
+    pub around_gather_ms: f64,
+    pub rounds_ms: f64,
+    pub fail_safe_ms: f64,
+    /// Pairs the rounds and fail-safe checks went over (each its whole
+    /// list), and of those the pairs tested by CCD: touching a vertex that
+    /// moved and not proven apart without it.
+    pub pairs_scanned: usize,
+    pub pairs_tested: usize,
 }
 
 #[cfg(test)]
@@ -83,5 +96,11 @@ impl SelfStats {
         self.gathers += other.gathers;
         self.gathers_around += other.gathers_around;
         self.max_correction = self.max_correction.max(other.max_correction);
+        self.whole_gather_ms += other.whole_gather_ms;
+        self.around_gather_ms += other.around_gather_ms;
+        self.rounds_ms += other.rounds_ms;
+        self.fail_safe_ms += other.fail_safe_ms;
+        self.pairs_scanned += other.pairs_scanned;
+        self.pairs_tested += other.pairs_tested;
     }
 }

@@ -227,6 +227,10 @@ fn the_in_loop_pass_reuses_its_candidates_and_holds_back_what_it_cannot_clear() 
     }
     assert!(total.contacts > 0);
     assert!(total.gathers < 10, "every pass gathered the whole skin again: {total:?}");
+    // The work figures the benchmarks print: every contact was a pair tested
+    // by CCD, every pair tested one of the lists' pairs scanned.
+    assert!(total.pairs_tested >= total.contacts && total.pairs_scanned >= total.pairs_tested, "{total:?}");
+    assert!(total.gathers > 0 && total.whole_gather_ms > 0.0 && total.rounds_ms > 0.0, "{total:?}");
 }
 
 /// An in-loop gathering sizes each vertex's margin by the iteration that
@@ -308,7 +312,7 @@ fn a_gathering_around_some_vertices_lists_exactly_the_whole_gatherings_pairs_tha
     let margin = vec![0.002; end.len()];
     let motion = Motion { start: &mesh.positions, end: &end, margin: &margin };
     let accept = |a: &[u32], b: &[u32]| !collision.excluded(a, b);
-    let whole = collision.gather(&motion, SETTINGS.thickness, true, None, &accept, None);
+    let whole = collision.gather(&motion, SETTINGS.thickness, true, None, &accept, None, None);
     // Around a few vertices of each sheet, near the middle and at a corner.
     let mut flags = vec![false; end.len()];
     for v in [half / 2, half / 2 + 1, 0, half + half / 2, end.len() - 1] {
@@ -316,14 +320,14 @@ fn a_gathering_around_some_vertices_lists_exactly_the_whole_gatherings_pairs_tha
     }
     let touches = |pair: &super::gather::ElementPair| pair.corners.iter().any(|&v| flags[v as usize]);
     let mut expected: Vec<_> = whole.iter().copied().filter(touches).collect();
-    let mut found: Vec<_> = collision.gather(&motion, SETTINGS.thickness, true, None, &accept, Some(&collision.focus_around(&flags))).into_iter().filter(touches).collect();
+    let mut found: Vec<_> = collision.gather(&motion, SETTINGS.thickness, true, None, &accept, Some(&collision.focus_around(&flags)), None).into_iter().filter(touches).collect();
     assert!(!expected.is_empty(), "the sag brings the middle within reach");
     expected.sort_unstable();
     found.sort_unstable();
     assert_eq!(found, expected);
     // Nothing in focus: nothing to list.
     let none = collision.focus_around(&vec![false; end.len()]);
-    assert!(collision.gather(&motion, SETTINGS.thickness, true, None, &accept, Some(&none)).is_empty());
+    assert!(collision.gather(&motion, SETTINGS.thickness, true, None, &accept, Some(&none), None).is_empty());
 }
 
 #[test]
@@ -349,7 +353,7 @@ fn whole_gathering(collision: &SelfCollision, candidates: &Candidates) -> Vec<su
     use super::bounds::Motion;
     let (start, reference, margin, _) = candidates.parts();
     let accept = |a: &[u32], b: &[u32]| !collision.excluded(a, b);
-    collision.gather(&Motion { start, end: reference, margin }, SETTINGS.thickness, true, None, &accept, None)
+    collision.gather(&Motion { start, end: reference, margin }, SETTINGS.thickness, true, None, &accept, None, None)
 }
 
 #[test]
@@ -465,13 +469,13 @@ fn a_motion_matched_along_the_gathered_paths_finds_every_pair_within_reach() {
         x.iter().enumerate().map(|(v, p)| *p + 0.015 * Vec3::new((v as f32 * 1.3 + seed).sin(), (v as f32 * 2.1 + seed).cos(), (v as f32 * 0.7 + seed).sin()) / 3f32.sqrt()).collect()
     };
     let (before, after) = (wobble(drop(0.5), 0.3), wobble(drop(1.0), 1.7));
-    collision.in_loop_crossings(&mut state, &before, &after, None, &SETTINGS, &none, None).unwrap();
+    collision.in_loop_crossings(&mut state, &before, &after, None, &SETTINGS, &none, None, &mut SelfStats::default()).unwrap();
     let (start, _, _, kept) = state.as_ref().unwrap().parts();
     assert_eq!(start, still.as_slice(), "gathered again: the motion was not matched along the paths");
     assert_eq!(kept, listed.as_slice());
     let accept = |a: &[u32], b: &[u32]| !collision.excluded(a, b);
     let zero = vec![0.0; still.len()];
-    let needed = collision.gather(&Motion { start: &before, end: &after, margin: &zero }, SETTINGS.thickness, true, None, &accept, None);
+    let needed = collision.gather(&Motion { start: &before, end: &after, margin: &zero }, SETTINGS.thickness, true, None, &accept, None, None);
     assert!(!needed.is_empty(), "the motion brings the sheets within reach");
     let missing: Vec<_> = needed.iter().filter(|p| !listed.contains(p)).collect();
     assert!(missing.is_empty(), "{} of {} pairs within reach not listed: {:?}", missing.len(), needed.len(), &missing[..missing.len().min(5)]);
