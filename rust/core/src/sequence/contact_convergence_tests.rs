@@ -21,12 +21,16 @@ fn slide_path() -> Vec<Vec3> {
 fn slide(friction: f32, iterations: usize, accelerated: bool, tolerance: Option<f32>) -> (Vec<Vec3>, f32, Vec<usize>) {
     let frames = slide_path().len();
     let (x, its) = slide_frames(friction, frames, &|_| (iterations, accelerated, tolerance));
-    let top = *slide_path().last().unwrap();
-    let skin = grid(40, 40, 2.0);
     let x = x.last().unwrap().clone();
-    let over: Vec<usize> = (0..x.len()).filter(|&v| (x[v].truncate() - top.truncate()).length() < 0.1 && x[v].z > 0.0).collect();
-    let drift = over.iter().map(|&v| x[v].x - skin.positions[v].x).sum::<f32>() / over.len().max(1) as f32;
+    let drift = drift_over(&x, *slide_path().last().unwrap());
     (x, drift, its)
+}
+
+/// The mean x drift from rest of the skin over the top of the sphere centred at `centre`.
+fn drift_over(x: &[Vec3], centre: Vec3) -> f32 {
+    let skin = grid(40, 40, 2.0);
+    let over: Vec<usize> = (0..x.len()).filter(|&v| (x[v].truncate() - centre.truncate()).length() < 0.1 && x[v].z > 0.0).collect();
+    over.iter().map(|&v| x[v].x - skin.positions[v].x).sum::<f32>() / over.len().max(1) as f32
 }
 
 /// Solver settings of a frame: iterations, accelerated, tolerance.
@@ -72,14 +76,15 @@ const REFERENCE_ITERATIONS: usize = 1000;
 /// 500th and 1,000th iterates differ by 0.04–0.2 % of the displacement,
 /// frames 6 and 12, friction 0). Returns the errors, Converge's iterations,
 /// per frame the reference's largest last step (a fraction of the mesh size;
-/// measured only if `with_last_steps`, else 0) and the reference's RMS
-/// displacement.
-fn converge_errors(friction: f32, frames: usize, with_last_steps: bool) -> (Vec<f64>, Vec<usize>, Vec<f64>, Vec<f64>) {
+/// measured only if `with_last_steps`, else 0), the reference's RMS
+/// displacement and its drift over the sphere's top (how far static friction
+/// dragged the skin).
+fn converge_errors(friction: f32, frames: usize, with_last_steps: bool) -> (Vec<f64>, Vec<usize>, Vec<f64>, Vec<f64>, Vec<f32>) {
     let skin = grid(40, 40, 2.0);
     let size = 2.0;
     let converge = |_: usize| (ACCELERATED_ITERATIONS, true, Some(CONVERGE_TOLERANCE));
     let (results, its) = slide_frames(friction, frames, &converge);
-    let (mut errors, mut last_steps, mut offsets) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut errors, mut last_steps, mut offsets, mut drifts) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for f in 0..frames {
         let continued = |n: usize| {
             let settings = move |frame: usize| if frame == f { (n, true, None) } else { converge(frame) };
@@ -91,11 +96,12 @@ fn converge_errors(friction: f32, frames: usize, with_last_steps: bool) -> (Vec<
             false => 0.0,
         };
         let offset = rms(&reference, &skin.positions);
+        drifts.push(drift_over(&reference, slide_path()[f]));
         errors.push(rms(&results[f], &reference) / offset);
         last_steps.push(last_step);
         offsets.push(offset);
     }
-    (errors, its, last_steps, offsets)
+    (errors, its, last_steps, offsets, drifts)
 }
 
 fn rms(a: &[Vec3], b: &[Vec3]) -> f64 {
@@ -149,7 +155,9 @@ fn measure_converge_with_a_sliding_sphere() {
 fn measure_converge_errors_on_the_slide() {
     for friction in [0.0, 1.0] {
         let frames = slide_path().len();
-        let (errors, its, last_steps, offsets) = converge_errors(friction, frames, true);
+        let (errors, its, last_steps, offsets, drifts) = converge_errors(friction, frames, true);
+        let drifts: Vec<String> = drifts.iter().map(|d| format!("{d:.4}")).collect();
+        println!("friction {friction}: the reference's drift over the sphere per frame {drifts:?}");
         let offsets: Vec<String> = offsets.iter().map(|o| format!("{o:.4}")).collect();
         println!("friction {friction}: RMS displacement per frame {offsets:?}");
         let percent: Vec<String> = errors.iter().map(|e| format!("{:.1}", 100.0 * e)).collect();
@@ -171,7 +179,7 @@ fn measure_converge_errors_on_the_slide() {
 #[test]
 fn converge_keeps_a_frictionless_sliding_contact_within_five_percent_of_converged() {
     let frames = slide_path().len();
-    let (errors, its, _, offsets) = converge_errors(0.0, frames, false);
+    let (errors, its, _, offsets, _) = converge_errors(0.0, frames, false);
     let in_contact: Vec<(usize, f64)> = (0..frames).filter(|&f| offsets[f] > 1e-4).map(|f| (f, errors[f])).collect();
     assert!(in_contact.len() >= frames - 1, "frames in contact: {in_contact:?}, displacements {offsets:?}");
     for &(frame, error) in &in_contact {
