@@ -123,6 +123,10 @@ pub struct StepReport {
     /// colliders, over all passes: those the clearance did not prove apart.
     /// It follows the region near the colliders, not the skin's size.
     pub in_loop_tested: usize,
+    /// In-loop recessions of compliant colliders (one per collider and
+    /// iteration that ran one, over all substeps): every other iteration's
+    /// and the last's.
+    pub in_loop_recessions: usize,
     /// Skin vertices whose boxes were made again for compliant colliders to
     /// recede from, after the solver's iterations: those that moved since.
     pub in_loop_skin_refits: usize,

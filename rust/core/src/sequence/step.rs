@@ -3,7 +3,7 @@
 
 use glam::Vec3;
 
-use super::compliance::{compliant_skin, contact_targets, in_loop_clearance, ms_since, recede_from};
+use super::compliance::{compliant_skin, contact_targets, in_loop_clearance, ms_since, recede_from, recedes_after, RECESSION_CLOSING_ITERATIONS};
 use super::dynamics::{kinetic_energy, Dynamics, MAX_SUBSTEPS};
 use super::options::{accumulate, StepOptions, StepReport, StrainMode};
 use super::self_pass::{self, SelfPass};
@@ -296,9 +296,13 @@ impl Sequence {
                 report.contact_work.strain_cycles += pass.cycles;
                 report.contact_work.strain_ms += ms_since(started);
             }
-            for &c in &compliant {
+            // Compliant colliders recede after every other iteration and
+            // the last (why that is safe: `recedes_after`).
+            let recede = recedes_after(iteration);
+            for &c in compliant.iter().filter(|_| recede) {
                 let goal = goals[c].as_deref().expect("compliant colliders have goals");
                 let moved = recede_from(skin_collider, skin, colliders[c], compliant_skins[c].as_ref().expect("compliant"), after, goal, false)?;
+                report.in_loop_recessions += 1;
                 report.compliant_contacts += moved.contacts;
                 report.in_loop_skin_refits += moved.refitted;
                 report.contact_work.recession_heading_ms += moved.heading_ms;
@@ -311,9 +315,10 @@ impl Sequence {
             Ok(())
         })
         // Where Converge's stopping rule ends the solve, the strain rounds'
-        // iterations follow once it is met: measured by the rule, the rounds
-        // (undone by the next iteration) would keep it from being met.
-        .closing(if unified.is_some() { STRAIN_EARLY_ITERATIONS + 1 } else { 0 });
+        // iterations (measured by the rule, the rounds, undone by the next
+        // iteration, would keep it from being met) and the last recession's
+        // follow once it is met.
+        .closing(closing_iterations(unified.is_some(), !compliant.is_empty()));
         let hook: Option<&mut dyn IterationHook> =
             if any_colliders || unified.is_some() || self_collision.is_some() { Some(&mut in_loop) } else { None };
         self.deformer.solver_mut().solve(input, &mut x, options.iterations, hook)?;
@@ -450,6 +455,15 @@ impl CarriedPlanes {
                 c.settings() == *settings && c.previous() == &positions[..] && c.triangles() == &triangles[..]
             })
     }
+}
+
+/// The iterations a solve runs after Converge's stopping rule is met
+/// ([`IterationHook::closing_iterations`]): those whose strain rounds and
+/// compliant recessions count, the most either needs.
+fn closing_iterations(strain_limits: bool, compliant: bool) -> usize {
+    let strain = if strain_limits { STRAIN_EARLY_ITERATIONS + 1 } else { 0 };
+    let recessions = if compliant { RECESSION_CLOSING_ITERATIONS } else { 0 };
+    strain.max(recessions)
 }
 
 #[cfg(test)]

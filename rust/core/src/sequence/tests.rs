@@ -274,37 +274,83 @@ mod compliance {
         assert!(large_refits < passes * large_n / 10, "most of the skin was refitted after each iteration: {large_refits} refits over {passes} passes, {large_n} vertices");
     }
 
-    /// A compliant ball pressed into a free skin rests on it; then the
-    /// skin's input rises into the ball and slides sideways under it while
-    /// the ball's animation holds still. Each iteration the ball's resting
-    /// vertices recede from where the skin has moved: the skin is never
-    /// passed through (by the audit, which shares no geometry with the
-    /// passes), the ball keeps receding as the skin comes up, and nothing
-    /// is pinched.
-    #[test]
-    fn a_skin_moving_under_a_resting_compliant_ball_is_never_passed_through() {
+    /// One frame of [`skin_sliding_under_a_resting_ball`]: the step's
+    /// report and the iterations its solve ran.
+    struct SlideFrame {
+        report: StepReport,
+        ran: usize,
+    }
+
+    /// A compliant ball comes to rest in a free skin, whose input then rises
+    /// into it (frames 5–9, by 0.1) and slides under it (from frame 6, by
+    /// up to 0.15) while the ball's animation holds still; with a count of
+    /// `iterations`, or that as Converge's limit. Asserts in every frame: no
+    /// penetration (by the audit, which shares no geometry with the
+    /// passes), nothing pinched.
+    fn skin_sliding_under_a_resting_ball(iterations: usize, converge: bool) -> Vec<SlideFrame> {
         let skin = grid(30, 30, 1.6);
         let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
+        deformer.deformer_mut().set_accelerated(converge);
+        deformer.deformer_mut().set_tolerance(converge.then_some(crate::pyramid::CONVERGE_TOLERANCE)).unwrap();
         let (ball, tris) = sphere(0.3);
         let at = |z: f32| moved(&ball.positions, Vec3::new(0.0, 0.0, z));
         let mut arm = Collider::new(&at(0.5), &tris, ColliderSettings::new(0.01, 0.3)).unwrap();
         arm.set_compliance(Some(&vec![100.0; ball.positions.len()])).unwrap();
-        let options = StepOptions::new(10, Closeness::Uniform(0.3));
-        let mut recessions = Vec::new();
+        let options = StepOptions::new(iterations, Closeness::Uniform(0.3));
+        let mut frames = Vec::new();
         for k in 0..=10usize {
             arm.update(&at(0.5 - 0.06 * k.min(4) as f32)).unwrap();
-            // From frame 5 the skin's input rises by up to 0.1 and slides by up to 0.15.
             let lift = 0.02 * k.saturating_sub(4).min(5) as f32;
             let slide = 0.03 * k.saturating_sub(5) as f32;
             let input = moved(&skin.positions, Vec3::new(slide, 0.0, lift));
             let (x, report) = deformer.step(&input, &mut [&mut arm], &options).unwrap();
             assert!(x.iter().all(|p| p.is_finite()), "frame {k}");
-            assert_eq!(penetrations(&skin, &x, &[&arm]), (0, 0, 0), "frame {k}");
-            assert!(report.pinched.is_empty(), "frame {k}: {} pinched", report.pinched.len());
-            recessions.push(report.max_recession);
+            assert_eq!(penetrations(&skin, &x, &[&arm]), (0, 0, 0), "frame {k} (converge: {converge})");
+            assert!(report.pinched.is_empty(), "frame {k}: {} pinched (converge: {converge})", report.pinched.len());
+            frames.push(SlideFrame { report, ran: deformer.deformer().last_iterations() });
         }
+        frames
+    }
+
+    /// A compliant ball pressed into a free skin rests on it; then the
+    /// skin's input rises into the ball and slides sideways under it while
+    /// the ball's animation holds still. Every other iteration the ball's
+    /// resting vertices recede from where the skin has moved: the skin is never
+    /// passed through (by the audit, which shares no geometry with the
+    /// passes), the ball keeps receding as the skin comes up, and nothing
+    /// is pinched.
+    #[test]
+    fn a_skin_moving_under_a_resting_compliant_ball_is_never_passed_through() {
+        let frames = skin_sliding_under_a_resting_ball(10, false);
+        let recessions: Vec<f32> = frames.iter().map(|f| f.report.max_recession).collect();
         assert!(recessions[4] > 0.01, "the ball rests in the skin: recession {}", recessions[4]);
         assert!(recessions[9] > recessions[4] + 0.02, "the skin came up 0.1 into the ball, which should recede: {recessions:?}");
+    }
+
+    /// Issue 29: compliant colliders recede in the solve after every other
+    /// iteration and the last, counted back from the last (the contact pass
+    /// still runs after every one, so no iteration leaves the skin inside):
+    /// with a count of 10, 5 recessions a frame (10 when they receded after
+    /// every iteration). With Converge the stopping rule ends the solve and
+    /// the last iteration's recession runs in the closing iteration that
+    /// follows it: at most one more than half the iterations the solve ran.
+    #[test]
+    fn compliant_colliders_recede_after_every_other_iteration() {
+        let counted = skin_sliding_under_a_resting_ball(10, false);
+        let recessions: Vec<usize> = counted.iter().map(|f| f.report.in_loop_recessions).collect();
+        assert!(recessions.iter().all(|&r| r == 5), "recessions per frame with 10 iterations: {recessions:?}");
+        assert!(counted[9].report.max_recession > counted[4].report.max_recession + 0.02, "the skin came up 0.1 into the ball, which should recede");
+
+        let converged = skin_sliding_under_a_resting_ball(40, true);
+        let ran: Vec<usize> = converged.iter().map(|f| f.ran).collect();
+        let recessions: Vec<usize> = converged.iter().map(|f| f.report.in_loop_recessions).collect();
+        println!("Converge: iterations per frame {ran:?}, recessions {recessions:?}");
+        assert!(ran.iter().any(|&r| r + 3 < 40), "no solve stopped before its limit, so this tests nothing: {ran:?}");
+        for (f, frame) in converged.iter().enumerate() {
+            let r = frame.report.in_loop_recessions;
+            assert!(r >= 1 && r <= frame.ran / 2 + 1, "frame {f}: {r} recessions in {} iterations (all: {recessions:?}, iterations {ran:?})", frame.ran);
+        }
+        assert!(converged[9].report.max_recession > converged[4].report.max_recession + 0.02, "the skin came up 0.1 into the ball, which should recede");
     }
 
     #[test]
