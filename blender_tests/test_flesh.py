@@ -274,6 +274,14 @@ def test_unified_strain_limits_hold_with_no_penetration(tmp_path):
     assert abs(skin.tegument.worst_stretch - stretch) < 1e-3
 
 
+def test_unified_strain_limits_hold_under_converge_whatever_iteration_it_stops_at(tmp_path):
+    """Converge's stopping rule ends each frame's solve where it converges, well before a count of 40:
+    the strain limits must still hold (their full rounds run in the iteration that ends the solve)."""
+    skin, _, sphere, stretch = drag(tmp_path, limit_stretch=True, max_stretch=EPS, strain_mode="UNIFIED", converge=True, iterations=40)
+    assert_no_penetration(skin, [sphere], [(DRAG_PATH, 0.3)])
+    assert stretch <= (1.0 + EPS) * 1.01, f"an edge stretched to {stretch}"
+
+
 def test_post_strain_limits_hold_but_leave_penetrations(tmp_path):
     skin, cache, sphere, stretch = drag(tmp_path, limit_stretch=True, max_stretch=EPS, strain_mode="POST")
     assert stretch <= (1.0 + EPS) * 1.01, f"an edge stretched to {stretch}"
