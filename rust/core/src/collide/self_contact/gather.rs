@@ -236,20 +236,18 @@ impl Gather<'_> {
     /// The element pairs between two leaves (or within one, `a == b`).
     fn leaf_pair<O: Found>(&self, a: usize, b: usize, out: &mut Vec<O>) {
         let (ra, rb) = (self.tree.nodes[a].range(), self.tree.nodes[b].range());
-        let span = |p: usize| self.motion.span(&self.tree.triangles[p]);
+        let span = &self.bounds.triangle;
         let part = |p: usize| self.takes_part.is_none_or(|flags| flags[p]);
         let focused = |p: usize, q: usize| self.focus.is_none_or(|f| f.triangles[p] || f.triangles[q]);
-        let b_spans: Vec<Span> = rb.clone().map(span).collect();
         for p in ra {
             if !part(p) {
                 continue;
             }
-            let sp = span(p);
-            for (k, q) in rb.clone().enumerate() {
+            for q in rb.clone() {
                 if (a == b && q <= p) || !part(q) || !focused(p, q) {
                     continue;
                 }
-                if relative_gap(&sp, &b_spans[k]) > self.reach {
+                if relative_gap(&span[p], &span[q]) > self.reach {
                     continue;
                 }
                 O::list(self, p, q, out);
@@ -261,11 +259,13 @@ impl Gather<'_> {
     fn element_pairs(&self, p: usize, q: usize, out: &mut Vec<ElementPair>) {
         let (tp, tq) = (self.tree.triangles[p], self.tree.triangles[q]);
         let (op, oq) = (self.owns[p], self.owns[q]);
-        let mut consider = |one: &[u32], other: &[u32], edge_edge: bool| {
+        // A vertex–triangle pair's triangle is `tp` or `tq`: its span is the bounds'.
+        let mut consider = |one: &[u32], other: &[u32], other_span: Option<&Span>, edge_edge: bool| {
             if !(self.accept)(one, other) {
                 return;
             }
-            if relative_gap(&self.motion.span(one), &self.motion.span(other)) > self.reach {
+            let other_span = other_span.copied().unwrap_or_else(|| self.motion.span(other));
+            if relative_gap(&self.motion.span(one), &other_span) > self.reach {
                 return;
             }
             // The boxes overlap; the exact distances at both ends decide
@@ -278,10 +278,10 @@ impl Gather<'_> {
         };
         for k in 0..3 {
             if op & (1 << k) != 0 {
-                consider(&[tp[k]], &tq, false);
+                consider(&[tp[k]], &tq, Some(&self.bounds.triangle[q]), false);
             }
             if oq & (1 << k) != 0 {
-                consider(&[tq[k]], &tp, false);
+                consider(&[tq[k]], &tp, Some(&self.bounds.triangle[p]), false);
             }
         }
         for i in 0..3 {
@@ -291,7 +291,7 @@ impl Gather<'_> {
             let e = [tp[i], tp[(i + 1) % 3]];
             for j in 0..3 {
                 if oq & (8 << j) != 0 {
-                    consider(&e, &[tq[j], tq[(j + 1) % 3]], true);
+                    consider(&e, &[tq[j], tq[(j + 1) % 3]], None, true);
                 }
             }
         }

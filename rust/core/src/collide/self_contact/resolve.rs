@@ -187,6 +187,14 @@ pub struct Candidates {
     pairs: Vec<ElementPair>,
     /// Each pair's distance at `reference`.
     distance: Vec<f32>,
+    /// Per vertex, how far it may stray from `reference` while every pair
+    /// of it listed here is still proven apart ([`Self::proves_apart`]):
+    /// the active set of the in-loop passes is the pairs of vertices that
+    /// strayed farther ([`Self::open`]), so that a round or a check looks
+    /// at those alone instead of testing every pair's clearance (the
+    /// proofs over the whole list were about a sixth of the character's
+    /// straight frames, issue 30, eleventh round).
+    clearance: Vec<f64>,
     /// The patch tree's bounds over these paths and margins, refitted where
     /// a gathering around a few vertices changes theirs: only the leaves
     /// holding them and the nodes above are fitted again, where fitting the
@@ -288,6 +296,73 @@ impl Candidates {
             let r = self.reference[v];
             positions.iter().all(|x| (x[v] - r).length() <= self.margin[v])
         })
+    }
+
+    /// Per vertex, whether it strayed from the reference (in `before` or
+    /// `after`) as far as its clearance: only pairs with such a corner can
+    /// fail [`Self::proves_apart`].
+    ///
+    /// Why: a vertex's clearance is at most half the room of each of its
+    /// pairs, `(distance − threshold) / 2`, less `ε·distance` (`ε` the f32
+    /// epsilon). If no corner of pair `k` is open, each side strayed less
+    /// than half the room, together less than the room less `2ε·distance`;
+    /// `proves_apart` computes `distance − strayed(a) − strayed(b)` in f32,
+    /// two roundings of at most `ε/2·distance` each (both differences lie
+    /// between 0 and the distance), so it finds more than the threshold and
+    /// proves the pair apart. The decisions are the same as testing every
+    /// pair; only the pairs of open vertices are looked at.
+    fn open(&self, before: &[Vec3], after: &[Vec3]) -> Vec<bool> {
+        (0..self.reference.len())
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|v| {
+                let r = self.reference[v];
+                let strayed = (before[v] - r).length().max((after[v] - r).length());
+                strayed as f64 >= self.clearance[v]
+            })
+            .collect()
+    }
+
+    /// Whether pair `k` has a corner among the `open` vertices.
+    fn opens(&self, k: usize, open: &[bool]) -> bool {
+        self.pairs[k].corners.iter().any(|&v| open[v as usize])
+    }
+
+    /// Lowers the clearances of the corners of pairs `from..` to what those
+    /// pairs allow ([`Self::open`]).
+    fn tighten(&mut self, from: usize, pass: &Pass<'_>) {
+        for (pair, &d) in self.pairs[from..].iter().zip(&self.distance[from..]) {
+            let threshold = pass.collision.pair_separation(pair) + pass.params.tolerance + pass.collision.rounding as f64;
+            let d = d as f64;
+            let half_room = 0.5 * (d - threshold) - f32::EPSILON as f64 * d.abs();
+            for &v in &pair.corners {
+                let c = &mut self.clearance[v as usize];
+                *c = c.min(half_room);
+            }
+        }
+    }
+
+    /// For the tests, over the motion `before → after`: how many pairs lie
+    /// outside the active set (no corner [`Self::open`]), how many of those
+    /// [`Self::proves_apart`] does not prove apart (none, if the active set
+    /// holds every pair that needs a test), and how many inside it it does
+    /// not prove apart.
+    #[cfg(test)]
+    pub(super) fn active_set_counts(&self, collision: &SelfCollision, settings: &SelfSettings, before: &[Vec3], after: &[Vec3]) -> (usize, usize, usize) {
+        let tangles = Tangles::default();
+        let pass = collision.pass(settings, &tangles, None).expect("prepared");
+        let open = self.open(before, after);
+        let (mut outside, mut missed, mut unproven) = (0, 0, 0);
+        for k in 0..self.pairs.len() {
+            let proven = self.proves_apart(k, before, after, &pass);
+            if self.opens(k, &open) {
+                unproven += usize::from(!proven);
+            } else {
+                outside += 1;
+                missed += usize::from(!proven);
+            }
+        }
+        (outside, missed, unproven)
     }
 
     /// Whether pair `k` provably stays farther apart than its separation
@@ -520,7 +595,8 @@ impl SelfCollision {
         for _ in 0..SELF_ROUNDS {
             stats.rounds += 1;
             let current = candidates.as_ref().expect("ensured");
-            let skip = |k: usize| current.proves_apart(k, before, after, &pass);
+            let open = current.open(before, after);
+            let skip = |k: usize| !current.opens(k, &open) || current.proves_apart(k, before, after, &pass);
             let (contacts, changes) = pass.round(&current.pairs, before, after, moved.as_deref(), skip, &mut stats);
             stats.contacts += contacts;
             if changes.is_empty() {
@@ -562,10 +638,11 @@ impl SelfCollision {
         stats.count(gathered, ms);
         let began = Instant::now();
         let current = candidates.as_ref().expect("ensured");
+        let strayed = current.open(before, after);
         let open: Vec<ElementPair> = (0..current.pairs.len())
             .into_par_iter()
             .with_min_len(256)
-            .filter(|&k| !current.proves_apart(k, before, after, &pass))
+            .filter(|&k| current.opens(k, &strayed) && !current.proves_apart(k, before, after, &pass))
             .map(|k| current.pairs[k])
             .collect();
         let (bad, tested) = pass.crossing_corners(&open, before, after, touching);
@@ -632,7 +709,9 @@ impl Pass<'_> {
         let bounds = self.collision.bounds(&motion, self.takes_part);
         let pairs = self.gather_with(Some(&bounds), &motion, None);
         let distance: Vec<f32> = pairs.par_iter().map(|pair| distance(pair, end)).collect();
-        Candidates { start: start.to_vec(), reference: end.to_vec(), margin, pairs, distance, bounds }
+        let mut c = Candidates { start: start.to_vec(), reference: end.to_vec(), margin, pairs, distance, bounds, clearance: vec![f64::INFINITY; start.len()] };
+        c.tighten(0, self);
+        c
     }
 
     /// Gathers the in-loop candidates again if the motion `before → after`
@@ -694,6 +773,8 @@ impl Pass<'_> {
             c.start[v] = start[v];
             c.reference[v] = end[v];
             c.margin[v] = margin[v];
+            // Its reference moved: its pairs are all listed again below.
+            c.clearance[v] = f64::INFINITY;
         }
         let touches = |pair: &ElementPair| pair.corners.iter().any(|&v| left[v as usize]);
         let (pairs, kept_distance): (Vec<ElementPair>, Vec<f32>) = c.pairs.iter().zip(&c.distance).filter(|(pair, _)| !touches(pair)).map(|(p, d)| (*p, *d)).unzip();
@@ -708,8 +789,13 @@ impl Pass<'_> {
         let found_distance: Vec<f32> = found.par_iter().map(|pair| distance(pair, reference)).collect();
         c.pairs = pairs;
         c.distance = kept_distance;
+        let kept = c.pairs.len();
         c.pairs.extend(found);
         c.distance.extend(found_distance);
+        // The kept pairs' corners keep their clearances (a pair dropped can
+        // only have lowered them: still a lower bound of what is left), the
+        // new pairs lower theirs.
+        c.tighten(kept, self);
     }
 
     /// One round: the corrections of every pair touching a moved vertex (or

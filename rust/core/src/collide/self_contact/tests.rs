@@ -356,24 +356,37 @@ fn whole_gathering(collision: &SelfCollision, candidates: &Candidates) -> Vec<su
     collision.gather(&Motion { start, end: reference, margin }, SETTINGS.thickness, true, None, &accept, None, None)
 }
 
+/// Two 8 × 8 sheets `gap` apart, bound, and their candidates gathered
+/// staying where they are with `margin` everywhere.
+fn sheets_listed(gap: f32, margin: f32) -> (SelfCollision, Vec<Vec3>, Option<Candidates>) {
+    let mesh = two_sheets(8, gap);
+    let collision = bound(&mesh, &SETTINGS);
+    let margin = vec![margin; mesh.positions.len()];
+    let candidates = collision.candidates(&mesh.positions, &mesh.positions, &margin, &SETTINGS, &Tangles::default(), None).unwrap();
+    (collision, mesh.positions, Some(candidates))
+}
+
+/// An in-loop pass from `before` in which one vertex of the upper sheet's
+/// middle moves `shift` sideways, past its margin: it is gathered around,
+/// nothing else. Returns that vertex and where the pass left the skin.
+fn one_vertex_gathered_around(collision: &SelfCollision, before: &[Vec3], candidates: &mut Option<Candidates>, shift: f32) -> (usize, Vec<Vec3>) {
+    let half = before.len() / 2;
+    let moved = half + half / 2;
+    let mut after = before.to_vec();
+    after[moved].x += shift;
+    let stats = collision.resolve_in_loop(candidates, before, &mut after, &SETTINGS, &Tangles::default(), None).unwrap();
+    assert_eq!((stats.gathers, stats.gathers_around), (0, 1), "{stats:?}");
+    (moved, after)
+}
+
 #[test]
 fn an_in_loop_pass_gathers_again_only_around_the_few_vertices_that_left_their_margins() {
     // Two sheets close enough to list pairs, gathered staying where they are.
-    let mesh = two_sheets(8, 0.012);
-    let collision = bound(&mesh, &SETTINGS);
-    let before = mesh.positions.clone();
-    let margin = vec![0.002; before.len()];
-    let tangles = Tangles::default();
-    let mut candidates = Some(collision.candidates(&before, &before, &margin, &SETTINGS, &tangles, None).unwrap());
+    let (collision, before, mut candidates) = sheets_listed(0.012, 0.002);
     let first = candidates.as_ref().unwrap().parts().3.to_vec();
     assert!(!first.is_empty(), "the sheets are within reach of each other");
     // An iteration moves one vertex of the upper sheet's middle sideways, past its margin.
-    let half = before.len() / 2;
-    let moved = half + half / 2;
-    let mut after = before.clone();
-    after[moved].x += 0.005;
-    let stats = collision.resolve_in_loop(&mut candidates, &before, &mut after, &SETTINGS, &tangles, None).unwrap();
-    assert_eq!((stats.gathers, stats.gathers_around), (0, 1), "{stats:?}");
+    let (moved, after) = one_vertex_gathered_around(&collision, &before, &mut candidates, 0.005);
     // The pairs of the moved vertex are those a whole gathering lists for
     // its new reference and margin; every other pair is the first list's.
     let candidates = candidates.unwrap();
@@ -479,4 +492,54 @@ fn a_motion_matched_along_the_gathered_paths_finds_every_pair_within_reach() {
     assert!(!needed.is_empty(), "the motion brings the sheets within reach");
     let missing: Vec<_> = needed.iter().filter(|p| !listed.contains(p)).collect();
     assert!(missing.is_empty(), "{} of {} pairs within reach not listed: {:?}", missing.len(), needed.len(), &missing[..missing.len().min(5)]);
+}
+
+/// The in-loop passes test only the pairs of vertices that strayed as far
+/// as their clearance from where the candidates were listed: every pair
+/// left out is one the per-pair clearance test proves apart, whatever the
+/// motion (here random motions of two sheets within reach, up to twice
+/// their room), also after a gathering around a few vertices changed the
+/// list; and the pairs kept in are not all proven apart (the test is not
+/// idle).
+#[test]
+fn the_in_loop_active_set_leaves_out_only_pairs_proven_apart() {
+    let (collision, still, mut candidates) = sheets_listed(0.013, 0.004);
+    assert!(!candidates.as_ref().unwrap().is_empty(), "the sheets are within reach");
+    // A deterministic pseudo-random offset per vertex and trial.
+    let offset = |v: usize, trial: usize, scale: f32| {
+        let h = |k: usize| (((v * 7919 + trial * 104_729 + k * 15_485_863) % 2_000_003) as f32 / 1_000_001.5 - 1.0) * scale;
+        Vec3::new(h(0), h(1), h(2))
+    };
+    let check = |c: &Candidates, reference: &[Vec3], label: &str| {
+        let (mut outside, mut inside_unproven) = (0, 0);
+        for trial in 0..40 {
+            // Strays from nothing up to twice the room between the sheets.
+            let scale = 0.0002 * trial as f32;
+            let before: Vec<Vec3> = reference.iter().enumerate().map(|(v, p)| *p + offset(v, trial, scale)).collect();
+            let after: Vec<Vec3> = reference.iter().enumerate().map(|(v, p)| *p + offset(v, trial + 1000, scale)).collect();
+            let (out, missed, unproven) = c.active_set_counts(&collision, &SETTINGS, &before, &after);
+            assert_eq!(missed, 0, "{label}, trial {trial}: {missed} of the {out} pairs left out are not proven apart");
+            outside += out;
+            inside_unproven += unproven;
+        }
+        assert!(outside > 0 && inside_unproven > 0, "{label}: {outside} pairs left out, {inside_unproven} tested and not proven apart");
+    };
+    check(candidates.as_ref().unwrap(), &still, "as listed");
+    // One vertex of the upper sheet leaves its margin: gathered around it,
+    // with its new reference; the other pairs keep their clearances.
+    let (moved, _) = one_vertex_gathered_around(&collision, &still, &mut candidates, 0.006);
+    let c = candidates.unwrap();
+    let reference = c.parts().1.to_vec();
+    check(&c, &reference, "after a gathering around one vertex");
+    // Only that vertex strays, down through the lower sheet: its pairs,
+    // listed again, are the ones to test, whatever their other corners did.
+    let mut unproven = 0;
+    for k in 0..20 {
+        let mut after = reference.clone();
+        after[moved].z -= 0.001 * k as f32;
+        let (_, missed, open) = c.active_set_counts(&collision, &SETTINGS, &reference, &after);
+        assert_eq!(missed, 0, "the gathered-around vertex {k} mm down: {missed} pairs left out not proven apart");
+        unproven += open;
+    }
+    assert!(unproven > 0, "the gathered-around vertex's pairs are never tested");
 }
