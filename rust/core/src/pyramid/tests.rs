@@ -1003,7 +1003,7 @@ fn accelerated_solve_with_vertices_held_in_a_dent() {
 /// A contact patch's rim flickers: the held set returns to one it had an
 /// iteration or two before. The coarse problem for each of the last few
 /// held sets is kept, so two dents held in turn are assembled and
-/// factorised once each, not once per iteration (before: 20 times in 20
+/// factorised once each, not once per iteration (before: 19 times in 20
 /// iterations).
 #[test]
 fn alternating_held_sets_are_assembled_once_each() {
