@@ -103,6 +103,12 @@ const BLOCK: usize = 1024;
 /// [`SWEEPS`] (2 sweeps, measured before the relaxation); 2 is about as good.
 const OVERCORRECTION: f32 = 1.5;
 
+/// Coarse problems with held vertices kept, for the last held sets: a
+/// contact patch's rim flickers, so the held set often returns to one it
+/// had an iteration or two before, and each new set costs an assembly and
+/// a factorisation of the coarse levels.
+const HELD_CACHED: usize = 4;
+
 /// Under-relaxation of the accelerated step (see the module documentation).
 pub(super) const RELAXATION: f32 = 0.9;
 
@@ -261,8 +267,11 @@ pub(super) struct Coarse {
     m: VertexRows,
     /// The cycle of `A₁` (nothing held).
     free: Hierarchy,
-    /// The cycle with held vertices fixed, rebuilt when the held set changes.
-    held: Option<Held>,
+    /// The cycles with held vertices fixed for the last [`HELD_CACHED`]
+    /// held sets, the most recent first.
+    held: Vec<Held>,
+    /// How many coarse problems with held vertices were assembled.
+    held_assemblies: usize,
 }
 
 /// A sparse matrix by vertex rows, `M`'s pattern.
@@ -362,19 +371,30 @@ impl Coarse {
         };
 
         let (member_offsets, members) = group_members(&aggregate, count);
-        Ok(Some(Coarse { aggregate, member_offsets, members, offsets, columns, values, m, free, held: None }))
+        Ok(Some(Coarse { aggregate, member_offsets, members, offsets, columns, values, m, free, held: Vec::new(), held_assemblies: 0 }))
     }
 
     /// Builds the coarse problem with the vertices `held` (ascending;
-    /// `mask` per vertex) fixed, unless it was built for them last.
+    /// `mask` per vertex) fixed, unless one of the last [`HELD_CACHED`] was
+    /// built for them (then it becomes the most recent).
     fn prepare_held(&mut self, vertices: &[u32], mask: &[bool]) {
-        if self.held.as_ref().is_none_or(|h| h.vertices != vertices) {
-            let count = self.member_offsets.len() - 1;
-            let matrix = first_level(&self.aggregate, count, &self.m, Some(mask));
-            let downs: Vec<&[u32]> = self.free.levels.iter().map(|l| &l.down[..]).collect();
-            let hierarchy = Hierarchy::build(matrix, Some(&downs));
-            self.held = Some(Held { vertices: vertices.to_vec(), hierarchy });
+        if let Some(k) = self.held.iter().position(|h| h.vertices == vertices) {
+            self.held[..=k].rotate_right(1);
+            return;
         }
+        let count = self.member_offsets.len() - 1;
+        let matrix = first_level(&self.aggregate, count, &self.m, Some(mask));
+        let downs: Vec<&[u32]> = self.free.levels.iter().map(|l| &l.down[..]).collect();
+        let hierarchy = Hierarchy::build(matrix, Some(&downs));
+        self.held.insert(0, Held { vertices: vertices.to_vec(), hierarchy });
+        self.held.truncate(HELD_CACHED);
+        self.held_assemblies += 1;
+    }
+
+    /// How many coarse problems with held vertices were assembled and
+    /// factorised (one per held set not among the last [`HELD_CACHED`]).
+    pub(super) fn held_assemblies(&self) -> usize {
+        self.held_assemblies
     }
 
     /// Given the iterate `x` and its image `g = G(x)`, overwrites `g` with
@@ -433,7 +453,7 @@ impl Coarse {
             }
             let Coarse { member_offsets, members, m, held, free, .. } = self;
             let hierarchy = match stuck {
-                Some(_) => held.as_mut().and_then(|h| h.hierarchy.as_mut()),
+                Some(_) => held.first_mut().and_then(|h| h.hierarchy.as_mut()),
                 None => Some(free),
             };
             match hierarchy {

@@ -219,6 +219,13 @@ impl Solver {
         self.tolerance
     }
 
+    /// How many coarse problems with held vertices the accelerated solver
+    /// assembled and factorised since it was last prepared (a measure of the
+    /// work contacts cost it; 0 without the coarse correction).
+    pub fn held_assemblies(&self) -> usize {
+        self.coarse.as_ref().map_or(0, Coarse::held_assemblies)
+    }
+
     /// Iterations the last solve ran (its count; with a tolerance fewer, or
     /// on a small mesh up to [`stopping::limit`]).
     pub fn last_iterations(&self) -> usize {
