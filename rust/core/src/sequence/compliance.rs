@@ -324,24 +324,11 @@ pub(super) struct Recession {
 /// collider stays inside its envelope; the step measures again when one
 /// leaves (`StepReport::clearance_measurements`).
 ///
-/// Why a compliant collider gets no supporting planes from its goal shape
-/// (issue 29, measured in `docs/performance.md`): planes that support the
-/// goal shape bound the collider only if every shape it takes in the frame
-/// lies inside the goal's volume, and that does not hold. A vertex heads
-/// from where it rested last frame towards its goal and stops at the skin:
-/// where the skin lies across that path the vertex stays on the near side
-/// of it, outside the goal shape. A ball that jumps into a closed skin in
-/// one frame rests with every vertex outside its goal shape, the skin
-/// between the two; planes around the goal would let the skin through the
-/// ball. Containment would have to be checked after every recession (each
-/// triangle inside a non-convex volume: no cheap test). Even where it holds
-/// (on the flesh bench the collider never leaves its goal shape), the planes
-/// would prove only the contact's rim: a plane supporting the goal shape
-/// proves a skin vertex only outside that shape by more than the thickness,
-/// and the skin resting on a receded collider is inside it, where the
-/// passes cost. What does bound the collider by construction: its envelope
-/// (used here), and between two recessions the shape where it stands
-/// (planes measured on it were tried per pass and cost what they saved).
+/// A compliant collider gets no supporting planes from its goal shape: it
+/// can rest outside that shape (a ball jumping into a closed skin stops at
+/// the skin, short of its goal), so such planes would not bound it, and
+/// where it stays inside they prove only the contact's rim (issue 29,
+/// `docs/performance.md`, "supporting planes from the goal shape").
 pub(super) fn in_loop_clearance(colliders: &[&Collider], goals: &[Option<Vec<Vec3>>], skin: &Skin, positions: &[Vec3]) -> Result<Clearance> {
     let radius = Clearance::default_radius(colliders, skin, positions);
     if colliders.iter().all(|c| !c.is_compliant()) {
