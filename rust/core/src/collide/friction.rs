@@ -35,6 +35,16 @@ pub enum Hold {
     Sliding(Slide),
 }
 
+impl Hold {
+    /// The unit normal of the contact.
+    pub fn normal(&self) -> Vec3 {
+        match self {
+            Hold::Stuck(cone) => cone.normal,
+            Hold::Sliding(slide) => slide.normal,
+        }
+    }
+}
+
 /// The static cone of a contact that holds a vertex: its unit `normal` and
 /// the collider's friction coefficients.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -94,11 +104,15 @@ impl Anchor {
         depth > 0.0 && matches!(friction(pulled - point, n, depth, cone.static_friction as f64, cone.kinetic_friction as f64).1, Hold::Stuck(_))
     }
 
-    /// A held vertex's end, given where a contact would put it: at the
-    /// anchor, lifted along its normal as far as the contact lifts it there.
-    pub(crate) fn lift(&self, projected: Vec3) -> Vec3 {
+    /// A held vertex's end, given where a contact along the unit `normal`
+    /// would put it: at the anchor, lifted along the anchor's normal only as
+    /// far as that contact's level asks (none if the anchor is above it;
+    /// a contact at a steep angle to the anchor's normal is lifted at most
+    /// five times its own lift, and the next round checks again).
+    pub(crate) fn lift(&self, projected: Vec3, normal: Vec3) -> Vec3 {
         let n = self.cone.normal;
-        self.point + (projected - self.point).dot(n).max(0.0) * n
+        let below = (projected - self.point).dot(normal);
+        self.point + (below.max(0.0) / n.dot(normal).max(0.2)) * n
     }
 }
 

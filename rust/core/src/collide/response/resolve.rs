@@ -398,7 +398,7 @@ impl<'a> ColliderSet<'a> {
             let mut lifted_now: Vec<u32> = Vec::with_capacity(updates.len());
             for (i, (p, hold)) in updates {
                 let (p, hold) = match anchored.held(i, end[i as usize]) {
-                    Some(anchor) => (anchor.lift(p), Hold::Stuck(anchor.cone)),
+                    Some(anchor) => (anchor.lift(p, hold.normal()), Hold::Stuck(anchor.cone)),
                     None => (p, hold),
                 };
                 apply(i, p, end);
@@ -416,7 +416,13 @@ impl<'a> ColliderSet<'a> {
             let mut pushed: Vec<u32> = Vec::with_capacity(shared.len());
             for (i, p, how) in shared {
                 let (p, how) = match (anchored.held(i, end[i as usize]), how) {
-                    (Some(anchor), _) => (anchor.lift(p), Move::Projected(Hold::Stuck(anchor.cone))),
+                    (Some(anchor), how) => {
+                        let normal = match how {
+                            Move::Projected(hold) => hold.normal(),
+                            _ => (p - end[i as usize]).normalize_or_zero(),
+                        };
+                        (anchor.lift(p, normal), Move::Projected(Hold::Stuck(anchor.cone)))
+                    }
                     (None, Move::Pushed(_, friction)) => (p, Move::Pushed(p - end[i as usize], friction)),
                     (None, how) => (p, how),
                 };
