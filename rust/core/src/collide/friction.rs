@@ -1,25 +1,57 @@
 //! Position-based friction of one contact (Bender, Müller, Macklin 2015),
-//! and whether it left the vertex stuck or sliding.
+//! whether it left the vertex stuck or sliding, and where a stuck vertex is
+//! anchored.
 //!
-//! Shared by the contacts with a collider triangle ([`super::response`]) and
-//! the lifts along a supporting plane ([`super::planes`]): the tangential slip
-//! since contact is removed entirely while it is within the static cone
-//! (`|slip⊥| < μs·depth`), otherwise reduced by `μk·depth`.
+//! One law for every contact kind: the contacts with a collider triangle
+//! ([`super::response`]), the lifts along a supporting plane
+//! ([`super::planes`]), and the edge–edge and collider-corner pushes: the
+//! tangential slip since contact is removed entirely while it is within the
+//! static cone (`|slip⊥| < μs·depth`), otherwise reduced by `μk·depth`.
+//!
+//! A vertex the law leaves stuck on a collider standing still is
+//! **anchored** ([`Anchor`]): while the pull of the following iterations
+//! stays inside the static cone it is held at the point where it stuck,
+//! lifted out along that contact's normal only as far as a contact asks,
+//! whichever triangle, plane or edge touches it then. On a faceted
+//! collider the nearest facet changes as the solve moves a vertex, and each
+//! facet's normal moves it a little along the surface: without the anchor a
+//! held vertex creeps (issue 28).
 //!
 //! The accelerated solver reads the outcome ([`Hold`]): a stuck vertex is
 //! fixed where it is for its next iteration, a sliding one is constrained
 //! only along its contact normal, so the solver's coarse correction may move
 //! a sliding contact patch along the collider (issue 28).
 
+use std::collections::HashMap;
+
 use glam::{DVec3, Vec3};
 
 /// How a contact's projection left its vertex.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Hold {
-    /// Static friction held it where its slip started.
-    Stuck,
+    /// Static friction held it where its slip started, inside this cone.
+    Stuck(Cone),
     /// Free to slide along the surface.
     Sliding(Slide),
+}
+
+impl Hold {
+    /// The unit normal of the contact.
+    pub fn normal(&self) -> Vec3 {
+        match self {
+            Hold::Stuck(cone) => cone.normal,
+            Hold::Sliding(slide) => slide.normal,
+        }
+    }
+}
+
+/// The static cone of a contact that holds a vertex: its unit `normal` and
+/// the collider's friction coefficients.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Cone {
+    pub normal: Vec3,
+    pub static_friction: f32,
+    pub kinetic_friction: f32,
 }
 
 /// A vertex sliding along a surface: pushed out along `normal` (unit), its
@@ -42,11 +74,75 @@ pub(crate) fn friction(slip: DVec3, normal: DVec3, depth: f64, static_friction: 
         return (DVec3::ZERO, sliding(0.0));
     }
     if len < static_friction * depth {
-        (tangential, Hold::Stuck)
+        let cone = Cone { normal: normal.as_vec3(), static_friction: static_friction as f32, kinetic_friction: kinetic_friction as f32 };
+        (tangential, Hold::Stuck(cone))
     } else if len > 0.0 {
         (tangential * (kinetic_friction * depth / len).min(1.0), sliding(kinetic_friction))
     } else {
         (DVec3::ZERO, sliding(kinetic_friction))
+    }
+}
+
+/// Where static friction holds a vertex on a collider standing still: the
+/// clear position it stuck at, and the cone of the contact that held it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Anchor {
+    pub point: Vec3,
+    pub cone: Cone,
+}
+
+impl Anchor {
+    /// Whether a vertex pulled to `pulled` stays stuck: the pull's part
+    /// along the surface, from the anchor, within the static cone of how
+    /// far it goes into the surface below the anchor (the law of
+    /// [`friction`], measured from the anchor along the anchor's normal).
+    pub(crate) fn holds(&self, pulled: Vec3) -> bool {
+        let n = self.cone.normal.as_dvec3();
+        let (point, pulled) = (self.point.as_dvec3(), pulled.as_dvec3());
+        let depth = (point - pulled).dot(n);
+        let cone = self.cone;
+        depth > 0.0 && matches!(friction(pulled - point, n, depth, cone.static_friction as f64, cone.kinetic_friction as f64).1, Hold::Stuck(_))
+    }
+
+    /// A held vertex's end, given where a contact along the unit `normal`
+    /// would put it: at the anchor, lifted along the anchor's normal only as
+    /// far as that contact's level asks (none if the anchor is above it;
+    /// a contact at a steep angle to the anchor's normal is lifted at most
+    /// five times its own lift, and the next round checks again).
+    pub(crate) fn lift(&self, projected: Vec3, normal: Vec3) -> Vec3 {
+        let n = self.cone.normal;
+        let below = (projected - self.point).dot(normal);
+        self.point + (below.max(0.0) / n.dot(normal).max(0.2)) * n
+    }
+}
+
+/// The anchors of a skin's stuck vertices, kept from one in-loop pass to
+/// the next while the colliders stand still (one substep's solve).
+#[derive(Debug, Clone, Default)]
+pub struct Anchors {
+    by_vertex: HashMap<u32, Anchor>,
+}
+
+impl Anchors {
+    pub fn new() -> Self {
+        Anchors::default()
+    }
+
+    pub fn get(&self, vertex: u32) -> Option<&Anchor> {
+        self.by_vertex.get(&vertex)
+    }
+
+    pub fn len(&self) -> usize {
+        self.by_vertex.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.by_vertex.is_empty()
+    }
+
+    /// Replaces every anchor by `anchors` (a pass decides them all anew).
+    pub(crate) fn replace(&mut self, anchors: HashMap<u32, Anchor>) {
+        self.by_vertex = anchors;
     }
 }
 
@@ -60,7 +156,7 @@ mod tests {
         // Slip 0.1 along x (and some along the normal, which friction ignores), depth 0.2.
         let slip = DVec3::new(0.1, 0.0, 0.3);
         let (change, hold) = friction(slip, n, 0.2, 1.0, 0.8);
-        assert_eq!((change, hold), (DVec3::new(0.1, 0.0, 0.0), Hold::Stuck), "0.1 < 1.0 · 0.2");
+        assert_eq!((change, hold), (DVec3::new(0.1, 0.0, 0.0), Hold::Stuck(Cone { normal: Vec3::Z, static_friction: 1.0, kinetic_friction: 0.8 })), "0.1 < 1.0 · 0.2");
         let (change, hold) = friction(slip, n, 0.2, 0.4, 0.25);
         assert!((change - DVec3::new(0.05, 0.0, 0.0)).length() < 1e-12, "reduced by 0.25 · 0.2: {change}");
         assert_eq!(hold, Hold::Sliding(Slide { normal: Vec3::Z, friction: 0.25 }));

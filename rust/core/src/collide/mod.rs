@@ -57,7 +57,7 @@ pub use ccd::{CcdHit, CcdParams};
 pub use clearance::{Clearance, Unproven};
 pub use collider::{Collider, ColliderSettings, Compliance, SurfacePoint};
 pub use envelope::Envelope;
-pub use friction::{Hold, Slide};
+pub use friction::{Anchor, Anchors, Cone, Hold, Slide};
 pub use inside::is_inside;
 pub use response::{ColliderMotion, ColliderSet, ContactStats, ResolveParams};
 pub use self_contact::{Candidates, SelfCollision, SelfSettings, SelfStats, Tangles};

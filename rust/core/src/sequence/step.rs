@@ -11,7 +11,7 @@ use super::strain_pass::{limit_strain_with_contacts, POST_STRAIN_SWEEPS, STRAIN_
 use super::Sequence;
 use crate::collide::is_inside;
 use crate::collide::planes::LocalPlanes;
-use crate::collide::{Clearance, Collider, ColliderSet, ColliderSettings, ResolveParams, Skin};
+use crate::collide::{Anchors, Clearance, Collider, ColliderSet, ColliderSettings, ResolveParams, Skin};
 use crate::mesh::validate_positions;
 use crate::pyramid::MAX_ITERATIONS;
 use crate::pyramid::PyramidDeformer;
@@ -256,6 +256,11 @@ impl Sequence {
         // Only where the colliders' pass is the only one that moves the skin
         // does its account of which vertices slide hold for the iteration.
         let report_sliding = unified.is_none() && compliant.is_empty() && self_collision.is_none();
+        // Where static friction holds the skin, from one in-loop pass to the
+        // next: the colliders stand still through the solve (the first pass
+        // has carried the skin along with their motion), unless compliant
+        // ones recede in it.
+        let mut anchors = compliant.is_empty().then(Anchors::new);
         let mut in_loop = SlidingHook::new(|iteration: Iteration, before: &[Vec3], after: &mut [Vec3], sliding: &mut Vec<Sliding>| -> Result<()> {
             if any_colliders {
                 let started = std::time::Instant::now();
@@ -265,7 +270,11 @@ impl Sequence {
                     clearance = Some(in_loop_clearance(&refs, goals, skin, before)?);
                     report.clearance_measurements += 1;
                 }
-                let stats = ColliderSet::new(refs).resolve_path_with(before, after, skin, &ResolveParams::in_loop(), clearance.as_ref())?;
+                let set = ColliderSet::new(refs);
+                let stats = match anchors.as_mut() {
+                    Some(anchors) => set.resolve_path_anchored(before, after, skin, &ResolveParams::in_loop(), clearance.as_ref(), anchors)?,
+                    None => set.resolve_path_with(before, after, skin, &ResolveParams::in_loop(), clearance.as_ref())?,
+                };
                 report.in_loop_contacts += stats.vertex_contacts + stats.edge_contacts + stats.collider_vertex_contacts;
                 report.in_loop_tested += stats.tested;
                 report.max_in_loop_correction = report.max_in_loop_correction.max(stats.max_correction);

@@ -3,7 +3,47 @@
 
 use glam::DVec3;
 
+use super::{ColliderMotion, ColliderSet, ResolveParams};
+use crate::collide::friction::{friction, Hold, Slide};
 use crate::collide::geometry::unit;
+use crate::collide::planes::resting_reference;
+
+impl<'a> ColliderSet<'a> {
+    /// How an edge–edge or collider-corner contact of collider `c` moves the
+    /// skin's contact point: out along the unit `n` by `depth`, less what
+    /// friction holds of its slip relative to the collider since contact
+    /// (the law of [`friction`], as for a vertex on a triangle; on a still
+    /// collider measured from where the point rests, see
+    /// [`resting_reference`]), and how that leaves it. Pairs are
+    /// `[skin point, collider point]` at contact, at the start and at the
+    /// end of the step.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn shared_contact_change(
+        &self,
+        c: usize,
+        params: &ResolveParams,
+        n: DVec3,
+        depth: f64,
+        [pt, rt]: [DVec3; 2],
+        [p0, r0]: [DVec3; 2],
+        [p1, r1]: [DVec3; 2],
+    ) -> (DVec3, Hold) {
+        let settings = self.colliders[c].settings();
+        let push = depth * n;
+        if !params.friction || (settings.static_friction <= 0.0 && settings.kinetic_friction <= 0.0) {
+            return (push, Hold::Sliding(Slide { normal: n.as_vec3(), friction: 0.0 }));
+        }
+        let contact = match params.motion {
+            ColliderMotion::AtCurrent => {
+                let sep = settings.thickness as f64;
+                resting_reference((p0 - r0).dot(n) - sep, self.slack(sep), p0, pt)
+            }
+            ColliderMotion::Swept => pt,
+        };
+        let (change, hold) = friction((p1 + push - contact) - (r1 - rt), n, depth, settings.static_friction as f64, settings.kinetic_friction as f64);
+        (push - change, hold)
+    }
+}
 
 /// Side (+1/−1 along the triangle normal) an open collider's contact is
 /// resolved to: where the vertex was just before contact, else at the start,

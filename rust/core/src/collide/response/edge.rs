@@ -7,6 +7,7 @@ use super::contact::contact_normal;
 use super::{d, ColliderSet, ResolveParams};
 use crate::collide::bvh::Bounds;
 use crate::collide::ccd;
+use crate::collide::friction::Hold;
 use crate::collide::geometry::{triangle_normal, unit};
 use crate::collide::proximity;
 
@@ -20,7 +21,7 @@ impl<'a> ColliderSet<'a> {
         edge: [u32; 2],
         masses: [f64; 2],
         params: &ResolveParams,
-    ) -> Option<(DVec3, DVec3)> {
+    ) -> Option<((DVec3, DVec3), Hold)> {
         let [ia, ib] = edge.map(|v| v as usize);
         let (sa, sb, ea, eb) = (d(start[ia]), d(start[ib]), d(end[ia]), d(end[ib]));
         let (from, to) = (Bounds::of_points(&[start[ia], start[ib]]), Bounds::of_points(&[end[ia], end[ib]]));
@@ -72,8 +73,9 @@ impl<'a> ColliderSet<'a> {
         hits.into_iter().find_map(|(c, e, hit)| self.edge_contact_correction(sa, sb, ea, eb, c, e, hit, masses, params))
     }
 
-    /// Corrections of a skin edge's two ends for one edge–edge contact, or
-    /// `None` if its end positions already keep the separation.
+    /// Corrections of a skin edge's two ends for one edge–edge contact, and
+    /// how friction left its contact point, or `None` if its end positions
+    /// already keep the separation.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn edge_contact_correction(
         &self,
@@ -86,7 +88,7 @@ impl<'a> ColliderSet<'a> {
         hit: ccd::CcdHit,
         [ma, mb]: [f64; 2],
         params: &ResolveParams,
-    ) -> Option<(DVec3, DVec3)> {
+    ) -> Option<((DVec3, DVec3), Hold)> {
         let col = self.colliders[c];
         let sep = col.settings().thickness as f64;
         let ([c0, c1], [c0e, c1e]) = self.edge_ends(c, e, params.motion);
@@ -106,15 +108,16 @@ impl<'a> ColliderSet<'a> {
             return None;
         }
         let depth = sep + self.slack(sep) - dist;
-        // The minimum-norm change under the inverse masses (PBD).
+        let (change, hold) = self.shared_contact_change(c, params, n, depth, [pt, rt], [p0, r0], [p1, r1]);
+        // The minimum-norm change under the inverse masses (PBD) that moves
+        // the contact point by `change`.
         let (wa, wb) = (1.0 - u, u);
         let denominator = ma * wa * wa + mb * wb * wb;
         if !(denominator > 1e-12) {
             return None;
         }
-        let lambda = depth / denominator;
-        let (da, db) = (ma * wa * lambda * n, mb * wb * lambda * n);
-        (da.is_finite() && db.is_finite()).then_some((da, db))
+        let (da, db) = (ma * wa / denominator * change, mb * wb / denominator * change);
+        (da.is_finite() && db.is_finite()).then_some(((da, db), hold))
     }
 
     /// Outward direction at collider edge `e`: the normalised sum of its

@@ -7,6 +7,7 @@ use super::contact::contact_normal;
 use super::{d, ColliderMotion, ColliderSet, ResolveParams};
 use crate::collide::bvh::Bounds;
 use crate::collide::ccd;
+use crate::collide::friction::Hold;
 use crate::collide::geometry::triangle_normal;
 use crate::collide::proximity;
 use crate::collide::slab::SLICES;
@@ -21,7 +22,7 @@ impl<'a> ColliderSet<'a> {
         tri: [u32; 3],
         masses: [f64; 3],
         params: &ResolveParams,
-    ) -> Option<[DVec3; 3]> {
+    ) -> Option<([DVec3; 3], Hold)> {
         let [i0, i1, i2] = tri.map(|v| v as usize);
         let (s0, s1, s2) = (d(start[i0]), d(start[i1]), d(start[i2]));
         let (e0, e1, e2) = (d(end[i0]), d(end[i1]), d(end[i2]));
@@ -82,7 +83,8 @@ impl<'a> ColliderSet<'a> {
     }
 
     /// Corrections of a skin triangle's corners for one collider-vertex
-    /// contact, or `None` if its end positions already keep the separation.
+    /// contact, and how friction left its contact point, or `None` if its
+    /// end positions already keep the separation.
     pub(super) fn face_contact_correction(
         &self,
         ([s0, s1, s2], [e0, e1, e2]): ([DVec3; 3], [DVec3; 3]),
@@ -91,7 +93,7 @@ impl<'a> ColliderSet<'a> {
         hit: ccd::CcdHit,
         masses: [f64; 3],
         params: &ResolveParams,
-    ) -> Option<[DVec3; 3]> {
+    ) -> Option<([DVec3; 3], Hold)> {
         let sep = self.colliders[c].settings().thickness as f64;
         let (r0, r1) = self.vertex_ends(c, v, params.motion);
         let (t, u, w) = (hit.toi, hit.u, hit.v);
@@ -108,16 +110,16 @@ impl<'a> ColliderSet<'a> {
             return None;
         }
         let depth = sep + self.slack(sep) - dist;
+        let (change, hold) = self.shared_contact_change(c, params, n, depth, [pt, rt], [p0, r0], [p1, r1]);
         let denominator: f64 = weights.iter().zip(&masses).map(|(w, m)| m * w * w).sum();
         if !(denominator > 1e-12) {
             return None;
         }
-        let lambda = depth / denominator;
         let mut out = [DVec3::ZERO; 3];
         for k in 0..3 {
-            out[k] = masses[k] * weights[k] * lambda * n;
+            out[k] = masses[k] * weights[k] / denominator * change;
         }
-        out.iter().all(|x| x.is_finite()).then_some(out)
+        out.iter().all(|x| x.is_finite()).then_some((out, hold))
     }
 
     pub(super) fn vertex_ends(&self, c: usize, v: usize, motion: ColliderMotion) -> (DVec3, DVec3) {

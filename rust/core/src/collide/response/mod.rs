@@ -86,7 +86,7 @@ use super::ccd::{self, CcdParams};
 use super::collider::Collider;
 use super::planes::LocalPlanes;
 use super::clearance::Clearance;
-use super::friction::Slide;
+use super::friction::{Anchors, Slide};
 use super::skin::Skin;
 use crate::Result;
 
@@ -297,7 +297,24 @@ impl<'a> ColliderSet<'a> {
         params: &ResolveParams,
         clearance: Option<&Clearance>,
     ) -> Result<ContactStats> {
-        self.resolve(start, end, skin, params, clearance, None)
+        self.resolve(start, end, skin, params, clearance, None, None)
+    }
+
+    /// [`resolve_path_with`](Self::resolve_path_with) for the in-loop passes
+    /// of one solve, where the colliders stand still: the vertices static
+    /// friction holds stay at their `anchors` while the pull stays inside
+    /// the static cone (see [`super::Anchor`]); the pass updates `anchors` for the
+    /// next one.
+    pub fn resolve_path_anchored(
+        &self,
+        start: &[Vec3],
+        end: &mut [Vec3],
+        skin: &Skin,
+        params: &ResolveParams,
+        clearance: Option<&Clearance>,
+        anchors: &mut Anchors,
+    ) -> Result<ContactStats> {
+        self.resolve(start, end, skin, params, clearance, None, Some(anchors))
     }
 
     /// [`resolve_path`](Self::resolve_path) for colliders that sweep, with the
@@ -305,6 +322,6 @@ impl<'a> ColliderSet<'a> {
     /// with them where they still hold (see [`LocalPlanes::drifting`] for
     /// what `carried` must have been measured against).
     pub fn resolve_path_carrying(&self, start: &[Vec3], end: &mut [Vec3], skin: &Skin, params: &ResolveParams, carried: Option<&LocalPlanes>) -> Result<ContactStats> {
-        self.resolve(start, end, skin, params, None, carried)
+        self.resolve(start, end, skin, params, None, carried, None)
     }
 }

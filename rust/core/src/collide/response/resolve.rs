@@ -1,6 +1,7 @@
 //! The rounds of a resolution: detection on what moved, corrections
 //! averaged per vertex, pinched vertices bounded.
 
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::{DVec3, Vec3};
@@ -9,7 +10,8 @@ use rayon::prelude::*;
 use super::{d, ColliderMotion, ColliderSet, ContactStats, ResolveParams};
 use crate::collide::bvh::Bounds;
 use crate::collide::clearance::{Clearance, PLANE_REACH};
-use crate::collide::friction::{Hold, Slide};
+use crate::collide::friction::{Anchor, Anchors, Cone, Hold, Slide};
+use crate::collide::geometry::unit;
 use crate::collide::planes::{Lift, LocalPlanes, VertexStep};
 use crate::collide::skin::Skin;
 use crate::mesh::validate_positions;
@@ -17,12 +19,15 @@ use crate::{Error, Result};
 
 /// One move a pass made of a vertex.
 #[derive(Clone, Copy)]
-enum Move {
-    /// A vertex–triangle projection (or a lift along a plane), or a hold-back.
+pub(super) enum Move {
+    /// A vertex–triangle projection (or a lift along a plane), or pushes
+    /// that static friction held.
     Projected(Hold),
-    /// A frictionless push out along an edge–edge or collider corner
-    /// contact's normal, by this change.
-    Pushed(Vec3),
+    /// A push out along edge–edge or collider corner contacts' normals, by
+    /// this change, slowed by this kinetic friction (0: none).
+    Pushed(Vec3, f32),
+    /// Put back where its step started (`hold_back`).
+    HeldBack,
 }
 
 /// Whether a vertex moved by `moves` (in order) is left sliding, and along
@@ -35,19 +40,83 @@ fn sliding_after(moves: impl Iterator<Item = Move>) -> Option<Slide> {
     for m in moves {
         state = match (m, state) {
             (Move::Projected(Hold::Sliding(slide)), _) => Some(slide),
-            (Move::Projected(Hold::Stuck), _) => None,
-            (Move::Pushed(delta), Some(slide)) if delta.dot(slide.normal) > 0.99 * delta.length() => Some(slide),
-            (Move::Pushed(delta), None) if first => delta.try_normalize().map(|normal| Slide { normal, friction: 0.0 }),
-            (Move::Pushed(_), _) => None,
+            (Move::Projected(Hold::Stuck(_)), _) | (Move::HeldBack, _) => None,
+            (Move::Pushed(delta, _), Some(slide)) if delta.dot(slide.normal) > 0.99 * delta.length() => Some(slide),
+            (Move::Pushed(delta, friction), None) if first => delta.try_normalize().map(|normal| Slide { normal, friction }),
+            (Move::Pushed(..), _) => None,
         };
         first = false;
     }
     state
 }
 
+/// The anchors as one pass reads them: an anchored vertex's first contact
+/// in the pass decides, from where the solve pulled it, whether it stays
+/// stuck ([`Anchor::holds`]); if so, every contact of it in the pass ends
+/// at its anchor ([`Anchor::lift`]).
+struct AnchorPass<'x> {
+    anchors: Option<&'x Anchors>,
+    held: HashMap<u32, bool>,
+}
+
+impl AnchorPass<'_> {
+    /// Vertex `i`'s anchor if it holds the vertex in this pass; `pulled` is
+    /// where the vertex is before this contact moves it.
+    fn held(&mut self, i: u32, pulled: Vec3) -> Option<Anchor> {
+        let anchor = *self.anchors?.get(i)?;
+        self.held.entry(i).or_insert_with(|| anchor.holds(pulled)).then_some(anchor)
+    }
+
+    /// Vertex `i`'s anchor if a contact in this pass found it held.
+    fn kept(&self, i: u32) -> Option<Anchor> {
+        self.held.get(&i).copied().unwrap_or(false).then(|| self.anchors.and_then(|a| a.get(i).copied())).flatten()
+    }
+}
+
+/// The pushes of one round on one vertex: their changes, how many, and how
+/// friction left their contact points.
+#[derive(Default)]
+struct Pushes {
+    delta: DVec3,
+    count: u32,
+    /// Sum of the normals of the contacts static friction held, and the
+    /// cone of the first of them.
+    stuck_normals: DVec3,
+    stuck: Option<Cone>,
+    stuck_count: u32,
+    /// Largest kinetic friction of the contacts that slid.
+    kinetic_friction: f32,
+}
+
+impl Pushes {
+    fn add(&mut self, delta: DVec3, hold: Hold) {
+        self.delta += delta;
+        self.count += 1;
+        match hold {
+            Hold::Stuck(cone) => {
+                self.stuck_normals += cone.normal.as_dvec3();
+                self.stuck.get_or_insert(cone);
+                self.stuck_count += 1;
+            }
+            Hold::Sliding(slide) => self.kinetic_friction = self.kinetic_friction.max(slide.friction),
+        }
+    }
+
+    /// Stuck (in the cone of the contacts' mean normal) if static friction
+    /// held every contact, else pushed by `delta`.
+    fn outcome(&self, delta: Vec3) -> Move {
+        match (self.stuck, unit(self.stuck_normals)) {
+            (Some(cone), Some(normal)) if self.stuck_count == self.count => Move::Projected(Hold::Stuck(Cone { normal: normal.as_vec3(), ..cone })),
+            _ => Move::Pushed(delta, self.kinetic_friction),
+        }
+    }
+}
+
 impl<'a> ColliderSet<'a> {
     /// Edge–edge and collider-vertex–skin-triangle corrections of one round,
-    /// averaged per vertex. Returns the number of contacts and the changes.
+    /// averaged per vertex. Returns the number of contacts and per vertex its
+    /// new end and how the contacts left it: stuck if static friction held
+    /// every one of them (in their mean normal's cone), else pushed.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn shared_corrections(
         &self,
@@ -58,9 +127,9 @@ impl<'a> ColliderSet<'a> {
         triangles: &[u32],
         params: &ResolveParams,
         planes: Option<(&LocalPlanes, &[Vec3])>,
-    ) -> (usize, usize, Vec<(u32, Vec3)>) {
+    ) -> (usize, usize, Vec<(u32, Vec3, Move)>) {
         let cleared = |corners: &[u32]| planes.is_some_and(|(p, from)| p.clears(corners, from, end));
-        let from_edges: Vec<(u32, [DVec3; 2])> = if params.edge_edge {
+        let from_edges: Vec<(u32, [DVec3; 2], Hold)> = if params.edge_edge {
             edges
                 .par_iter()
                 .filter_map(|&k| {
@@ -68,13 +137,13 @@ impl<'a> ColliderSet<'a> {
                     if cleared(&edge) {
                         return None;
                     }
-                    self.edge_correction(start, end, edge, edge.map(|v| skin.inverse_mass(v)), params).map(|(a, b)| (k, [a, b]))
+                    self.edge_correction(start, end, edge, edge.map(|v| skin.inverse_mass(v)), params).map(|((a, b), hold)| (k, [a, b], hold))
                 })
                 .collect()
         } else {
             Vec::new()
         };
-        let from_faces: Vec<(u32, [DVec3; 3])> = if params.collider_vertices {
+        let from_faces: Vec<(u32, [DVec3; 3], Hold)> = if params.collider_vertices {
             triangles
                 .par_iter()
                 .filter_map(|&k| {
@@ -82,33 +151,30 @@ impl<'a> ColliderSet<'a> {
                     if cleared(&tri) {
                         return None;
                     }
-                    self.face_correction(start, end, tri, tri.map(|v| skin.inverse_mass(v)), params).map(|c| (k, c))
+                    self.face_correction(start, end, tri, tri.map(|v| skin.inverse_mass(v)), params).map(|(c, hold)| (k, c, hold))
                 })
                 .collect()
         } else {
             Vec::new()
         };
-        let mut sum: std::collections::BTreeMap<u32, (DVec3, u32)> = Default::default();
-        let mut add = |v: u32, delta: DVec3| {
-            let slot = sum.entry(v).or_insert((DVec3::ZERO, 0));
-            slot.0 += delta;
-            slot.1 += 1;
-        };
-        for (k, deltas) in &from_edges {
+        let mut sum: std::collections::BTreeMap<u32, Pushes> = Default::default();
+        let mut add = |v: u32, delta: DVec3, hold: Hold| sum.entry(v).or_default().add(delta, hold);
+        for (k, deltas, hold) in &from_edges {
             for (&v, &delta) in skin.edges()[*k as usize].iter().zip(deltas) {
-                add(v, delta);
+                add(v, delta, *hold);
             }
         }
-        for (k, deltas) in &from_faces {
+        for (k, deltas, hold) in &from_faces {
             for (&v, &delta) in skin.triangles()[*k as usize].iter().zip(deltas) {
-                add(v, delta);
+                add(v, delta, *hold);
             }
         }
         let changes = sum
             .into_iter()
-            .filter_map(|(v, (delta, count))| {
-                let p = (d(end[v as usize]) + delta / count as f64).as_vec3();
-                p.is_finite().then_some((v, p))
+            .filter_map(|(v, pushes)| {
+                let delta = pushes.delta / pushes.count as f64;
+                let p = (d(end[v as usize]) + delta).as_vec3();
+                p.is_finite().then(|| (v, p, pushes.outcome(delta.as_vec3())))
             })
             .collect();
         (from_edges.len(), from_faces.len(), changes)
@@ -178,7 +244,7 @@ impl<'a> ColliderSet<'a> {
                 .filter(|&i| !held[i as usize] && self.step_collides(i, start, end, params, planes, &lift))
                 .collect();
             let (_, _, shared) = self.shared_corrections(start, end, skin, &edges, &triangles, params, planes);
-            again.extend(shared.iter().map(|(v, _)| *v).filter(|&v| !held[v as usize]));
+            again.extend(shared.iter().map(|(v, ..)| *v).filter(|&v| !held[v as usize]));
             again.sort_unstable();
             again.dedup();
             newly = again;
@@ -187,6 +253,7 @@ impl<'a> ColliderSet<'a> {
         all
     }
 
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn resolve(
         &self,
         start: &[Vec3],
@@ -195,6 +262,7 @@ impl<'a> ColliderSet<'a> {
         params: &ResolveParams,
         clearance: Option<&Clearance>,
         carried: Option<&LocalPlanes>,
+        anchors: Option<&mut Anchors>,
     ) -> Result<ContactStats> {
         let n = start.len();
         if end.len() != n || skin.vertex_count() != n {
@@ -297,6 +365,9 @@ impl<'a> ColliderSet<'a> {
             None => clearance.and_then(|c| c.planes()).map(|planes| (planes, start)),
         };
         let lifted = AtomicUsize::new(0);
+        // Anchors hold where the colliders stand still.
+        let mut anchors = anchors.filter(|_| still);
+        let mut anchored = AnchorPass { anchors: anchors.as_deref(), held: HashMap::new() };
         let mut converged = false;
         for _ in 0..params.max_rounds.max(1) {
             stats.rounds += 1;
@@ -326,6 +397,10 @@ impl<'a> ColliderSet<'a> {
             };
             let mut lifted_now: Vec<u32> = Vec::with_capacity(updates.len());
             for (i, (p, hold)) in updates {
+                let (p, hold) = match anchored.held(i, end[i as usize]) {
+                    Some(anchor) => (anchor.lift(p, hold.normal()), Hold::Stuck(anchor.cone)),
+                    None => (p, hold),
+                };
                 apply(i, p, end);
                 holds.push((i, Move::Projected(hold)));
                 lifted_now.push(i);
@@ -339,8 +414,19 @@ impl<'a> ColliderSet<'a> {
             stats.edge_contacts += ee;
             stats.collider_vertex_contacts += fv;
             let mut pushed: Vec<u32> = Vec::with_capacity(shared.len());
-            for (i, p) in shared {
-                holds.push((i, Move::Pushed(p - end[i as usize])));
+            for (i, p, how) in shared {
+                let (p, how) = match (anchored.held(i, end[i as usize]), how) {
+                    (Some(anchor), how) => {
+                        let normal = match how {
+                            Move::Projected(hold) => hold.normal(),
+                            _ => (p - end[i as usize]).normalize_or_zero(),
+                        };
+                        (anchor.lift(p, normal), Move::Projected(Hold::Stuck(anchor.cone)))
+                    }
+                    (None, Move::Pushed(_, friction)) => (p, Move::Pushed(p - end[i as usize], friction)),
+                    (None, how) => (p, how),
+                };
+                holds.push((i, how));
                 apply(i, p, end);
                 pushed.push(i);
             }
@@ -366,7 +452,7 @@ impl<'a> ColliderSet<'a> {
                 .filter(|&i| self.step_collides(i, start, end, params, planes, lift))
                 .collect();
             let (_, _, shared) = self.shared_corrections(start, end, skin, &active_edges, &active_triangles, params, planes);
-            pinched.extend(shared.iter().map(|(v, _)| *v));
+            pinched.extend(shared.iter().map(|(v, ..)| *v));
             pinched.sort_unstable();
             pinched.dedup();
             if self.stand_still(params.motion) {
@@ -375,7 +461,7 @@ impl<'a> ColliderSet<'a> {
                 // there, so a contact that held keeps holding while nothing moves the
                 // colliders, and nothing is pinched that has room (issue 29).
                 let held = self.hold_back(start, end, skin, params, pinched, &active, planes, lift);
-                holds.extend(held.iter().map(|&v| (v, Move::Projected(Hold::Stuck))));
+                holds.extend(held.iter().map(|&v| (v, Move::HeldBack)));
                 stats.held = held;
                 pinched = Vec::new();
             }
@@ -402,6 +488,30 @@ impl<'a> ColliderSet<'a> {
             .filter(|moves| stats.pinched.binary_search(&moves[0].0).is_err())
             .filter_map(|moves| Some((moves[0].0, sliding_after(moves.iter().map(|m| m.1))?)))
             .collect();
+        // A vertex the pass left stuck is anchored where it ends, unless an
+        // anchor held it already (which stays where it was): the anchors of
+        // the next pass. Those the pass released, left sliding or pinched,
+        // or no longer touched (lifted off the surface) have none.
+        if anchors.is_some() {
+            let mut next = HashMap::new();
+            for moves in holds.chunk_by(|a, b| a.0 == b.0) {
+                let i = moves[0].0;
+                if stats.pinched.binary_search(&i).is_ok() {
+                    continue;
+                }
+                let anchor = match moves.last().map(|m| m.1) {
+                    Some(Move::Projected(Hold::Stuck(cone))) => Some(anchored.kept(i).unwrap_or(Anchor { point: end[i as usize], cone })),
+                    Some(Move::HeldBack) => anchored.kept(i),
+                    _ => None,
+                };
+                if let Some(anchor) = anchor {
+                    next.insert(i, anchor);
+                }
+            }
+            if let Some(anchors) = anchors.as_deref_mut() {
+                anchors.replace(next);
+            }
+        }
         requested.sort_unstable_by_key(|&(i, _)| i);
         for (i, asked) in requested {
             stats.moved.push(i);

@@ -23,7 +23,7 @@ impl ColliderSet<'_> {
             .collect();
         let (edges, triangles) = skin.touching(vertices, (&[], &[]));
         let (_, _, shared) = self.shared_corrections(start, end, skin, &edges, &triangles, params, None);
-        bad.extend(shared.iter().map(|(v, _)| *v));
+        bad.extend(shared.iter().map(|(v, ..)| *v));
         bad.sort_unstable();
         bad.dedup();
         bad

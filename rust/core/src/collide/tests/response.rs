@@ -4,7 +4,7 @@ use glam::Vec3;
 
 use crate::collide::audit::{audit, AuditParams};
 use crate::mesh::fan_triangles;
-use crate::collide::{Clearance, Collider, ColliderSet, ColliderSettings, ResolveParams, Skin};
+use crate::collide::{Anchors, Clearance, Collider, ColliderSet, ColliderSettings, ResolveParams, Skin};
 use crate::mesh::shapes::{grid, quad_sphere, PolyMesh};
 
 fn offsets(mesh: &PolyMesh) -> Vec<u32> {
@@ -427,4 +427,86 @@ fn a_resting_contact_held_by_static_friction_does_not_creep_over_iterations() {
     let mut end = [rest + Vec3::new(0.5, 0.0, -0.1)];
     set.resolve_path(&[rest], &mut end, &topo, &ResolveParams::in_loop()).unwrap();
     assert!(end[0].x > 0.3 && end[0].x < 0.5, "{:?}", end[0]);
+}
+
+/// A vertex static friction holds on a faceted sphere stays at its anchor
+/// across iterations while each pull stays inside the cone, even where
+/// something else (a neighbour's edge contact, another pass) moves it a
+/// little along the surface between iterations (issue 28: without the
+/// anchor each pass held it where it then was, and such moves accumulated
+/// into a creep along the collider).
+#[test]
+fn a_vertex_held_by_static_friction_on_a_faceted_collider_stays_at_its_anchor() {
+    let thickness = 0.01;
+    let c = collider_of(&quad_sphere(3, 0.6), Vec3::ZERO, ColliderSettings::new(thickness, 1.0));
+    let topo = Skin::vertices_only(1);
+    let set = ColliderSet::new([&c]);
+    // Dropped onto the sphere beside its top, near a facet crease.
+    let mut first = [Vec3::new(0.18, 0.07, 0.3)];
+    set.resolve_path(&[Vec3::new(0.18, 0.07, 1.0)], &mut first, &topo, &ResolveParams::in_loop()).unwrap();
+    let rest = first[0];
+    // Each pull: towards the centre and along the surface, within the cone;
+    // between passes a nudge of 0.001 along x.
+    let pull = |at: Vec3| -0.08 * at.normalize() + Vec3::new(0.03, 0.02, 0.0);
+    let passes = |anchored: bool| {
+        let mut anchors = Anchors::new();
+        let mut at = rest;
+        let mut ended = rest;
+        for _ in 0..100 {
+            let mut end = [at + pull(at)];
+            match anchored {
+                true => set.resolve_path_anchored(&[at], &mut end, &topo, &ResolveParams::in_loop(), None, &mut anchors).unwrap(),
+                false => set.resolve_path_with(&[at], &mut end, &topo, &ResolveParams::in_loop(), None).unwrap(),
+            };
+            let gap = (end[0] - c.closest_point(end[0]).unwrap().point).length();
+            assert!(end[0].length() > 0.5 && gap >= thickness, "inside or within the thickness: {end:?}");
+            ended = end[0];
+            at = end[0] + Vec3::new(0.001, 0.0, 0.0);
+        }
+        ended
+    };
+    let (held, unanchored) = (passes(true), passes(false));
+    // Held on the normal through the anchor, lifted at most a little more
+    // than the slack a neighbouring facet's contact asks.
+    let normal = (rest - c.closest_point(rest).unwrap().point).normalize();
+    let offset = held - rest;
+    let along = offset - offset.dot(normal) * normal;
+    assert!(along.length() < 1e-4 && offset.length() < 0.5 * thickness, "crept from {rest:?} to {held:?}");
+    assert!((unanchored - rest).length() > 0.05, "without the anchor the nudges accumulate: {rest:?} to {unanchored:?}");
+}
+
+/// A skin edge resting across a collider's ridge (an edge–edge contact, no
+/// vertex near a triangle) obeys the same friction as a vertex on a
+/// triangle: pulled along the ridge inside the static cone it stays put,
+/// beyond it it slides less by kinetic friction, and without friction it
+/// follows the pull.
+#[test]
+fn a_skin_edge_on_a_collider_ridge_sticks_within_the_static_cone_and_slides_beyond_it() {
+    // A thin closed wedge whose top edge is a ridge along y at x = 0, z = 1.
+    let p = [Vec3::new(-0.1, -1.0, 0.0), Vec3::new(0.1, -1.0, 0.0), Vec3::new(-0.1, 1.0, 0.0), Vec3::new(0.1, 1.0, 0.0), Vec3::new(0.0, -1.0, 1.0), Vec3::new(0.0, 1.0, 1.0)];
+    let tris = [[0, 2, 3], [0, 3, 1], [0, 4, 5], [0, 5, 2], [1, 3, 5], [1, 5, 4], [0, 1, 4], [2, 5, 3]];
+    let topo = Skin::new(2, vec![[0, 1]], vec![]).unwrap();
+    let rest_on = |c: &Collider| {
+        let mut end = [Vec3::new(-2.0, 0.0, 0.9), Vec3::new(2.0, 0.0, 0.9)];
+        ColliderSet::new([c]).resolve_path(&[Vec3::new(-2.0, 0.0, 2.0), Vec3::new(2.0, 0.0, 2.0)], &mut end, &topo, &ResolveParams::in_loop()).unwrap();
+        end
+    };
+    // Each pass pulls the edge 0.01 along the ridge and 0.05 into it, 20 times.
+    let pulled = |friction: f32, along: f32| {
+        let c = Collider::new(&p, &tris, ColliderSettings::new(0.01, friction)).unwrap();
+        let mut at = rest_on(&c);
+        assert!(at.iter().all(|v| v.z > 1.0), "resting on the ridge: {at:?}");
+        for _ in 0..20 {
+            let mut end = at.map(|v| v + Vec3::new(0.0, along, -0.05));
+            let stats = ColliderSet::new([&c]).resolve_path(&at, &mut end, &topo, &ResolveParams::in_loop()).unwrap();
+            assert!(stats.edge_contacts > 0 && stats.vertex_contacts == 0, "{stats:?}");
+            assert!(end.iter().all(|v| v.z > 1.0), "through the ridge: {end:?}");
+            at = end;
+        }
+        at[0].y
+    };
+    assert!(pulled(1.0, 0.01).abs() < 1e-4, "held inside the cone (0.01 < 1 · 0.05)");
+    assert!((pulled(0.0, 0.01) - 0.2).abs() < 1e-3, "frictionless: follows the pull");
+    let slid = pulled(0.1, 0.01);
+    assert!(slid > 0.05 && slid < 0.2 - 1e-3, "beyond the cone (0.01 > 0.1 · 0.05): slides, less than the pull ({slid})");
 }
