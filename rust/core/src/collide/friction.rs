@@ -12,7 +12,10 @@
 //! **anchored** ([`Anchor`]): while the pull of the following iterations
 //! stays inside the static cone it is held at the point where it stuck,
 //! lifted out along that contact's normal only as far as a contact asks,
-//! whichever triangle, plane or edge touches it then. On a faceted
+//! whichever triangle or plane touches it then. An edge or corner of the
+//! collider pushing it lets it go for the rest of the pass: the push is
+//! applied with its own friction, and the vertex is anchored again where it
+//! ends (held at the old anchor, a pushed vertex could stay inside). On a faceted
 //! collider the nearest facet changes as the solve moves a vertex, and each
 //! facet's normal moves it a little along the surface: without the anchor a
 //! held vertex creeps (issue 28).

@@ -67,6 +67,11 @@ impl AnchorPass<'_> {
         self.held.entry(i).or_insert_with(|| anchor.holds(pulled)).then_some(anchor)
     }
 
+    /// Vertex `i` leaves its anchor for the rest of the pass.
+    fn release(&mut self, i: u32) {
+        self.held.insert(i, false);
+    }
+
     /// Vertex `i`'s anchor if a contact in this pass found it held.
     fn kept(&self, i: u32) -> Option<Anchor> {
         self.held.get(&i).copied().unwrap_or(false).then(|| self.anchors.and_then(|a| a.get(i).copied())).flatten()
@@ -415,16 +420,10 @@ impl<'a> ColliderSet<'a> {
             stats.collider_vertex_contacts += fv;
             let mut pushed: Vec<u32> = Vec::with_capacity(shared.len());
             for (i, p, how) in shared {
-                let (p, how) = match (anchored.held(i, end[i as usize]), how) {
-                    (Some(anchor), how) => {
-                        let normal = match how {
-                            Move::Projected(hold) => hold.normal(),
-                            _ => (p - end[i as usize]).normalize_or_zero(),
-                        };
-                        (anchor.lift(p, normal), Move::Projected(Hold::Stuck(anchor.cone)))
-                    }
-                    (None, Move::Pushed(_, friction)) => (p, Move::Pushed(p - end[i as usize], friction)),
-                    (None, how) => (p, how),
+                anchored.release(i);
+                let how = match how {
+                    Move::Pushed(_, friction) => Move::Pushed(p - end[i as usize], friction),
+                    how => how,
                 };
                 holds.push((i, how));
                 apply(i, p, end);
