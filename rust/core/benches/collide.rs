@@ -61,7 +61,7 @@ fn frame(scene: &mut Scene, k: usize) -> (usize, usize) {
         for (p, q) in x.iter_mut().zip(input) {
             *p += 0.5 * (*q - *p);
         }
-        let s = set.resolve_path_with(&before, &mut x, &scene.topology, &ResolveParams::in_loop(), Some(&clearance)).unwrap();
+        let s = set.resolve_path_with(&before, &mut x, &scene.topology, &ResolveParams::in_loop(), Some(&clearance), None).unwrap();
         pinched = s.pinched.len();
     }
     scene.output = x;
@@ -195,7 +195,7 @@ fn main() {
         let in_loop = with_threads(threads, || {
             median_ms(3, || {
                 y.copy_from_slice(&pulled);
-                set.resolve_path_with(&before, &mut y, &scene.topology, &ResolveParams::in_loop(), clearance.as_ref()).unwrap();
+                set.resolve_path_with(&before, &mut y, &scene.topology, &ResolveParams::in_loop(), clearance.as_ref(), None).unwrap();
             })
         });
         report.add(&case, "one in-loop pass", in_loop, "ms", threads, "with the clearance and planes");

@@ -135,6 +135,11 @@ impl Anchors {
         self.by_vertex.get(&vertex)
     }
 
+    /// Every anchor with its vertex, in no particular order.
+    pub(crate) fn iter(&self) -> impl Iterator<Item = (u32, Anchor)> + '_ {
+        self.by_vertex.iter().map(|(&i, &anchor)| (i, anchor))
+    }
+
     pub fn len(&self) -> usize {
         self.by_vertex.len()
     }

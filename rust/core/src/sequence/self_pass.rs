@@ -188,7 +188,7 @@ pub(super) fn in_loop(
     let set = ColliderSet::new(colliders.iter().copied());
     let params = ResolveParams::in_loop();
     if !colliders.is_empty() && stats.contacts > 0 {
-        let again = set.resolve_path_with(before, after, skin, &params, clearance)?;
+        let again = set.resolve_path_with(before, after, skin, &params, clearance, None)?;
         report.in_loop_contacts += again.vertex_contacts + again.edge_contacts + again.collider_vertex_contacts;
         report.held += again.held.len();
     }

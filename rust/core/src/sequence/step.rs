@@ -271,10 +271,7 @@ impl Sequence {
                     report.clearance_measurements += 1;
                 }
                 let set = ColliderSet::new(refs);
-                let stats = match anchors.as_mut() {
-                    Some(anchors) => set.resolve_path_anchored(before, after, skin, &ResolveParams::in_loop(), clearance.as_ref(), anchors)?,
-                    None => set.resolve_path_with(before, after, skin, &ResolveParams::in_loop(), clearance.as_ref())?,
-                };
+                let stats = set.resolve_path_with(before, after, skin, &ResolveParams::in_loop(), clearance.as_ref(), anchors.as_mut())?;
                 report.in_loop_contacts += stats.vertex_contacts + stats.edge_contacts + stats.collider_vertex_contacts;
                 report.in_loop_tested += stats.tested;
                 report.max_in_loop_correction = report.max_in_loop_correction.max(stats.max_correction);

@@ -159,7 +159,7 @@ pub(super) fn limit_strain_with_contacts(
         }
         if !set.colliders().is_empty() {
             let projected = shortened.clone();
-            let stats = set.resolve_path_with(x, &mut shortened, skin, &params, clearance)?;
+            let stats = set.resolve_path_with(x, &mut shortened, skin, &params, clearance, None)?;
             if !stats.moved.is_empty() && above.is_empty() {
                 above = vec![(Vec3::ZERO, 0.0); x.len()];
             }

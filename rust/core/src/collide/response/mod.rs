@@ -55,7 +55,7 @@
 //! for _ in 0..iterations {
 //!     let before = x.clone();
 //!     solver.iterate(&mut x);                         // global + local step
-//!     let s = set.resolve_path_with(&before, &mut x, &skin, &ResolveParams::in_loop(), Some(&clearance))?;
+//!     let s = set.resolve_path_with(&before, &mut x, &skin, &ResolveParams::in_loop(), Some(&clearance), None)?;
 //!     // s.pinched → soft constraints / report
 //! }
 //! ```
@@ -281,14 +281,17 @@ impl<'a> ColliderSet<'a> {
     /// Makes the motion `start → end` collision-free against the colliders by
     /// changing `end` (see the module documentation).
     pub fn resolve_path(&self, start: &[Vec3], end: &mut [Vec3], skin: &Skin, params: &ResolveParams) -> Result<ContactStats> {
-        self.resolve_path_with(start, end, skin, params, None)
+        self.resolve_path_with(start, end, skin, params, None, None)
     }
 
     /// [`resolve_path`](Self::resolve_path), skipping the skin elements that
     /// `clearance` proves apart from the colliders (if it was measured
     /// against them in their present state and they stand still in this
-    /// pass; otherwise it is not used).
-    /// The in-loop passes of a frame share one clearance.
+    /// pass; otherwise it is not used). The in-loop passes of a frame share
+    /// one clearance, and, where the colliders stand still through the
+    /// solve, their `anchors`: the vertices static friction holds stay at
+    /// their anchors while the pull stays inside the static cone (see
+    /// [`super::Anchor`]); the pass updates `anchors` for the next one.
     pub fn resolve_path_with(
         &self,
         start: &[Vec3],
@@ -296,25 +299,9 @@ impl<'a> ColliderSet<'a> {
         skin: &Skin,
         params: &ResolveParams,
         clearance: Option<&Clearance>,
+        anchors: Option<&mut Anchors>,
     ) -> Result<ContactStats> {
-        self.resolve(start, end, skin, params, clearance, None, None)
-    }
-
-    /// [`resolve_path_with`](Self::resolve_path_with) for the in-loop passes
-    /// of one solve, where the colliders stand still: the vertices static
-    /// friction holds stay at their `anchors` while the pull stays inside
-    /// the static cone (see [`super::Anchor`]); the pass updates `anchors` for the
-    /// next one.
-    pub fn resolve_path_anchored(
-        &self,
-        start: &[Vec3],
-        end: &mut [Vec3],
-        skin: &Skin,
-        params: &ResolveParams,
-        clearance: Option<&Clearance>,
-        anchors: &mut Anchors,
-    ) -> Result<ContactStats> {
-        self.resolve(start, end, skin, params, clearance, None, Some(anchors))
+        self.resolve(start, end, skin, params, clearance, None, anchors)
     }
 
     /// [`resolve_path`](Self::resolve_path) for colliders that sweep, with the

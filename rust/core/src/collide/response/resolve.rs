@@ -67,6 +67,29 @@ impl AnchorPass<'_> {
         self.held.entry(i).or_insert_with(|| anchor.holds(pulled)).then_some(anchor)
     }
 
+    /// The anchored vertices no contact of this round touches although the
+    /// solve pulled them into their anchor's surface within its static cone,
+    /// ascending, with their anchors: they are held there. A contact puts a
+    /// vertex a slack beyond the collider's thickness, and a pull back into
+    /// that slack meets no contact: without this, such a vertex lost its
+    /// anchor, sank below the thickness in the next iteration and was
+    /// anchored again elsewhere, a cycle of four iterations that kept the
+    /// slide's first frame in contact 5 % from converged (issue 28,
+    /// `docs/performance.md`). Marks them held for the pass.
+    fn pressed_without_contact(&mut self, contacts: &[u32], end: &[Vec3]) -> Vec<(u32, Anchor)> {
+        let Some(anchors) = self.anchors else { return Vec::new() };
+        let mut pressed: Vec<(u32, Anchor)> = anchors
+            .iter()
+            .filter(|(i, _)| contacts.binary_search(i).is_err())
+            .filter(|(i, anchor)| anchor.holds(end[*i as usize]))
+            .collect();
+        pressed.sort_unstable_by_key(|&(i, _)| i);
+        for &(i, _) in &pressed {
+            self.held.insert(i, true);
+        }
+        pressed
+    }
+
     /// Vertex `i` leaves its anchor for the rest of the pass.
     fn release(&mut self, i: u32) {
         self.held.insert(i, false);
@@ -401,6 +424,15 @@ impl<'a> ColliderSet<'a> {
                 end[i as usize] = p;
             };
             let mut lifted_now: Vec<u32> = Vec::with_capacity(updates.len());
+            if stats.rounds == 1 {
+                let mut contacts: Vec<u32> = updates.iter().map(|&(i, _)| i).collect();
+                contacts.sort_unstable();
+                for (i, anchor) in anchored.pressed_without_contact(&contacts, end) {
+                    apply(i, anchor.point, end);
+                    holds.push((i, Move::Projected(Hold::Stuck(anchor.cone))));
+                    lifted_now.push(i);
+                }
+            }
             for (i, (p, hold)) in updates {
                 let (p, hold) = match anchored.held(i, end[i as usize]) {
                     Some(anchor) => (anchor.lift(p, hold.normal()), Hold::Stuck(anchor.cone)),

@@ -344,7 +344,7 @@ fn a_clearance_changes_nothing_but_the_work() {
     for _ in 0..6 {
         let (b1, b2) = (pull(&mut with, &target), pull(&mut without, &target));
         skipped += clearance.clear(&topo, &b1, &with).vertex.iter().filter(|&&c| c).count();
-        let s1 = set.resolve_path_with(&b1, &mut with, &topo, &ResolveParams::in_loop(), Some(&clearance)).unwrap();
+        let s1 = set.resolve_path_with(&b1, &mut with, &topo, &ResolveParams::in_loop(), Some(&clearance), None).unwrap();
         let s2 = set.resolve_path(&b2, &mut without, &topo, &ResolveParams::in_loop()).unwrap();
         assert_eq!(s1.moved, s2.moved);
         assert_eq!(s1.pinched, s2.pinched);
@@ -372,7 +372,7 @@ fn planes_lift_the_skin_pulled_back_in_without_a_lookup_and_keep_it_out() {
     let (mut lifted, mut contacts) = (0, 0);
     for _ in 0..6 {
         let (b1, b2) = (pull(&mut with, &target), pull(&mut without, &target));
-        let s1 = set.resolve_path_with(&b1, &mut with, &topo, &ResolveParams::in_loop(), Some(&clearance)).unwrap();
+        let s1 = set.resolve_path_with(&b1, &mut with, &topo, &ResolveParams::in_loop(), Some(&clearance), None).unwrap();
         let s2 = set.resolve_path(&b2, &mut without, &topo, &ResolveParams::in_loop()).unwrap();
         assert!(s1.pinched.is_empty() && s2.pinched.is_empty());
         lifted += s1.plane_lifts;
@@ -416,7 +416,7 @@ fn a_resting_contact_held_by_static_friction_does_not_creep_over_iterations() {
         let mut at = rest;
         for _ in 0..200 {
             let mut end = [at + pull];
-            set.resolve_path_with(&[at], &mut end, &topo, &ResolveParams::in_loop(), clearance).unwrap();
+            set.resolve_path_with(&[at], &mut end, &topo, &ResolveParams::in_loop(), clearance, None).unwrap();
             at = end[0];
         }
         let planes_used = clearance.is_some();
@@ -455,8 +455,8 @@ fn a_vertex_held_by_static_friction_on_a_faceted_collider_stays_at_its_anchor() 
         for _ in 0..100 {
             let mut end = [at + pull(at)];
             match anchored {
-                true => set.resolve_path_anchored(&[at], &mut end, &topo, &ResolveParams::in_loop(), None, &mut anchors).unwrap(),
-                false => set.resolve_path_with(&[at], &mut end, &topo, &ResolveParams::in_loop(), None).unwrap(),
+                true => set.resolve_path_with(&[at], &mut end, &topo, &ResolveParams::in_loop(), None, Some(&mut anchors)).unwrap(),
+                false => set.resolve_path_with(&[at], &mut end, &topo, &ResolveParams::in_loop(), None, None).unwrap(),
             };
             let gap = (end[0] - c.closest_point(end[0]).unwrap().point).length();
             assert!(end[0].length() > 0.5 && gap >= thickness, "inside or within the thickness: {end:?}");
@@ -473,6 +473,47 @@ fn a_vertex_held_by_static_friction_on_a_faceted_collider_stays_at_its_anchor() 
     let along = offset - offset.dot(normal) * normal;
     assert!(along.length() < 1e-4 && offset.length() < 0.5 * thickness, "crept from {rest:?} to {held:?}");
     assert!((unanchored - rest).length() > 0.05, "without the anchor the nudges accumulate: {rest:?} to {unanchored:?}");
+}
+
+/// A vertex anchored on a still collider and pulled back into the slack a
+/// contact leaves above the thickness (no contact is detected there) stays
+/// held at its anchor, and the anchor stays for the next pass: a deeper pull
+/// inside the cone then ends at the same anchor. Issue 28: without this, the
+/// shallow pull dropped the anchor, the vertex sank below the thickness in
+/// the next iteration and was anchored again from where it was, so the
+/// slide's first frame in contact cycled with a period of four iterations
+/// and stopped 5 % from converged; here the anchor would creep by the
+/// shallow pull's slip every cycle.
+#[test]
+fn a_vertex_pulled_into_the_slack_above_its_anchor_stays_anchored() {
+    let c = floor(ColliderSettings::new(0.01, 1.0));
+    let topo = Skin::vertices_only(1);
+    let set = ColliderSet::new([&c]);
+    let mut anchors = Anchors::new();
+    let mut end = [Vec3::new(0.0, 0.0, -0.1)];
+    set.resolve_path_with(&[Vec3::new(0.0, 0.0, 0.5)], &mut end, &topo, &ResolveParams::in_loop(), None, Some(&mut anchors)).unwrap();
+    let rest = end[0];
+    assert!(anchors.get(0).is_some_and(|a| a.point == rest), "stuck where it landed: {rest:?}");
+    // Shallow: 0.0005 back into the slack (above the thickness, 0.01) and
+    // 0.0002 along x, inside the cone; deep: 0.005 in, 0.002 along x.
+    let (shallow, deep) = (Vec3::new(0.0002, 0.0, -0.0005), Vec3::new(0.002, 0.0, -0.005));
+    assert!((rest + shallow).z > 0.01, "the shallow pull stays clear of the thickness");
+    let mut at = rest;
+    for cycle in 0..20 {
+        let mut end = [at + shallow];
+        let stats = set.resolve_path_with(&[at], &mut end, &topo, &ResolveParams::in_loop(), None, Some(&mut anchors)).unwrap();
+        assert_eq!((end[0], stats.moved.as_slice()), (rest, &[0u32][..]), "cycle {cycle}: held at the anchor after the shallow pull");
+        assert!(anchors.get(0).is_some_and(|a| a.point == rest), "cycle {cycle}: the anchor stays");
+        let mut end = [end[0] + deep];
+        set.resolve_path_with(&[rest], &mut end, &topo, &ResolveParams::in_loop(), None, Some(&mut anchors)).unwrap();
+        at = end[0];
+    }
+    assert!((at - rest).length() < 1e-6, "crept from {rest:?} to {at:?}");
+    // A pull away from the surface lets it go.
+    let mut end = [rest + Vec3::new(0.0002, 0.0, 0.0005)];
+    set.resolve_path_with(&[rest], &mut end, &topo, &ResolveParams::in_loop(), None, Some(&mut anchors)).unwrap();
+    assert_eq!(end[0], rest + Vec3::new(0.0002, 0.0, 0.0005));
+    assert!(anchors.is_empty(), "lifted off, no anchor");
 }
 
 /// A skin edge resting across a collider's ridge (an edge–edge contact, no
