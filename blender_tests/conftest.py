@@ -93,7 +93,7 @@ def solver_switch(settings) -> None:
 def wheel_bake(deformer, inputs, settings) -> list:
     """What a plain bake (no colliders, dynamics or strain limits) writes, from the wheel: the frames
     ``inputs`` (world space, in bake order) solved at the add-on's settings ``settings``
-    (``obj.tegument``). With Converge (opt-in) the solver is accelerated, stops at the add-on's
+    (``obj.tegument``). With Converge (the default) the solver is accelerated, stops at the add-on's
     tolerance, and every frame after the first starts from the one before (a warm solve)."""
     import tegument
 

@@ -128,7 +128,7 @@ def test_a_converge_bake_is_the_converged_look_and_more_iterations_change_it_lit
     obj, _ = saved_limb(tmp_path, segments=segments, rings=rings)
     assert bpy.ops.tegument.deform_add() == {"FINISHED"}
     settings = obj.tegument
-    # The add-on's defaults follow tegument.DEFAULTS (Converge opt-in for now: docs/pyramid-deform.md).
+    # The add-on's defaults follow tegument.DEFAULTS (Converge the default: docs/pyramid-deform.md).
     assert settings.converge == tegument.DEFAULTS.converge
     assert settings.iterations == (tegument.DEFAULTS.accelerated_iterations if tegument.DEFAULTS.converge
                                    else tegument.DEFAULTS.iterations)

@@ -39,14 +39,14 @@ class TEGUMENT_PG_deform(bpy.types.PropertyGroup):
         name="Iterations",
         default=_DEFAULTS.accelerated_iterations if _DEFAULTS.converge else _DEFAULTS.iterations,
         min=1, max=500,
-        description="Solver iterations per frame. With Converge at most this many: a frame stops once "
+        description="Solver iterations per frame. With Converge (the default) at most this many: a frame stops once "
         "it is within 2% of the converged look, so more only costs time where a frame needs it (a mesh under 4,096 "
         "vertices may take as many as that costs on 4,096: its iterations are cheap). Without Converge "
         "every frame runs this many and more keeps the rest shape better",
     )
     converge: BoolProperty(
         name="Converge", default=_DEFAULTS.converge,
-        description="Accelerated solver: every iteration also corrects the smooth error on coarser "
+        description="Accelerated solver (on by default): every iteration also corrects the smooth error on coarser "
         "levels, and a frame stops once it is within 2% of the converged look, starting from the previous frame's "
         "result (usually 2-6 iterations, at most Iterations; plain iterations need hundreds at low Closeness). "
         "Off: plain iterations, each frame runs Iterations and gets part of the way",
