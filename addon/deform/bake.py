@@ -192,6 +192,10 @@ class BakeJob:
         self.scene.frame_set(first - 1)
         depsgraph = bpy.context.evaluated_depsgraph_get()
         _, input_world = evaluate.evaluated_positions(self.obj, depsgraph)
+        if mesh_arrays.first_non_finite(input_world) is not None:
+            # No warm start from an input that is not finite: the frame is solved from its own
+            # input, and its solve reports what is wrong with that, naming the frame.
+            return
         result = evaluate.to_world(self._existing[before], self.obj.evaluated_get(depsgraph).matrix_world)
         self.deformer.reset(np.ascontiguousarray(result, dtype=np.float32), input=np.ascontiguousarray(input_world, dtype=np.float32))
 
