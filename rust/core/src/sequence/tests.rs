@@ -600,17 +600,22 @@ fn a_held_sheet_dragged_by_a_rough_sphere_slides_within_its_strain_limit() {
 /// back at their anchors, undoing the rounds' slide: frame 10 ran out of
 /// rounds (20, every round of the last iteration and the two before it) and
 /// ended at 1.121 × the rest length, past the promise (1.111). With it, every
-/// frame is within 1.109 in at most 13 rounds.
+/// frame is within 1.109 in at most 13 rounds. A weak guard: without the cap
+/// this scene fails only in frame 10, and a path one bit different (`-0.32`
+/// for `-0.3 - 0.02`) held the promise without the cap too; the benchmark's
+/// 100k-vertex scene shows the cap's effect in every run (docs/performance.md).
 #[test]
 fn static_friction_holds_the_skin_only_as_far_as_its_strain_limits_allow() {
     use super::strain_pass::{STRAIN_EARLY_ITERATIONS, STRAIN_ROUNDS, STRAIN_ROUNDS_EARLY};
     let skin = grid(160, 160, 1.0);
     let ball = quad_sphere(20, 0.15);
     let tris = crate::mesh::fan_triangles(&ball.corner_verts, &ball.input().validate().unwrap());
-    // The benchmark's path, at half the size.
+    // The benchmark's path, at half the size, written as the benchmark
+    // writes it: the outcome without the cap hangs on the last bit (with
+    // `-0.32` for `-0.3 - 0.02` it held the promise even without the cap).
     let centre = |k: usize| {
         let k = k as f32;
-        0.5 * Vec3::new(-0.3 + 0.04 * (k - 6.0).max(0.0), 0.05, -0.32 + 0.03 * k.min(6.0))
+        0.5 * Vec3::new(-0.3 + 0.04 * (k - 6.0).max(0.0), 0.05, -0.3 - 0.02 + 0.03 * k.min(6.0))
     };
     let settings = ColliderSettings { thickness: 0.0025, static_friction: 0.4, kinetic_friction: 0.3 };
     let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
