@@ -148,6 +148,19 @@ impl Anchors {
         self.by_vertex.is_empty()
     }
 
+    /// Lets go of the vertices `let_go` names, for the passes that follow:
+    /// each is then treated as a vertex newly in contact, stuck or sliding by
+    /// the law of [`friction`] from wherever it is when the next pass starts.
+    /// How strain limits cap static friction (issue 29): a vertex whose
+    /// anchor holds an edge of the skin past its limit is let go before the
+    /// strain rounds slide it, so the next pass holds it where the limit
+    /// left it rather than putting it back. Returns how many were let go.
+    pub fn release(&mut self, let_go: impl Fn(u32) -> bool) -> usize {
+        let before = self.by_vertex.len();
+        self.by_vertex.retain(|&v, _| !let_go(v));
+        before - self.by_vertex.len()
+    }
+
     /// Replaces every anchor by `anchors` (a pass decides them all anew).
     pub(crate) fn replace(&mut self, anchors: HashMap<u32, Anchor>) {
         self.by_vertex = anchors;
@@ -170,5 +183,16 @@ mod tests {
         assert_eq!(hold, Hold::Sliding(Slide { normal: Vec3::Z, friction: 0.25 }));
         let (change, hold) = friction(slip, n, 0.2, 0.0, 0.0);
         assert_eq!((change, hold), (DVec3::ZERO, Hold::Sliding(Slide { normal: Vec3::Z, friction: 0.0 })), "frictionless");
+    }
+
+    #[test]
+    fn released_vertices_lose_their_anchors_and_the_others_keep_them() {
+        let cone = Cone { normal: Vec3::Z, static_friction: 1.0, kinetic_friction: 0.8 };
+        let mut anchors = Anchors::new();
+        anchors.replace((0..4).map(|v| (v, Anchor { point: Vec3::new(v as f32, 0.0, 0.0), cone })).collect());
+        assert_eq!(anchors.release(|v| v % 2 == 1), 2);
+        assert_eq!(anchors.len(), 2);
+        assert!(anchors.get(1).is_none() && anchors.get(3).is_none());
+        assert_eq!(anchors.get(2).map(|a| a.point), Some(Vec3::new(2.0, 0.0, 0.0)));
     }
 }

@@ -589,6 +589,57 @@ fn a_held_sheet_dragged_by_a_rough_sphere_slides_within_its_strain_limit() {
     assert!(last.abs() < 0.05 * sphere, "the pressed skin went {last} of the sphere's {sphere}");
 }
 
+/// Issue 29: strain limits cap static friction. The flesh benchmark's scene
+/// at a quarter of its vertices (a 160 × 160 sheet of side 1 at closeness
+/// 0.1, the benchmark's cell size; a sphere of radius 0.15 rising into it
+/// and sliding sideways, static friction 0.4, kinetic 0.3; edges limited to
+/// 1.1 × their rest length, `UNIFIED`). A vertex static friction holds is
+/// anchored where it stuck; where its anchor holds an edge past the limit it
+/// is let go before the strain rounds, which slide it, and the next pass
+/// holds it where they left it. Without that, each pass put such vertices
+/// back at their anchors, undoing the rounds' slide: frame 10 ran out of
+/// rounds (20, every round of the last iteration and the two before it) and
+/// ended at 1.121 × the rest length, past the promise (1.111). With it, every
+/// frame is within 1.109 in at most 13 rounds. A weak guard: without the cap
+/// this scene fails only in frame 10, and a path one bit different (`-0.32`
+/// for `-0.3 - 0.02`) held the promise without the cap too; the benchmark's
+/// 100k-vertex scene shows the cap's effect in every run (docs/performance.md).
+#[test]
+fn static_friction_holds_the_skin_only_as_far_as_its_strain_limits_allow() {
+    use super::strain_pass::{STRAIN_EARLY_ITERATIONS, STRAIN_ROUNDS, STRAIN_ROUNDS_EARLY};
+    let skin = grid(160, 160, 1.0);
+    let ball = quad_sphere(20, 0.15);
+    let tris = crate::mesh::fan_triangles(&ball.corner_verts, &ball.input().validate().unwrap());
+    // The benchmark's path, at half the size, written as the benchmark
+    // writes it: the outcome without the cap hangs on the last bit (with
+    // `-0.32` for `-0.3 - 0.02` it held the promise even without the cap).
+    let centre = |k: usize| {
+        let k = k as f32;
+        0.5 * Vec3::new(-0.3 + 0.04 * (k - 6.0).max(0.0), 0.05, -0.3 - 0.02 + 0.03 * k.min(6.0))
+    };
+    let settings = ColliderSettings { thickness: 0.0025, static_friction: 0.4, kinetic_friction: 0.3 };
+    let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
+    let mut collider = Collider::new(&moved(&ball.positions, centre(0)), &tris, settings).unwrap();
+    const EPS: f32 = 0.1;
+    let options = StepOptions {
+        strain: Some(StrainOptions { max_stretch: MaxStretch::Uniform(EPS), mode: StrainMode::Unified }),
+        ..StepOptions::new(10, Closeness::Uniform(0.1))
+    };
+    let limits = crate::strain::EdgeLimits::new(&strain::polygon_edges(&skin), &skin.positions, MaxStretch::Uniform(0.0)).unwrap();
+    let (mut rounds, mut worst) = (Vec::new(), Vec::new());
+    for k in 1..=10 {
+        collider.update(&moved(&ball.positions, centre(k))).unwrap();
+        let (x, report) = deformer.step(&skin.positions, &mut [&mut collider], &options).unwrap();
+        assert_eq!(penetrations(&skin, &x, &[&collider]), (0, 0, 0), "frame {k}");
+        rounds.push(report.contact_work.strain_rounds);
+        worst.push(limits.worst_stretch(&x));
+    }
+    assert!(worst.iter().all(|&w| w <= (1.0 + EPS) * 1.01), "worst stretch per frame: {worst:?} (strain rounds {rounds:?})");
+    // No frame runs out of rounds: each ends its last pass with the limits held.
+    let all = STRAIN_ROUNDS + STRAIN_EARLY_ITERATIONS * STRAIN_ROUNDS_EARLY;
+    assert!(rounds.iter().all(|&r| r < all), "strain rounds per frame: {rounds:?} (all of them: {all})");
+}
+
 mod carried_planes {
     use super::*;
 

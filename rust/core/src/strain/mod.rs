@@ -143,6 +143,16 @@ impl EdgeLimits {
             .fold(0.0, f32::max)
     }
 
+    /// Whether an edge at vertex `v` is longer than `(1 + tolerance)` times
+    /// its limit in `x`.
+    pub fn past_limit_at(&self, x: &[Vec3], v: u32, tolerance: f32) -> bool {
+        let v = v as usize;
+        self.edges_at[self.at[v] as usize..self.at[v + 1] as usize].iter().any(|&e| {
+            let ([a, b], limit) = (self.edges[e as usize], self.limit[e as usize]);
+            (x[a as usize] - x[b as usize]).length() > (1.0 + tolerance) * limit
+        })
+    }
+
     /// Largest `l_e / rest_e` over the limited edges.
     pub fn worst_stretch(&self, x: &[Vec3]) -> f32 {
         self.edges
@@ -303,6 +313,18 @@ mod tests {
         assert!(limits.worst_ratio(&x) <= 1.0 + 1e-3, "ratio {}", limits.worst_ratio(&x));
         assert!(limits.worst_stretch(&x) <= 1.1 * (1.0 + 1e-3));
         assert_eq!(x[0], Vec3::ZERO, "a vertex of inverse mass 0 moved");
+    }
+
+    #[test]
+    fn a_vertex_is_past_its_limit_where_one_of_its_own_edges_is() {
+        let (rest, edges) = chain(4);
+        let limits = EdgeLimits::new(&edges, &rest, MaxStretch::Uniform(0.1)).unwrap();
+        // Only the edge 2–3 is long: 1.2 against a limit of 1.1.
+        let x = [0.0, 1.0, 2.0, 3.2].map(|t| Vec3::new(t, 0.0, 0.0));
+        let past: Vec<bool> = (0..4).map(|v| limits.past_limit_at(&x, v, 0.01)).collect();
+        assert_eq!(past, [false, false, true, true]);
+        // 1.2 is within 10 % of the limit.
+        assert!(!limits.past_limit_at(&x, 3, 0.1));
     }
 
     #[test]
