@@ -222,6 +222,14 @@ fn point_triangle_lower_bound(p: DVec3, t: [DVec3; 3]) -> f64 {
     segment_segment_distance_squared(p, p, a, b).sqrt() - height
 }
 
+/// Whether one direction has a positive dot product with the normal of
+/// every one of `triangles` at every moment of the motion (margins
+/// included): they all keep one side, and project along it without
+/// turning over.
+pub(super) fn keep_one_side(motion: &Motion<'_>, triangles: &[[u32; 3]]) -> bool {
+    triangles.iter().fold(Cone::EMPTY, |cone, &t| cone.union(triangle_cone(motion, t))).axis().is_some()
+}
+
 /// Bounds of one triangle: normals over the motion and their widening.
 fn triangle_cone(motion: &Motion<'_>, t: [u32; 3]) -> Cone {
     let [a, b, c] = t.map(|v| v as usize);

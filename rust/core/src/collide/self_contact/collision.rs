@@ -13,6 +13,7 @@ use rayon::prelude::*;
 use super::bounds::{Motion, NodeBounds};
 use super::exclusion::Exclusion;
 use super::gather::{ownership, scale_of, ElementPair, Focus, Gather};
+use super::hinge::Hinges;
 use super::settings::SelfSettings;
 use super::tree::PatchTree;
 use crate::collide::geometry::{point_triangle_distance_squared, segment_crosses_triangle, segment_segment_distance_squared};
@@ -39,6 +40,8 @@ pub struct SelfCollision {
     /// rest distance of its closest pair where that is less; with the
     /// thickness and rings it was measured for.
     separation: Option<(f32, u32, Vec<f32>)>,
+    /// The pairs one hinge apart, never contacts whatever the tree.
+    pub(super) hinges: Hinges,
 }
 
 impl SelfCollision {
@@ -65,6 +68,7 @@ impl SelfCollision {
             unit_offsets.push(triangles.len() as u32);
         }
         let tree = PatchTree::build_in_units(&triangles, &unit_offsets, &surface, rest);
+        let hinges = Hinges::new(&triangles);
         let polygon = tree.order.iter().map(|&t| polygon_of[t as usize]).collect();
         let owns = ownership(&tree, rest.len());
         Ok(SelfCollision {
@@ -78,6 +82,7 @@ impl SelfCollision {
             edges,
             quads,
             separation: None,
+            hinges,
         })
     }
 
@@ -184,7 +189,7 @@ impl SelfCollision {
                 &fitted
             }
         };
-        Gather { tree: &self.tree, owns: &self.owns, bounds, motion: *motion, reach: reach + self.rounding, cull, takes_part, accept, focus }.run()
+        Gather { tree: &self.tree, owns: &self.owns, bounds, motion: *motion, reach: reach + self.rounding, cull, hinges: &self.hinges, takes_part, accept, focus }.run()
     }
 
     /// The patch tree's bounds over `motion`.
@@ -245,7 +250,7 @@ impl SelfCollision {
         let exclusion = &self.exclusion;
         let accept = |a: &[u32], b: &[u32]| !exclusion.excluded(a, b);
         // Touching pairs are found only where the curvature test cannot rule out a contact.
-        let gather = Gather { tree: &self.tree, owns: &self.owns, bounds: &bounds, motion, reach: touching + self.rounding, cull: true, takes_part, accept: &accept, focus };
+        let gather = Gather { tree: &self.tree, owns: &self.owns, bounds: &bounds, motion, reach: touching + self.rounding, cull: true, hinges: &self.hinges, takes_part, accept: &accept, focus };
         let mut found: Vec<([u32; 2], bool)> = gather
             .triangle_pairs()
             .into_par_iter()

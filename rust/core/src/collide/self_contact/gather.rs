@@ -32,6 +32,7 @@
 use glam::Vec3;
 
 use super::bounds::{element_gap, relative_gap, Motion, NodeBounds, Span};
+use super::hinge::Hinges;
 use super::separation::separated;
 use super::tree::PatchTree;
 
@@ -114,9 +115,12 @@ pub(super) struct Gather<'a> {
     pub motion: Motion<'a>,
     /// Pairs whose relative box stays farther apart than this are dropped.
     pub reach: f32,
-    /// Whether nodes that cannot touch themselves are skipped (off to find
-    /// every pair within the reach, not only those that may intersect).
+    /// Whether nodes that cannot touch themselves are skipped, and with them
+    /// the pairs one hinge apart anywhere ([`Hinges`]: the same rule for
+    /// any tree); off to find every pair within the reach, not only those
+    /// that may intersect.
     pub cull: bool,
+    pub hinges: &'a Hinges,
     /// Per tree position: whether its triangle takes part (None: all do).
     pub takes_part: Option<&'a [bool]>,
     /// Whether two sides are tested at all (neighbours, tangles).
@@ -271,6 +275,9 @@ impl Gather<'_> {
             // The boxes overlap; the exact distances at both ends decide
             // (the reach already carries the f32 rounding allowance).
             if element_gap(&self.motion, one, other) > self.reach as f64 {
+                return;
+            }
+            if self.cull && self.hinges.keep_apart(&self.motion, one, other) {
                 return;
             }
             let corners = if edge_edge { [one[0], one[1], other[0], other[1]] } else { [one[0], other[0], other[1], other[2]] };

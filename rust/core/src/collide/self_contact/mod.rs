@@ -20,7 +20,8 @@
 //! reports), `exclusion` (which pairs are neighbours), `tree` (the patch
 //! tree, which patches are disks), `bounds` (boxes, normal cones and the
 //! contour criterion per node over a motion), `separation` (a plane between
-//! patches meeting at a corner or a ring apart), `gather` (the candidate
+//! patches meeting at a corner or a ring apart), `hinge` (the near pairs that
+//! are never contacts, whatever the tree), `gather` (the candidate
 //! pairs), `contact` (one pair's CCD and projection with friction),
 //! `collision` ([`SelfCollision`]: the bind, the separations at rest, the
 //! intersections of a state), `resolve` (the passes, the fail-safe,
@@ -31,6 +32,7 @@ mod collision;
 mod contact;
 mod exclusion;
 mod gather;
+mod hinge;
 mod resolve;
 mod separation;
 pub mod settings;

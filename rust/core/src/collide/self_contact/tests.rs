@@ -543,3 +543,69 @@ fn the_in_loop_active_set_leaves_out_only_pairs_proven_apart() {
     }
     assert!(unproven > 0, "the gathered-around vertex's pairs are never tested");
 }
+
+/// A 16 × 16 grid of side 1 rolled three quarters round a cylinder (its
+/// normals fit no cone: the tree cannot accept it whole), at rest and with
+/// its quads squeezed along one diagonal to a quarter (in the unrolled
+/// plane): each quad's two far corners come within a fifth of an edge of
+/// its other diagonal, one hinge apart, while a corner stays at least a
+/// third of an edge from any triangle it is no hinge apart from.
+fn rolled_grid_squeezed() -> (PolyMesh, Vec<Vec3>) {
+    let flat = grid(16, 16, 1.0);
+    let radius = 1.0 / (1.5 * std::f32::consts::PI);
+    let roll = |x: f32, y: f32| Vec3::new(radius * (x / radius).cos(), radius * (x / radius).sin(), y);
+    let u = glam::Vec2::new(1.0, 1.0).normalize();
+    let squeezed = flat
+        .positions
+        .iter()
+        .map(|p| {
+            let q = p.truncate() - 0.75 * p.truncate().dot(u) * u;
+            roll(q.x, q.y)
+        })
+        .collect();
+    let mut mesh = flat.clone();
+    mesh.positions = flat.positions.iter().map(|p| roll(p.x, p.y)).collect();
+    (mesh, squeezed)
+}
+
+/// The corner–triangle pairs that come within their separation along
+/// `start → end`, as `collision`'s tree gathers them.
+fn corner_contacts(collision: &SelfCollision, start: &[Vec3], end: &[Vec3], settings: &SelfSettings) -> Vec<super::gather::ElementPair> {
+    use super::bounds::Motion;
+    use super::contact::first_contact;
+    let margin = vec![0.0; start.len()];
+    let accept = |a: &[u32], b: &[u32]| !collision.excluded(a, b);
+    let pairs = collision.gather(&Motion { start, end, margin: &margin }, settings.thickness, true, None, &accept, None, None);
+    pairs.into_iter().filter(|pair| !pair.edge_edge && first_contact(pair, start, end, collision.pair_separation(pair), 1e-7).is_some()).collect()
+}
+
+/// Issue 30, thirteenth round: a corner squeezed within the Distance of
+/// its quad's other diagonal is one hinge apart from the triangle beyond
+/// it, and is never a contact ([`super::hinge`]). Without the rule it was
+/// one wherever the tree's seams cut the grid, and not inside a patch the
+/// tree accepted whole: which near pairs were pushed apart depended on the
+/// tree.
+#[test]
+fn a_corner_squeezed_against_its_quads_other_diagonal_is_no_contact_wherever_the_seams_fall() {
+    let (sheet, squeezed) = rolled_grid_squeezed();
+    let settings = SelfSettings { thickness: 0.24 / 16.0, ..SelfSettings::default() };
+    let mut collision = bound(&sheet, &settings);
+    // The squeezed state itself (a straight path from rest would sweep the
+    // far rows' triangles round the cylinder's inside, where their normals
+    // turn too far over the path for any rule to keep them apart).
+    let kept = corner_contacts(&collision, &squeezed, &squeezed, &settings);
+    assert!(kept.is_empty(), "{} {kept:?}", kept.len());
+    // The same gathering without the rule: the tree's seams list some.
+    collision.hinges = super::hinge::Hinges::new(&[]);
+    let at_seams = corner_contacts(&collision, &squeezed, &squeezed, &settings);
+    assert!(!at_seams.is_empty(), "the squeeze must bring corners within the Distance");
+    // And each of them a corner against its own quad's other triangle.
+    for pair in &at_seams {
+        let quad_of = |v: u32| [v % 17, v / 17];
+        let [vi, vj] = quad_of(pair.corners[0]);
+        assert!(pair.corners[1..].iter().all(|&c| {
+            let [i, j] = quad_of(c);
+            i.abs_diff(vi) <= 1 && j.abs_diff(vj) <= 1
+        }), "{pair:?}");
+    }
+}
