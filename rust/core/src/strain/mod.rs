@@ -145,7 +145,7 @@ impl EdgeLimits {
 
     /// Whether an edge at vertex `v` is longer than `(1 + tolerance)` times
     /// its limit in `x`.
-    pub fn past_limit_at(&self, x: &[Vec3], v: u32, tolerance: f32) -> bool {
+    pub(crate) fn past_limit_at(&self, x: &[Vec3], v: u32, tolerance: f32) -> bool {
         let v = v as usize;
         self.edges_at[self.at[v] as usize..self.at[v + 1] as usize].iter().any(|&e| {
             let ([a, b], limit) = (self.edges[e as usize], self.limit[e as usize]);

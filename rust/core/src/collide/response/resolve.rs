@@ -75,12 +75,13 @@ impl AnchorPass<'_> {
     /// anchor, sank below the thickness in the next iteration and was
     /// anchored again elsewhere, a cycle of four iterations that kept the
     /// slide's first frame in contact 5 % from converged (issue 28,
-    /// `docs/performance.md`). Marks them held for the pass.
-    fn pressed_without_contact(&mut self, contacts: &[u32], end: &[Vec3]) -> Vec<(u32, Anchor)> {
+    /// `docs/performance.md`). Marks them held for the pass. A vertex of
+    /// inverse mass 0 is never corrected, so it is never held either.
+    fn pressed_without_contact(&mut self, contacts: &[u32], end: &[Vec3], skin: &Skin) -> Vec<(u32, Anchor)> {
         let Some(anchors) = self.anchors else { return Vec::new() };
         let mut pressed: Vec<(u32, Anchor)> = anchors
             .iter()
-            .filter(|(i, _)| contacts.binary_search(i).is_err())
+            .filter(|(i, _)| contacts.binary_search(i).is_err() && skin.inverse_mass(*i) > 0.0)
             .filter(|(i, anchor)| anchor.holds(end[*i as usize]))
             .collect();
         pressed.sort_unstable_by_key(|&(i, _)| i);
@@ -302,6 +303,11 @@ impl<'a> ColliderSet<'a> {
         }
         validate_positions("start positions", start)?;
         validate_positions("end positions", end)?;
+        if let Some(v) = anchors.as_ref().and_then(|a| a.iter().map(|(v, _)| v).find(|&v| v as usize >= n)) {
+            return Err(Error::invalid(format!(
+                "an anchor names vertex {v} but the skin has {n} vertices: anchors belong to the skin they were made on"
+            )));
+        }
         let mut stats = ContactStats::default();
         if self.colliders.is_empty() || n == 0 {
             return Ok(stats);
@@ -427,7 +433,7 @@ impl<'a> ColliderSet<'a> {
             if stats.rounds == 1 {
                 let mut contacts: Vec<u32> = updates.iter().map(|&(i, _)| i).collect();
                 contacts.sort_unstable();
-                for (i, anchor) in anchored.pressed_without_contact(&contacts, end) {
+                for (i, anchor) in anchored.pressed_without_contact(&contacts, end, skin) {
                     apply(i, anchor.point, end);
                     holds.push((i, Move::Projected(Hold::Stuck(anchor.cone))));
                     lifted_now.push(i);
