@@ -618,6 +618,22 @@ def test_live_playback_error_goes_to_the_status_and_keeps_the_cache(baked_ball):
     before.assert_same(Snapshot.take(obj))
 
 
+def test_live_playback_after_the_topology_changed_says_so(baked_ball, capfd):
+    """A cached frame whose input no longer has the bind's vertices (a Subdivision added above
+    Tegument after the bake) is no warm start: the frame is solved from its own input, whose solve
+    names what changed, in the modifier's status line rather than as an error in Blender's
+    frame-change handler."""
+    obj = baked_ball
+    bpy.context.scene.frame_set(1)
+    add_subsurf_above(obj, None)
+    obj.tegument.live = True
+    capfd.readouterr()
+    bpy.context.scene.frame_set(2)
+    err = capfd.readouterr().err
+    assert "Traceback" not in err, err
+    assert "live:" in obj.tegument.warnings and "the topology above Tegument changed" in obj.tegument.warnings
+
+
 def test_command_line_errors(baked_ball, capfd):
     obj = baked_ball
     cli = addon().cli

@@ -184,7 +184,10 @@ class BakeJob:
         Converge, every later one from the frame before it (a warm start). A bake that continues
         cached frames (live playback, Bake Frame after the cache) starts warm from the last of them,
         with the input it was solved from, so that it writes the frames one bake of the whole range
-        writes."""
+        writes. Where the cached frame cannot be a start (its input is not finite or no longer has
+        the bind's vertices, or the cache itself holds values that are not), the bake starts cold:
+        the frame is solved from its own input, and its solve reports what is wrong, naming the
+        frame."""
         self.deformer.reset()
         before = first - self.start_frame - 1
         if not self.settings.converge or self._existing is None or not 0 <= before < len(self._existing):
@@ -192,11 +195,11 @@ class BakeJob:
         self.scene.frame_set(first - 1)
         depsgraph = bpy.context.evaluated_depsgraph_get()
         _, input_world = evaluate.evaluated_positions(self.obj, depsgraph)
-        if mesh_arrays.first_non_finite(input_world) is not None:
-            # No warm start from an input that is not finite: the frame is solved from its own
-            # input, and its solve reports what is wrong with that, naming the frame.
+        if len(input_world) != len(self.rest) or mesh_arrays.first_non_finite(input_world) is not None:
             return
         result = evaluate.to_world(self._existing[before], self.obj.evaluated_get(depsgraph).matrix_world)
+        if mesh_arrays.first_non_finite(result) is not None:
+            return
         self.deformer.reset(np.ascontiguousarray(result, dtype=np.float32), input=np.ascontiguousarray(input_world, dtype=np.float32))
 
     def _world_of(self, frame: int, local: np.ndarray) -> np.ndarray:
