@@ -44,6 +44,7 @@ INTERNAL = {
     "collider slack is": "the skin's slack as a collider is a constant of the sequence",
     "changed in a BVH over": "partial refits are made by the collider from its own triangles",
     "converge needs the multigrid solver": "UvWarp::converge (benchmarks and tests) is not in the wheel",
+    "anchors belong to the skin they were made on": "the sequence keeps the anchors of its own skin; the wheel does not expose them",
 }
 
 
