@@ -120,6 +120,7 @@ pub(super) struct Gather<'a> {
     /// any tree); off to find every pair within the reach, not only those
     /// that may intersect.
     pub cull: bool,
+    /// The skin's triangles by directed edge, for the hinge rule `cull` applies.
     pub hinges: &'a Hinges,
     /// Per tree position: whether its triangle takes part (None: all do).
     pub takes_part: Option<&'a [bool]>,
