@@ -227,7 +227,12 @@ fn point_triangle_lower_bound(p: DVec3, t: [DVec3; 3]) -> f64 {
 /// included): they all keep one side, and project along it without
 /// turning over.
 pub(super) fn keep_one_side(motion: &Motion<'_>, triangles: &[[u32; 3]]) -> bool {
-    triangles.iter().fold(Cone::EMPTY, |cone, &t| cone.union(triangle_cone(motion, t))).axis().is_some()
+    one_side_axis(motion, triangles).is_some()
+}
+
+/// The direction of [`keep_one_side`], if there is one.
+pub(super) fn one_side_axis<'t>(motion: &Motion<'_>, triangles: impl IntoIterator<Item = &'t [u32; 3]>) -> Option<Vec3> {
+    triangles.into_iter().fold(Cone::EMPTY, |cone, &t| cone.union(triangle_cone(motion, t))).axis()
 }
 
 /// Bounds of one triangle: normals over the motion and their widening.

@@ -14,6 +14,7 @@ use super::bounds::{Motion, NodeBounds};
 use super::exclusion::Exclusion;
 use super::gather::{ownership, scale_of, ElementPair, Focus, Gather};
 use super::hinge::Hinges;
+use super::star::Stars;
 use super::settings::SelfSettings;
 use super::tree::PatchTree;
 use crate::collide::geometry::{point_triangle_distance_squared, segment_crosses_triangle, segment_segment_distance_squared};
@@ -42,6 +43,8 @@ pub struct SelfCollision {
     separation: Option<(f32, u32, Vec<f32>)>,
     /// The pairs one hinge apart, never contacts whatever the tree.
     pub(super) hinges: Hinges,
+    /// The pairs two polygons apart round a vertex, never contacts whatever the tree.
+    pub(super) stars: Stars,
 }
 
 impl SelfCollision {
@@ -69,6 +72,9 @@ impl SelfCollision {
         }
         let tree = PatchTree::build_in_units(&triangles, &unit_offsets, &surface, rest);
         let hinges = Hinges::new(&triangles);
+        let corners: Vec<u32> = mesh.corner_verts.iter().map(|&c| c as u32).collect();
+        let polygons: Vec<&[u32]> = offsets.windows(2).map(|w| &corners[w[0] as usize..w[1] as usize]).collect();
+        let stars = Stars::new(rest.len(), &polygons, &triangles, &polygon_of);
         let polygon = tree.order.iter().map(|&t| polygon_of[t as usize]).collect();
         let owns = ownership(&tree, rest.len());
         Ok(SelfCollision {
@@ -83,6 +89,7 @@ impl SelfCollision {
             quads,
             separation: None,
             hinges,
+            stars,
         })
     }
 
@@ -189,7 +196,7 @@ impl SelfCollision {
                 &fitted
             }
         };
-        Gather { tree: &self.tree, owns: &self.owns, bounds, motion: *motion, reach: reach + self.rounding, cull, hinges: &self.hinges, takes_part, accept, focus }.run()
+        Gather { tree: &self.tree, owns: &self.owns, bounds, motion: *motion, reach: reach + self.rounding, cull, hinges: &self.hinges, stars: &self.stars, takes_part, accept, focus }.run()
     }
 
     /// The patch tree's bounds over `motion`.
@@ -250,7 +257,7 @@ impl SelfCollision {
         let exclusion = &self.exclusion;
         let accept = |a: &[u32], b: &[u32]| !exclusion.excluded(a, b);
         // Touching pairs are found only where the curvature test cannot rule out a contact.
-        let gather = Gather { tree: &self.tree, owns: &self.owns, bounds: &bounds, motion, reach: touching + self.rounding, cull: true, hinges: &self.hinges, takes_part, accept: &accept, focus };
+        let gather = Gather { tree: &self.tree, owns: &self.owns, bounds: &bounds, motion, reach: touching + self.rounding, cull: true, hinges: &self.hinges, stars: &self.stars, takes_part, accept: &accept, focus };
         let mut found: Vec<([u32; 2], bool)> = gather
             .triangle_pairs()
             .into_par_iter()

@@ -34,6 +34,7 @@ use glam::Vec3;
 use super::bounds::{element_gap, relative_gap, Motion, NodeBounds, Span};
 use super::hinge::Hinges;
 use super::separation::separated;
+use super::star::Stars;
 use super::tree::PatchTree;
 
 /// A pair of elements: a vertex and a triangle (`corners = [v, a, b, c]`)
@@ -116,12 +117,14 @@ pub(super) struct Gather<'a> {
     /// Pairs whose relative box stays farther apart than this are dropped.
     pub reach: f32,
     /// Whether nodes that cannot touch themselves are skipped, and with them
-    /// the pairs one hinge apart anywhere ([`Hinges`]: the same rule for
-    /// any tree); off to find every pair within the reach, not only those
-    /// that may intersect.
+    /// the pairs one hinge apart or two polygons apart round a vertex
+    /// anywhere ([`Hinges`], [`Stars`]: the same rules for any tree); off to
+    /// find every pair within the reach, not only those that may intersect.
     pub cull: bool,
     /// The skin's triangles by directed edge, for the hinge rule `cull` applies.
     pub hinges: &'a Hinges,
+    /// The polygons round each vertex, for the star rule `cull` applies.
+    pub stars: &'a Stars,
     /// Per tree position: whether its triangle takes part (None: all do).
     pub takes_part: Option<&'a [bool]>,
     /// Whether two sides are tested at all (neighbours, tangles).
@@ -278,7 +281,7 @@ impl Gather<'_> {
             if element_gap(&self.motion, one, other) > self.reach as f64 {
                 return;
             }
-            if self.cull && self.hinges.keep_apart(&self.motion, one, other) {
+            if self.cull && (self.hinges.keep_apart(&self.motion, one, other) || self.stars.keep_apart(&self.motion, one, other)) {
                 return;
             }
             let corners = if edge_edge { [one[0], one[1], other[0], other[1]] } else { [one[0], other[0], other[1], other[2]] };

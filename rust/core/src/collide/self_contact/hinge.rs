@@ -24,10 +24,9 @@
 //! With this rule every gathering drops the hinge pairs itself, so their
 //! fate no longer depends on the tree (on a rolled grid squeezed along its
 //! quads' diagonals, a corner against its quad's other triangle was a
-//! contact at main's seams only; `tests.rs`). Not yet every near pair:
-//! an edge through a corner against the far side of a triangle at that
-//! corner, two triangles of its star apart, is still a contact only where
-//! a seam lists it (issue 30, thirteenth round).
+//! contact at main's seams only; `tests.rs`). Pairs two polygons apart
+//! round a vertex (an edge through a corner against the far side of a
+//! triangle at that corner) are [`super::star`]'s.
 //!
 //! It is the tree's own acceptance test ([`super::bounds`]: a disk whose
 //! normals fit a cone narrower than a half-turn and whose contour winds

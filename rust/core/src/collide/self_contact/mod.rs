@@ -20,8 +20,9 @@
 //! reports), `exclusion` (which pairs are neighbours), `tree` (the patch
 //! tree, which patches are disks), `bounds` (boxes, normal cones and the
 //! contour criterion per node over a motion), `separation` (a plane between
-//! patches meeting at a corner or a ring apart), `hinge` (the near pairs that
-//! are never contacts, whatever the tree), `gather` (the candidate
+//! patches meeting at a corner or a ring apart), `hinge` and `star` (the
+//! near pairs that are never contacts, whatever the tree: one hinge apart,
+//! two polygons apart round a vertex), `gather` (the candidate
 //! pairs), `contact` (one pair's CCD and projection with friction),
 //! `collision` ([`SelfCollision`]: the bind, the separations at rest, the
 //! intersections of a state), `resolve` (the passes, the fail-safe,
@@ -35,6 +36,7 @@ mod gather;
 mod hinge;
 mod resolve;
 mod separation;
+mod star;
 pub mod settings;
 mod tree;
 
