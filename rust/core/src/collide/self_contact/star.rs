@@ -226,14 +226,19 @@ mod tests {
                 }
             })
             .collect();
-        let quads: [[u32; 4]; 4] = [[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 7, 6], [4, 5, 8, 7]];
+        (x, stars_of_quads(&[[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 7, 6], [4, 5, 8, 7]]))
+    }
+
+    /// The stars of the 3 × 3 grid's vertices made of `quads`, each quad
+    /// split into its four triangles as the skin's quads are.
+    fn stars_of_quads(quads: &[[u32; 4]]) -> Stars {
         let polygons: Vec<&[u32]> = quads.iter().map(|q| &q[..]).collect();
         let (triangles, polygon_of): (Vec<[u32; 3]>, Vec<u32>) = quads
             .iter()
             .enumerate()
             .flat_map(|(k, &[a, b, c, d])| [[a, b, c], [a, c, d], [a, b, d], [b, c, d]].map(|t| (t, k as u32)))
             .unzip();
-        (x, Stars::new(9, &polygons, &triangles, &polygon_of))
+        Stars::new(9, &polygons, &triangles, &polygon_of)
     }
 
     #[test]
@@ -270,14 +275,7 @@ mod tests {
         assert!(!stars.winds_once(&motion, 1));
         assert!(stars.winds_once(&motion, 4));
         // Quads 0 1 4 3 and 1 2 5 4 seen without vertex 4's other quads: no star at all.
-        let two: [[u32; 4]; 2] = [[0, 1, 4, 3], [1, 2, 5, 4]];
-        let polygons: Vec<&[u32]> = two.iter().map(|q| &q[..]).collect();
-        let (triangles, polygon_of): (Vec<[u32; 3]>, Vec<u32>) = two
-            .iter()
-            .enumerate()
-            .flat_map(|(k, &[a, b, c, d])| [[a, b, c], [a, c, d], [a, b, d], [b, c, d]].map(|t| (t, k as u32)))
-            .unzip();
-        let open = Stars::new(9, &polygons, &triangles, &polygon_of);
+        let open = stars_of_quads(&[[0, 1, 4, 3], [1, 2, 5, 4]]);
         assert!(!open.keep_apart(&motion, &[0], &[2, 5, 4]));
     }
 
