@@ -213,7 +213,7 @@ pub(super) fn in_loop(
         }
         // With the vertices whose rings those mostly hold: a held patch moves
         // as a patch (`collide::self_contact::held`).
-        let batch = holding.batch(collision, &bad, |v| after[v as usize] != before[v as usize]);
+        let batch = collision.put_back(&mut holding, &bad, |v| after[v as usize] != before[v as usize]);
         let mut flags = vec![false; before.len()];
         for &v in &batch {
             after[v as usize] = before[v as usize];

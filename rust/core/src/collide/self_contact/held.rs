@@ -21,7 +21,6 @@
 //! moved, so the loop ends, at the latest with every vertex at its start,
 //! where nothing crosses.
 
-use super::collision::SelfCollision;
 use crate::mesh::{polygon_edges, vertex_incidence};
 
 /// Every vertex's neighbours along the polygons' sides (the one-ring the
@@ -79,11 +78,7 @@ impl Held {
     /// that `moved` more than half of whose ring is held with them (the
     /// module documentation says why), each once and ascending. They are
     /// counted as held from here on.
-    pub fn batch(&mut self, collision: &SelfCollision, crossing: &[u32], moved: impl Fn(u32) -> bool) -> Vec<u32> {
-        self.batch_in(&collision.rings, crossing, moved)
-    }
-
-    fn batch_in(&mut self, rings: &Rings, crossing: &[u32], moved: impl Fn(u32) -> bool) -> Vec<u32> {
+    pub(super) fn batch(&mut self, rings: &Rings, crossing: &[u32], moved: impl Fn(u32) -> bool) -> Vec<u32> {
         let mut batch: Vec<u32> = Vec::with_capacity(crossing.len());
         for &v in crossing {
             if !self.flags[v as usize] {
@@ -129,7 +124,7 @@ mod tests {
         let (rings, count) = rings_of(6);
         let ring = [at(6, 2, 3), at(6, 4, 3), at(6, 3, 2), at(6, 3, 4)];
         let mut held = Held::none(count);
-        let batch = held.batch_in(&rings, &ring, |_| true);
+        let batch = held.batch(&rings, &ring, |_| true);
         let mut expected = ring.to_vec();
         expected.push(at(6, 3, 3));
         expected.sort_unstable();
@@ -141,7 +136,7 @@ mod tests {
         let (rings, count) = rings_of(6);
         let ring = [at(6, 2, 3), at(6, 4, 3), at(6, 3, 2), at(6, 3, 4)];
         let centre = at(6, 3, 3);
-        let batch = Held::none(count).batch_in(&rings, &ring, |v| v != centre);
+        let batch = Held::none(count).batch(&rings, &ring, |v| v != centre);
         assert!(!batch.contains(&centre));
     }
 
@@ -153,11 +148,11 @@ mod tests {
         let (rings, count) = rings_of(n);
         let mut held = Held::none(count);
         let l: Vec<u32> = vec![at(n, 1, 2), at(n, 1, 3), at(n, 2, 3), at(n, 3, 3), at(n, 3, 2)];
-        let batch = held.batch_in(&rings, &l, |_| true);
+        let batch = held.batch(&rings, &l, |_| true);
         assert_eq!(batch.len(), l.len() + 1, "{batch:?}");
         assert!(batch.contains(&at(n, 2, 2)));
         // Held again later, the same vertices are not put back twice.
-        assert!(held.batch_in(&rings, &l, |_| true).is_empty());
+        assert!(held.batch(&rings, &l, |_| true).is_empty());
     }
 
     #[test]
@@ -167,7 +162,7 @@ mod tests {
         let n = 10;
         let (rings, count) = rings_of(n);
         let stairs: Vec<u32> = (2..7).flat_map(|k| [at(n, k, k), at(n, k + 1, k)]).collect();
-        let batch = Held::none(count).batch_in(&rings, &stairs, |_| true);
+        let batch = Held::none(count).batch(&rings, &stairs, |_| true);
         assert_eq!(batch.len(), stairs.len());
     }
 }

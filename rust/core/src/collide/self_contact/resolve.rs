@@ -655,6 +655,13 @@ impl SelfCollision {
         Ok(bad)
     }
 
+    /// What a fail-safe puts back now, `held` what it put back before: the
+    /// `crossing` corners and every vertex that `moved` more than half of
+    /// whose ring is held with them ([`Held`]), ascending.
+    pub fn put_back(&self, held: &mut Held, crossing: &[u32], moved: impl Fn(u32) -> bool) -> Vec<u32> {
+        held.batch(&self.rings, crossing, moved)
+    }
+
     /// [`Self::in_loop_crossings`] until none is left, putting each crossing
     /// pair's vertices back at `before`, with the vertices whose rings they
     /// mostly hold ([`Held`]): the in-loop fail-safe without colliders.
@@ -678,7 +685,7 @@ impl SelfCollision {
             if bad.is_empty() {
                 break;
             }
-            let batch = holding.batch(self, &bad, |v| after[v as usize] != before[v as usize]);
+            let batch = self.put_back(&mut holding, &bad, |v| after[v as usize] != before[v as usize]);
             let mut flags = vec![false; self.vertex_count];
             for &v in &batch {
                 after[v as usize] = before[v as usize];
@@ -914,7 +921,7 @@ impl Pass<'_> {
             if bad.is_empty() {
                 break;
             }
-            let put_back = holding.batch(self.collision, &bad, |v| start[v as usize] != end[v as usize]);
+            let put_back = self.collision.put_back(&mut holding, &bad, |v| start[v as usize] != end[v as usize]);
             let mut flags = vec![false; start.len()];
             for &v in &put_back {
                 end[v as usize] = start[v as usize];
