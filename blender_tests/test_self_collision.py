@@ -34,7 +34,7 @@ import scene
 
 FRAMES = 12
 BEND_DEGREES = 150.0
-SPIKE_ROUNDING = 1e-3  # in mean ring edge lengths (the spike measure's unit)
+SPIKE_ROUNDING = 1e-5  # in mean ring edge lengths (the spike measure's unit): float32 round-off alone
 
 
 def bent_tube(tmp_path, name: str = "Limb"):
@@ -96,8 +96,9 @@ def test_a_tube_bent_150_degrees_never_passes_through_itself(tmp_path):
         assert split == [0] * FRAMES, f"triangulated {method}: {split}"
     for frame, (ours, given) in enumerate(zip(with_self, inputs), start=1):
         spike, input_spike = (float(np.nanmax(measures.spike_measure(x, rest, corners, sizes))) for x in (ours, given))
-        # Frame 1 is the rest pose, where both are float32 round-off (~1e-7 of a ring edge): a
-        # thousandth of a ring edge is round-off, far below any visible spike.
+        # Frame 1 is the rest pose, where both are float32 round-off (~1e-7 of a ring edge). The
+        # fail-safe holds a vertex with its ring (a held patch moves as a patch): no allowance
+        # beyond round-off is needed (it was a thousandth of a ring edge before).
         assert spike <= input_spike + SPIKE_ROUNDING, f"frame {frame}: spike max {spike:.3f} above the skinning input's {input_spike:.3f}"
     figures = limb.tegument.self_collision
     assert figures.contacts > 0 and figures.intersections == 0

@@ -11,7 +11,8 @@
 //!   skin, the (still) colliders' pass again; then the joint fail-safe: every
 //!   vertex whose path still crosses other skin, or whose step a collider
 //!   now meets, goes back to where the iteration started, which was free of
-//!   both, until none is left. The output satisfies both.
+//!   both, with every vertex most of whose ring goes back, until none is
+//!   left. The output satisfies both.
 //!
 //! The intersections of each frame's output are counted (the report's
 //! `self_intersections`) and kept as the tangles of the next frame: what
@@ -23,7 +24,7 @@ use glam::Vec3;
 
 use super::options::{SelfOptions, StepReport};
 use super::Sequence;
-use crate::collide::{Candidates, Clearance, Collider, ColliderSet, ResolveParams, SelfCollision, SelfSettings, SelfStats, Skin, Tangles};
+use crate::collide::{Candidates, Clearance, Collider, ColliderSet, Held, ResolveParams, SelfCollision, SelfSettings, SelfStats, Skin, Tangles};
 use crate::mesh::MeshInput;
 use crate::{Error, Result};
 
@@ -198,6 +199,7 @@ pub(super) fn in_loop(
     let mut touching: Option<Vec<bool>> = None;
     let mut last: Vec<u32> = Vec::new();
     let mut checks = SelfStats::default();
+    let mut holding = Held::none(before.len());
     loop {
         let mut bad = collision.in_loop_crossings(&mut pass.candidates, before, after, touching.as_deref(), settings, tangles, part, &mut checks)?;
         bad.extend(set.violations(before, after, skin, &last, &params));
@@ -209,13 +211,16 @@ pub(super) fn in_loop(
             report.self_work.in_loop_fail_safe_ms += milliseconds(began);
             return Ok(());
         }
+        // With the vertices whose rings those mostly hold: a held patch moves
+        // as a patch (`collide::self_contact::held`).
+        let batch = collision.put_back(&mut holding, &bad, |v| after[v as usize] != before[v as usize]);
         let mut flags = vec![false; before.len()];
-        for &v in &bad {
+        for &v in &batch {
             after[v as usize] = before[v as usize];
             flags[v as usize] = true;
         }
-        report.self_held += bad.len();
+        report.self_held += batch.len();
         touching = Some(flags);
-        last = bad;
+        last = batch;
     }
 }

@@ -13,6 +13,7 @@ use rayon::prelude::*;
 use super::bounds::{Motion, NodeBounds};
 use super::exclusion::Exclusion;
 use super::gather::{ownership, scale_of, ElementPair, Focus, Gather};
+use super::held::Rings;
 use super::hinge::Hinges;
 use super::star::Stars;
 use super::settings::SelfSettings;
@@ -45,6 +46,9 @@ pub struct SelfCollision {
     pub(super) hinges: Hinges,
     /// The pairs two polygons apart round a vertex, never contacts whatever the tree.
     pub(super) stars: Stars,
+    /// Every vertex's ring along the polygons' sides: the fail-safe holds a
+    /// vertex with its ring ([`super::held`]).
+    pub(super) rings: Rings,
 }
 
 impl SelfCollision {
@@ -77,6 +81,7 @@ impl SelfCollision {
         let stars = Stars::new(rest.len(), &polygons, &triangles, &polygon_of);
         let polygon = tree.order.iter().map(|&t| polygon_of[t as usize]).collect();
         let owns = ownership(&tree, rest.len());
+        let rings = Rings::new(rest.len(), mesh.corner_verts, &offsets);
         Ok(SelfCollision {
             vertex_count: rest.len(),
             owns,
@@ -90,6 +95,7 @@ impl SelfCollision {
             separation: None,
             hinges,
             stars,
+            rings,
         })
     }
 

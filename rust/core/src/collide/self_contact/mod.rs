@@ -25,14 +25,16 @@
 //! two polygons apart round a vertex), `gather` (the candidate
 //! pairs), `contact` (one pair's CCD and projection with friction),
 //! `collision` ([`SelfCollision`]: the bind, the separations at rest, the
-//! intersections of a state), `resolve` (the passes, the fail-safe,
-//! [`Tangles`]).
+//! intersections of a state), `held` (which vertices the fail-safe puts
+//! back: a held patch moves as a patch), `resolve` (the passes, the
+//! fail-safe, [`Tangles`]).
 
 mod bounds;
 mod collision;
 mod contact;
 mod exclusion;
 mod gather;
+mod held;
 mod hinge;
 mod resolve;
 mod separation;
@@ -41,6 +43,7 @@ pub mod settings;
 mod tree;
 
 pub use collision::SelfCollision;
+pub use held::Held;
 pub use resolve::{Candidates, Tangles, SELF_ROUNDS};
 pub use settings::{SelfSettings, SelfStats, MAX_RINGS};
 

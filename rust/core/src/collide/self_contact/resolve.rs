@@ -37,9 +37,11 @@
 //!     where the iteration started.
 //! * **Fail-safe**: when the rounds end with contacts left, the vertices of
 //!   every pair whose paths still cross are put back where the pass started
-//!   (free of intersections), and the pairs around them checked again, until
-//!   none crosses: with every vertex at its start nothing can cross. They are
-//!   counted as `held`, like vertices pinched between colliders.
+//!   (free of intersections), with every vertex that would otherwise leave
+//!   most of its ring behind ([`Held`]), and the pairs around them checked
+//!   again, until none crosses: with every vertex at its start nothing can
+//!   cross. They are counted as `held`, like vertices pinched between
+//!   colliders.
 //!
 //! Pairs both of whose sides lie in a [`Tangles`] region (intersecting, or
 //! touching, at the start of the frame) are exempt: they may move through
@@ -55,6 +57,7 @@ use super::bounds::{Motion, NodeBounds};
 use super::collision::{distance, SelfCollision};
 use super::contact::{correction, first_contact, ContactParams};
 use super::gather::{ElementPair, Focus};
+use super::held::Held;
 use super::settings::{SelfSettings, SelfStats};
 use crate::mesh::validate_positions;
 use crate::{Error, Result};
@@ -652,9 +655,17 @@ impl SelfCollision {
         Ok(bad)
     }
 
+    /// What a fail-safe puts back now, `held` what it put back before: the
+    /// `crossing` corners and every vertex that `moved` more than half of
+    /// whose ring is held with them ([`Held`]), ascending.
+    pub fn put_back(&self, held: &mut Held, crossing: &[u32], moved: impl Fn(u32) -> bool) -> Vec<u32> {
+        held.batch(&self.rings, crossing, moved)
+    }
+
     /// [`Self::in_loop_crossings`] until none is left, putting each crossing
-    /// pair's vertices back at `before`: the in-loop fail-safe without
-    /// colliders. Returns the vertices put back.
+    /// pair's vertices back at `before`, with the vertices whose rings they
+    /// mostly hold ([`Held`]): the in-loop fail-safe without colliders.
+    /// Returns the vertices put back.
     #[allow(clippy::too_many_arguments)]
     pub fn hold_back_in_loop(
         &self,
@@ -666,6 +677,7 @@ impl SelfCollision {
         takes_part: Option<&[bool]>,
     ) -> Result<Vec<u32>> {
         let mut held = Vec::new();
+        let mut holding = Held::none(self.vertex_count);
         let mut touching: Option<Vec<bool>> = None;
         let mut work = SelfStats::default();
         loop {
@@ -673,12 +685,13 @@ impl SelfCollision {
             if bad.is_empty() {
                 break;
             }
+            let batch = self.put_back(&mut holding, &bad, |v| after[v as usize] != before[v as usize]);
             let mut flags = vec![false; self.vertex_count];
-            for &v in &bad {
+            for &v in &batch {
                 after[v as usize] = before[v as usize];
                 flags[v as usize] = true;
             }
-            held.extend_from_slice(&bad);
+            held.extend_from_slice(&batch);
             touching = Some(flags);
         }
         held.sort_unstable();
@@ -881,7 +894,8 @@ impl Pass<'_> {
     }
 
     /// The first pass's fail-safe: puts the corners of crossing pairs back at
-    /// `start` until none crosses. Returns the vertices put back.
+    /// `start`, with the vertices whose rings they mostly hold ([`Held`]),
+    /// until none crosses. Returns the vertices put back.
     ///
     /// Only the first check looks at the whole skin; each later one at the
     /// pairs with a corner among the vertices just put back. A pair with
@@ -890,6 +904,7 @@ impl Pass<'_> {
     fn hold_back_path(&self, start: &[Vec3], end: &mut [Vec3], stats: &mut SelfStats) -> Vec<u32> {
         let zero = vec![0.0; start.len()];
         let mut held = Vec::new();
+        let mut holding = Held::none(start.len());
         let mut batch: Option<Vec<bool>> = None;
         loop {
             let ((focus, pairs), ms) = timed(|| {
@@ -906,13 +921,14 @@ impl Pass<'_> {
             if bad.is_empty() {
                 break;
             }
+            let put_back = self.collision.put_back(&mut holding, &bad, |v| start[v as usize] != end[v as usize]);
             let mut flags = vec![false; start.len()];
-            for &v in &bad {
+            for &v in &put_back {
                 end[v as usize] = start[v as usize];
                 flags[v as usize] = true;
             }
             batch = Some(flags);
-            held.extend(bad);
+            held.extend(put_back);
         }
         held.sort_unstable();
         held.dedup();
