@@ -150,8 +150,9 @@ fn main() {
                 );
                 let w = step.contact_work;
                 println!(
-                    "{:<28} frame {k} phases (ms): compliant targets {:.0}, first recession {:.0}, first pass {:.0}, in-loop passes {:.0}, strain {:.0} ({} rounds, {} multilevel cycles), recession headings {:.0}, recession contacts {:.0}",
+                    "{:<28} frame {k} phases (ms; {} solver iterations): compliant targets {:.0}, first recession {:.0}, first pass {:.0}, in-loop passes {:.0}, strain {:.0} ({} rounds, {} multilevel cycles), recession headings {:.0}, recession contacts {:.0}",
                     config.name,
+                    deformer.deformer().last_iterations(),
                     w.compliant_targets_ms,
                     w.first_recession_ms,
                     w.first_pass_ms,

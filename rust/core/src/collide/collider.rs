@@ -102,6 +102,9 @@ pub struct Collider {
     /// vertex is within `slack` of it.
     slack: f32,
     boxed_at: Vec<Vec3>,
+    /// Vertices whose boxes [`Collider::rest_at`] made again one by one
+    /// since the trees were last refitted whole.
+    remade_since_refit: usize,
 }
 
 /// How far the f32 rounding of `p − drift` may move a point of box `b`
@@ -206,6 +209,7 @@ impl Collider {
             shape: Shape::default(),
             slack: 0.0,
             boxed_at: Vec::new(),
+            remade_since_refit: 0,
         };
         collider.shape = collider.measure_shape();
         collider.swept_tree = BoxTree::build(&collider.swept_boxes())?;
@@ -289,9 +293,10 @@ impl Collider {
     /// leaves' ancestors' boxes. Each box still holds its element grown by
     /// the thickness, so every query finds what it would with tight boxes
     /// (a few more candidates, tested exactly). `fresh` (or another slack,
-    /// or positions that were set otherwise since) refits everything, and
-    /// rebuilds degraded trees. Returns how many vertices' boxes were made
-    /// again (all of them when refitted whole).
+    /// or positions that were set otherwise since, or as many boxes remade
+    /// one by one since the last such refit as there are vertices) refits
+    /// everything, and rebuilds degraded trees. Returns how many vertices'
+    /// boxes were made again (all of them when refitted whole).
     pub fn rest_at(&mut self, positions: &[Vec3], slack: f32, fresh: bool) -> Result<usize> {
         use rayon::prelude::*;
         self.check_count(positions.len())?;
@@ -301,9 +306,18 @@ impl Collider {
         }
         self.previous.copy_from_slice(positions);
         self.current.copy_from_slice(positions);
-        let incremental = !fresh && self.at_rest && self.slack == slack && self.boxed_at.len() == positions.len();
+        // Boxes remade one by one leave the trees as they were built; once as
+        // many have been remade as there are vertices, everything is refitted
+        // (rebuilding a degraded tree), so that cost, in proportion to the
+        // mesh, is paid in proportion to the motion.
+        let incremental = !fresh
+            && self.at_rest
+            && self.slack == slack
+            && self.boxed_at.len() == positions.len()
+            && self.remade_since_refit < positions.len();
         if !incremental {
             self.refresh_with_slack(slack, positions.to_vec())?;
+            self.remade_since_refit = 0;
             return Ok(positions.len());
         }
         let reach = 0.5 * slack;
@@ -315,6 +329,7 @@ impl Collider {
         for &v in &moved {
             self.boxed_at[v as usize] = positions[v as usize];
         }
+        self.remade_since_refit += moved.len();
         let mut triangles: Vec<u32> = moved.iter().flat_map(|&v| self.vertex_triangles(v as usize).iter().copied()).collect();
         triangles.sort_unstable();
         triangles.dedup();
@@ -784,6 +799,40 @@ mod tests {
         }
         assert!(resting.rest_at(&x, f32::NAN, false).is_err());
         assert!(resting.rest_at(&x[1..], 0.01, false).is_err());
+    }
+
+    /// Boxes remade one by one leave the trees' shape as it was built: once
+    /// as many have been remade as there are vertices, the next rest refits
+    /// (and may rebuild) them whole, so that a collider kept at rest frame
+    /// after frame never skips that for good, and pays it in proportion to
+    /// the motion.
+    #[test]
+    fn resting_refits_whole_once_as_many_boxes_were_remade_as_there_are_vertices() {
+        // 100 vertices, moved ten at a time.
+        let mesh = crate::mesh::shapes::grid(9, 9, 1.0);
+        let offsets: Vec<u32> = (0..=mesh.polygon_sizes.len() as u32).map(|k| 4 * k).collect();
+        let tris = crate::mesh::fan_triangles(&mesh.corner_verts, &offsets);
+        let mut x = mesh.positions.clone();
+        let n = x.len();
+        assert_eq!(n, 100);
+        let mut resting = Collider::new(&x, &tris, ColliderSettings::new(0.02, 0.0)).unwrap();
+        assert_eq!(resting.rest_at(&x, 0.01, true).unwrap(), n);
+        // A tenth of the vertices moved by more than the slack each round.
+        let step = n / 10;
+        let mut remade = 0;
+        for round in 0..12 {
+            for p in x.iter_mut().skip((round * step) % n).take(step) {
+                p.z += 0.05;
+            }
+            let made = resting.rest_at(&x, 0.01, false).unwrap();
+            if remade >= n {
+                assert_eq!(made, n, "round {round}: {remade} boxes remade one by one, the trees not refitted whole");
+                remade = 0;
+            } else {
+                assert_eq!(made, step, "round {round}: only the moved vertices' boxes");
+                remade += made;
+            }
+        }
     }
 
     proptest! {

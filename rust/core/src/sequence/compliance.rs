@@ -151,8 +151,11 @@ pub(super) const RECESSION_CLOSING_ITERATIONS: usize = 1;
 /// collider recedes). Kinematic vertices go to their goals. The collider is
 /// left at rest at the result.
 ///
-/// `fresh`: the skin standing in as a collider is refitted whole (the first
-/// recession of a substep), else only where it moved since the last.
+/// `fresh`: the first recession of a substep, which tests every compliant
+/// vertex and element against the skin (the later ones test only what
+/// moves). Either way the skin standing in as a collider has its boxes made
+/// again only where it moved since the last recession: a substep starts
+/// where the last one's solve, whose last iteration receded, left the skin.
 pub(super) fn recede_from(
     skin_collider: &mut Option<Collider>,
     skin: &Skin,
@@ -170,7 +173,7 @@ pub(super) fn recede_from(
     let (obstacle, refitted) = match skin_collider {
         Some(c) => {
             c.set_settings(settings)?;
-            let refitted = c.rest_at(x, slack, fresh)?;
+            let refitted = c.rest_at(x, slack, false)?;
             (c, refitted)
         }
         None => {
