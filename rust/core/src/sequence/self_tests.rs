@@ -87,7 +87,7 @@ const SPIKE_ROUND_OFF: f32 = 1e-5;
 /// iterations: no frame's result spikes above its input. The fail-safe
 /// used to hold a vertex's whole ring where the pass started while the
 /// vertex moved on (Blender's tube with Converge, frames 8–12: up to 2.50
-/// mean ring edges against the input's 1.3).
+/// mean ring edges against the input's 0.15).
 #[test]
 fn self_collision_makes_no_spike_its_input_does_not_have() {
     let mut failures = Vec::new();
