@@ -18,7 +18,9 @@
 //! cargo run --release -p tegument-core --example self_replay -- /tmp/me/character.replay [frames]
 //! ```
 //!
-//! (`frames`: replay only the first that many.) The recording's layout, all
+//! (`frames`: replay only the first that many; a third argument `without`
+//! replays the same frames without Self Collision, the step it is compared
+//! with.) The recording's layout, all
 //! little-endian 32-bit: a header of 16 words (vertex, corner, polygon and
 //! frame counts, iterations, Converge as 0/1, then as f32 the tolerance (NaN:
 //! none) and closeness (NaN: the default), thickness, static and kinetic
@@ -112,8 +114,13 @@ impl Recording {
 
 fn main() -> Result<(), String> {
     let mut args = std::env::args().skip(1);
-    let path = args.next().ok_or("usage: self_replay <recording> [frames]")?;
+    let path = args.next().ok_or("usage: self_replay <recording> [frames [without]]")?;
     let only: Option<usize> = args.next().map(|s| s.parse().map_err(|e| format!("frames: {e}"))).transpose()?;
+    let without = match args.next().as_deref() {
+        None => false,
+        Some("without") => true,
+        Some(other) => return Err(format!("the third argument is `without` or nothing, not {other:?}")),
+    };
     let r = Recording::read(&path)?;
     println!(
         "{} vertices, {} polygons, {} frames, {} iterations, Converge {}, closeness {}, Distance {}, friction {}/{}, rings {}",
@@ -133,7 +140,8 @@ fn main() -> Result<(), String> {
     sequence.deformer_mut().set_accelerated(r.accelerated);
     sequence.deformer_mut().set_tolerance(r.tolerance).map_err(|e| e.to_string())?;
     let closeness = if r.closeness.is_nan() { Closeness::Default } else { Closeness::Uniform(r.closeness) };
-    let options = StepOptions { self_collision: Some(SelfOptions { settings: r.settings, weights: None }), ..StepOptions::new(r.iterations, closeness) };
+    let self_collision = (!without).then_some(SelfOptions { settings: r.settings, weights: None });
+    let options = StepOptions { self_collision, ..StepOptions::new(r.iterations, closeness) };
     let (mut wall_total, mut cpu_total, mut held_total, mut contacts_total) = (0.0, 0.0, 0, 0);
     for (k, input) in r.frames.iter().enumerate().take(only.unwrap_or(usize::MAX)) {
         let (clock, cpu) = (Instant::now(), cpu_seconds());

@@ -427,22 +427,29 @@ fn winds_once(v: Vec3, ring: &[u32], motion: &Motion<'_>) -> bool {
         return false;
     }
     let (b1, b2) = v.any_orthonormal_pair();
-    let at = |j: usize, positions: &[Vec3]| {
-        let p = positions[ring[j % k] as usize];
-        Vec2::new(p.dot(b1), p.dot(b2))
+    // Ring vertex j projected at the start and the end, with its margin:
+    // each once, carried from one edge to the next (the contours were about
+    // a twentieth of the MakeHuman character's straight frames, half of it
+    // projecting every vertex twice; issue 30, sixteenth round).
+    let corner = |j: usize| {
+        let v = ring[j] as usize;
+        let (s, e) = (motion.start[v], motion.end[v]);
+        (Vec2::new(s.dot(b1), s.dot(b2)), Vec2::new(e.dot(b1), e.dot(b2)), motion.margin[v])
     };
-    // Projected edge j (from vertex j to j + 1) at the start, its change, and its margin.
-    let edge = |j: usize| {
-        let e0 = at(j + 1, motion.start) - at(j, motion.start);
-        let e1 = at(j + 1, motion.end) - at(j, motion.end);
-        let m = motion.margin[ring[j % k] as usize] + motion.margin[ring[(j + 1) % k] as usize];
-        (e0, e1 - e0, m)
+    // The projected edge from one corner to the next at the start, its change, and its margin.
+    let edge = |(a0, a1, ma): (Vec2, Vec2, f32), (b0, b1, mb): (Vec2, Vec2, f32)| {
+        let (e0, e1) = (b0 - a0, b1 - a1);
+        (e0, e1 - e0, ma + mb)
     };
     let limit = 4.0 * std::f32::consts::PI - 1e-3;
     let mut turning = 0.0f32;
-    let mut previous = edge(k - 1);
+    let first = corner(0);
+    let mut previous = edge(corner(k - 1), first);
+    let mut here = first;
     for j in 0..k {
-        let next = edge(j);
+        let there = if j + 1 == k { first } else { corner(j + 1) };
+        let next = edge(here, there);
+        here = there;
         let ((u0, du, mu), (w0, dw, mw)) = (previous, next);
         let cross = quadratic_range(u0.perp_dot(w0), u0.perp_dot(dw) + du.perp_dot(w0), du.perp_dot(dw));
         let dot = quadratic_range(u0.dot(w0), u0.dot(dw) + du.dot(w0), du.dot(dw));

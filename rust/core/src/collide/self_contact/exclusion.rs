@@ -16,6 +16,11 @@ pub(super) struct Exclusion {
     /// Per quad, both orders of its two diagonals (`[a0, a1, b0, b1]`, each
     /// diagonal ascending), sorted.
     diagonals: Vec<[u32; 4]>,
+    /// Per vertex `v`, where the diagonals starting at `v` (`a0 == v`) lie in
+    /// `diagonals`: a few, scanned, where a binary search over all of them
+    /// for every edge pair a gathering considers was a twentieth of the
+    /// MakeHuman character's straight frames (issue 30, sixteenth round).
+    diagonal_offsets: Vec<u32>,
     offsets: Vec<u32>,
     near: Vec<u32>,
 }
@@ -30,8 +35,15 @@ impl Exclusion {
             })
             .collect();
         diagonals.sort_unstable();
+        let mut diagonal_offsets = vec![0u32; if diagonals.is_empty() { 0 } else { vertex_count + 1 }];
+        for d in &diagonals {
+            diagonal_offsets[d[0] as usize + 1] += 1;
+        }
+        for v in 1..diagonal_offsets.len() {
+            diagonal_offsets[v] += diagonal_offsets[v - 1];
+        }
         if rings == 0 {
-            return Exclusion { rings, diagonals, offsets: Vec::new(), near: Vec::new() };
+            return Exclusion { rings, diagonals, diagonal_offsets, offsets: Vec::new(), near: Vec::new() };
         }
         let (adjacency_offsets, adjacent_edges) = vertex_incidence(vertex_count, edges.iter().map(|e| &e[..]));
         let neighbours = |v: usize| {
@@ -68,7 +80,7 @@ impl Exclusion {
             near.extend_from_slice(&list);
             offsets.push(near.len() as u32);
         }
-        Exclusion { rings, diagonals, offsets, near }
+        Exclusion { rings, diagonals, diagonal_offsets, offsets, near }
     }
 
     pub(super) fn rings(&self) -> u32 {
@@ -95,7 +107,8 @@ impl Exclusion {
             return false;
         }
         let key = [a[0].min(a[1]), a[0].max(a[1]), b[0].min(b[1]), b[0].max(b[1])];
-        self.diagonals.binary_search(&key).is_ok()
+        let from = key[0] as usize;
+        self.diagonals[self.diagonal_offsets[from] as usize..self.diagonal_offsets[from + 1] as usize].contains(&key)
     }
 }
 

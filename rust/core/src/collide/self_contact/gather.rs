@@ -34,7 +34,7 @@ use glam::Vec3;
 use super::bounds::{element_gap, relative_gap, Motion, NodeBounds, Span};
 use super::hinge::Hinges;
 use super::separation::separated;
-use super::star::Stars;
+use super::star::{StarMemo, Stars};
 use super::tree::PatchTree;
 
 /// A pair of elements: a vertex and a triangle (`corners = [v, a, b, c]`)
@@ -125,6 +125,8 @@ pub(super) struct Gather<'a> {
     pub hinges: &'a Hinges,
     /// The polygons round each vertex, for the star rule `cull` applies.
     pub stars: &'a Stars,
+    /// The stars' answers over this gathering's motion ([`Stars::memo`]).
+    pub star_memo: StarMemo,
     /// Per tree position: whether its triangle takes part (None: all do).
     pub takes_part: Option<&'a [bool]>,
     /// Whether two sides are tested at all (neighbours, tangles).
@@ -281,7 +283,7 @@ impl Gather<'_> {
             if element_gap(&self.motion, one, other) > self.reach as f64 {
                 return;
             }
-            if self.cull && (self.hinges.keep_apart(&self.motion, one, other) || self.stars.keep_apart(&self.motion, one, other)) {
+            if self.cull && (self.hinges.keep_apart(&self.motion, one, other) || self.stars.keep_apart(&self.motion, &self.star_memo, one, other)) {
                 return;
             }
             let corners = if edge_edge { [one[0], one[1], other[0], other[1]] } else { [one[0], other[0], other[1], other[2]] };

@@ -47,6 +47,8 @@
 //! (their fan from the first corner need not project into one wedge):
 //! their pairs stay contacts where a seam lists them.
 
+use std::sync::atomic::{AtomicU8, Ordering};
+
 use glam::Vec3;
 
 use super::bounds::{one_side_axis, Motion};
@@ -75,6 +77,19 @@ struct Around {
     previous: u32,
     next: u32,
 }
+
+/// Each vertex's [`Stars::winds_once`] over one motion, worked out the
+/// first time a pair asks for it: a gathering asks for the same star once
+/// for every near pair round it (the star rule's cones were about a tenth
+/// of the MakeHuman character's straight frames, issue 30, sixteenth
+/// round), and the answer depends on the vertex and the motion alone.
+pub(super) struct StarMemo {
+    /// Per vertex: 0 not asked yet, else [`WINDS_ONCE`] or [`WINDS_OTHERWISE`].
+    known: Vec<AtomicU8>,
+}
+
+const WINDS_ONCE: u8 = 1;
+const WINDS_OTHERWISE: u8 = 2;
 
 /// Above this the projected angles at a vertex sum to two turns or more
 /// (their sum is a whole number of turns: halfway between, for rounding).
@@ -129,6 +144,11 @@ impl Stars {
         Stars { corners, triangle_offsets, triangles, offsets, around, star }
     }
 
+    /// An empty memo for one motion of this skin ([`Self::keep_apart`]).
+    pub(super) fn memo(&self) -> StarMemo {
+        StarMemo { known: (0..self.star.len()).map(|_| AtomicU8::new(0)).collect() }
+    }
+
     fn polygon_corners(&self, p: u32) -> &[u32] {
         let c = &self.corners[p as usize];
         if c[3] == u32::MAX { &c[..3] } else { &c[..] }
@@ -146,7 +166,8 @@ impl Stars {
     /// Whether the sides `one` and `other` (a vertex and a triangle, or two
     /// edges) lie in two polygons of a star that keeps one side and winds
     /// once over `motion` (see the module documentation): never a contact.
-    pub(super) fn keep_apart(&self, motion: &Motion<'_>, one: &[u32], other: &[u32]) -> bool {
+    /// `memo` is this motion's ([`Self::memo`]).
+    pub(super) fn keep_apart(&self, motion: &Motion<'_>, memo: &StarMemo, one: &[u32], other: &[u32]) -> bool {
         if self.star.is_empty() {
             return false;
         }
@@ -157,13 +178,28 @@ impl Stars {
                 }
                 let shared = self.polygon_corners(p).iter().filter(|c| self.polygon_corners(q).contains(c));
                 for &v in shared {
-                    if self.winds_once(motion, v) {
+                    if self.winds_once_memo(motion, memo, v) {
                         return true;
                     }
                 }
             }
         }
         false
+    }
+
+    /// [`Self::winds_once`], from `memo` if it was asked before. Threads
+    /// asking at once may both work it out: the same answer either way.
+    fn winds_once_memo(&self, motion: &Motion<'_>, memo: &StarMemo, v: u32) -> bool {
+        let slot = &memo.known[v as usize];
+        match slot.load(Ordering::Relaxed) {
+            WINDS_ONCE => true,
+            WINDS_OTHERWISE => false,
+            _ => {
+                let once = self.winds_once(motion, v);
+                slot.store(if once { WINDS_ONCE } else { WINDS_OTHERWISE }, Ordering::Relaxed);
+                once
+            }
+        }
     }
 
     /// Whether `v`'s star keeps one side over `motion` and its projected
@@ -249,19 +285,19 @@ mod tests {
             let (x, stars) = grid_star(angle);
             let motion = Motion { start: &x, end: &x, margin: &margin };
             // Quads 0 1 4 3 and 4 5 8 7 meet only at vertex 4.
-            assert_eq!(stars.keep_apart(&motion, &[0, 4], &[5, 7]), kept, "diagonals across 4 at {angle} rad");
-            assert_eq!(stars.keep_apart(&motion, &[0], &[5, 8, 7]), kept, "corner against triangle across 4 at {angle} rad");
-            assert_eq!(stars.keep_apart(&motion, &[1, 3], &[4, 5]), kept, "diagonal against a side across 4 at {angle} rad");
+            assert_eq!(stars.keep_apart(&motion, &stars.memo(), &[0, 4], &[5, 7]), kept, "diagonals across 4 at {angle} rad");
+            assert_eq!(stars.keep_apart(&motion, &stars.memo(), &[0], &[5, 8, 7]), kept, "corner against triangle across 4 at {angle} rad");
+            assert_eq!(stars.keep_apart(&motion, &stars.memo(), &[1, 3], &[4, 5]), kept, "diagonal against a side across 4 at {angle} rad");
         }
         // Over a motion folding the star through itself (flat to 1.9 rad,
         // the two halves passing each other at a right angle), the normals
         // in between count.
         let (flat, stars) = grid_star(0.0);
         let (through, _) = grid_star(1.9);
-        assert!(!stars.keep_apart(&Motion { start: &flat, end: &through, margin: &margin }, &[0, 4], &[5, 7]));
+        assert!(!stars.keep_apart(&Motion { start: &flat, end: &through, margin: &margin }, &stars.memo(), &[0, 4], &[5, 7]));
         // Nor when a margin could turn a quad over.
         let wide = [0.6; 9];
-        assert!(!stars.keep_apart(&Motion { start: &flat, end: &flat, margin: &wide }, &[0, 4], &[5, 7]));
+        assert!(!stars.keep_apart(&Motion { start: &flat, end: &flat, margin: &wide }, &stars.memo(), &[0, 4], &[5, 7]));
     }
 
     #[test]
@@ -271,12 +307,12 @@ mod tests {
         let motion = Motion { start: &x, end: &x, margin: &margin };
         // Quads 0 1 4 3 and 1 2 5 4 share 1 (on the boundary) and 4: kept
         // apart through 4's star, never through 1's.
-        assert!(stars.keep_apart(&motion, &[0], &[2, 5, 4]));
+        assert!(stars.keep_apart(&motion, &stars.memo(), &[0], &[2, 5, 4]));
         assert!(!stars.winds_once(&motion, 1));
         assert!(stars.winds_once(&motion, 4));
         // Quads 0 1 4 3 and 1 2 5 4 seen without vertex 4's other quads: no star at all.
         let open = stars_of_quads(&[[0, 1, 4, 3], [1, 2, 5, 4]]);
-        assert!(!open.keep_apart(&motion, &[0], &[2, 5, 4]));
+        assert!(!open.keep_apart(&motion, &open.memo(), &[0], &[2, 5, 4]));
     }
 
     #[test]
@@ -300,13 +336,13 @@ mod tests {
         let motion = Motion { start: &x, end: &x, margin: &margin };
         assert!(one_side_axis(&motion, triangles.iter()).is_some(), "every normal leans one way");
         // Vertex 5 sits over vertex 1's ray, above triangle 0 1 2's wedge.
-        assert!(!stars.keep_apart(&motion, &[5], &[0, 1, 2]));
+        assert!(!stars.keep_apart(&motion, &stars.memo(), &[5], &[0, 1, 2]));
         // Once round (the first four triangles closed by a fifth), the same test passes.
         let once: Vec<[u32; 3]> = vec![[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]];
         let flat: Vec<Vec3> = (0..5).map(|i| if i == 0 { Vec3::ZERO } else { Vec3::new(x[i].x, x[i].y, 0.0) }).collect();
         let polygons: Vec<&[u32]> = once.iter().map(|t| &t[..]).collect();
         let stars = Stars::new(5, &polygons, &once, &[0, 1, 2, 3]);
         let margin = [0.0; 5];
-        assert!(stars.keep_apart(&Motion { start: &flat, end: &flat, margin: &margin }, &[3], &[0, 1, 2]));
+        assert!(stars.keep_apart(&Motion { start: &flat, end: &flat, margin: &margin }, &stars.memo(), &[3], &[0, 1, 2]));
     }
 }
