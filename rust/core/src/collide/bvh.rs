@@ -32,24 +32,39 @@ pub struct Bounds {
 impl Bounds {
     /// When the path `s → e` (parameter 0..1) first enters the box grown by
     /// `grow`, or `None` if it misses it.
+    ///
+    /// A ray cast walks a tree through this test many times (the compliant
+    /// recessions' heading rays, issue 29): it is written out per axis with
+    /// plain comparisons and stops at the first axis that leaves the path
+    /// outside. No operand can be NaN (finite boxes and ends, a non-zero
+    /// divisor), so it answers exactly as `max`/`min` over all three axes.
     pub fn entry_time(&self, s: DVec3, e: DVec3, grow: f64) -> Option<f64> {
-        let (lo, hi) = (self.min.as_dvec3() - DVec3::splat(grow), self.max.as_dvec3() + DVec3::splat(grow));
         let direction = e - s;
         let (mut enter, mut leave) = (0.0f64, 1.0f64);
         for k in 0..3 {
+            let (lo, hi) = (self.min[k] as f64 - grow, self.max[k] as f64 + grow);
             if direction[k] == 0.0 {
-                if s[k] < lo[k] || s[k] > hi[k] {
+                if s[k] < lo || s[k] > hi {
                     return None;
                 }
                 continue;
             }
-            let (a, b) = ((lo[k] - s[k]) / direction[k], (hi[k] - s[k]) / direction[k]);
-            enter = enter.max(a.min(b));
-            leave = leave.min(a.max(b));
+            let (a, b) = ((lo - s[k]) / direction[k], (hi - s[k]) / direction[k]);
+            let (near, far) = if a <= b { (a, b) } else { (b, a) };
+            if near > enter {
+                enter = near;
+            }
+            if far < leave {
+                leave = far;
+            }
+            // Rounding of the divisions: a path grazing a face may come out
+            // just outside; the growth is far larger than that, so the order
+            // still holds.
+            if enter > leave {
+                return None;
+            }
         }
-        // Rounding of the divisions: a path grazing a face may come out just
-        // outside; the growth is far larger than that, so the order still holds.
-        (enter <= leave).then_some(enter)
+        Some(enter)
     }
 
     /// The box that contains nothing (union identity).
@@ -454,8 +469,10 @@ impl BoxTree {
         // misses. The box, less the margin, is grown by a relative 1e-6 so
         // that rounding can only let more boxes through.
         let entry = |b: &Bounds| -> Option<f64> {
-            let grow = 1e-6 * (1.0 + b.min.abs().max(b.max.abs()).max_element() as f64);
-            b.entry_time(p64, q64, grow - grown_by(b, margin))
+            // `grown_by` written out: the box's magnitude is measured once.
+            let rounding = 1e-6 * (1.0 + b.min.abs().max(b.max.abs()).max_element() as f64);
+            let grown = if margin <= 0.0 { 0.0 } else { (margin - rounding).max(0.0) };
+            b.entry_time(p64, q64, rounding - grown)
         };
         let node_entry = |i: u32| entry(&Bounds::from_aabb(bvh.nodes[i as usize].aabb()));
         let mut best: Option<(usize, f64)> = None;

@@ -1028,6 +1028,44 @@ fn alternating_held_sets_are_assembled_once_each() {
     assert_eq!(deformer.solver_mut().held_assemblies(), 2, "two held sets in turn over 20 iterations");
 }
 
+/// New weights of a constant constraint (a compliant collider's target rows,
+/// set every substep) change only the global matrix's diagonal: the coarse
+/// levels keep their aggregations and are built again numerically, and the
+/// solve comes out as with a solver built for those weights from the start,
+/// bit for bit.
+#[test]
+fn new_target_weights_keep_the_coarse_aggregation_and_solve_as_a_fresh_build() {
+    let length = 4.0;
+    let mesh = cylinder(32, 40, 0.5, length);
+    let input = candy_wrapper(&mesh, length, 0.0, 60f32.to_radians());
+    let n = input.len();
+    let targets: Vec<Vec3> = input.iter().map(|&p| p + Vec3::new(0.05, 0.0, 0.0)).collect();
+    let weights = |every: usize, w: f32| (0..n).map(|v| if v % every == 0 { w } else { 0.0 }).collect::<Vec<f32>>();
+    // Solves with `last` weights on the target rows, after one solve with `first` if given.
+    let run = |first: Option<Vec<f32>>, last: Vec<f32>| {
+        let mut deformer = accelerated(&mesh);
+        deformer.set_closeness(Closeness::Uniform(0.05)).unwrap();
+        let solver = deformer.solver_mut();
+        let all: Vec<u32> = (0..n as u32).collect();
+        let id = solver.add(Box::new(crate::solve::Targets::new("targets", &all)), first.clone().unwrap_or_else(|| last.clone())).unwrap();
+        solver.set_targets(id, &targets).unwrap();
+        if first.is_some() {
+            let mut x = input.clone();
+            solver.solve(&input, &mut x, 6, None).unwrap();
+            solver.set_weights(id, &last).unwrap();
+        }
+        let mut x = input.clone();
+        solver.solve(&input, &mut x, 6, None).unwrap();
+        (x, solver.coarse_aggregations())
+    };
+    let (fresh, fresh_aggregations) = run(None, weights(5, 2.0));
+    let (kept, kept_aggregations) = run(Some(weights(7, 0.5)), weights(5, 2.0));
+    assert_eq!(fresh_aggregations, 1);
+    assert_eq!(kept_aggregations, 1, "the target rows' new weights kept the aggregation");
+    assert!(kept != input, "the solve moved the mesh");
+    assert_eq!(kept, fresh, "the same solve as a solver built for those weights");
+}
+
 #[test]
 fn every_pin_reason_has_its_own_name() {
     let names: std::collections::HashSet<&str> = PinReason::ALL.iter().map(|r| r.name()).collect();

@@ -314,6 +314,35 @@ impl Coarse {
         couplings: &[Option<&super::Rows>],
         inverse: &[f32],
     ) -> Result<Option<Self>> {
+        Self::assemble(n, variable, couplings, inverse, None)
+    }
+
+    /// [`Self::build`] for new values of the pattern this was built for:
+    /// the same variable constraints with the same weights, the diagonal
+    /// changed (a constant constraint's weights changed, as compliant
+    /// colliders' target rows do every substep). The aggregations depend on
+    /// the pattern only, so they are kept and only the numbers are built
+    /// again: the same levels as [`Self::build`] would make, for less (on
+    /// the compliant flesh bench the aggregation was most of the solver's
+    /// rebuild every frame, issue 29). Checks that the pattern still matches
+    /// and aggregates afresh if not.
+    pub(super) fn with_values(
+        &self,
+        n: usize,
+        variable: &[RowBlock<'_>],
+        couplings: &[Option<&super::Rows>],
+        inverse: &[f32],
+    ) -> Result<Option<Self>> {
+        Self::assemble(n, variable, couplings, inverse, Some(self))
+    }
+
+    fn assemble(
+        n: usize,
+        variable: &[RowBlock<'_>],
+        couplings: &[Option<&super::Rows>],
+        inverse: &[f32],
+        kept: Option<&Coarse>,
+    ) -> Result<Option<Self>> {
         // M by vertex: (row vertex, column vertex, value).
         let mut m: Vec<(u32, u32, f32)> = Vec::new();
         for (block, coupling) in variable.iter().zip(couplings) {
@@ -339,13 +368,18 @@ impl Coarse {
             return Ok(None);
         }
         m.par_sort_by_key(|&(i, j, _)| (i, j));
+        let kept = kept.filter(|k| k.aggregate.len() == n && k.m.offsets.len() == n + 1 && same_pattern(&m, &k.m));
 
         // First level: one round of aggregation of the vertices.
-        let mut edges: Vec<(u32, u32)> = m.iter().flat_map(|&(i, j, _)| [(i, j), (j, i)]).collect();
-        edges.par_sort_unstable();
-        edges.dedup();
-        let (aggregate, count) = aggregate_once(n, &edges);
-        drop(edges);
+        let (aggregate, count) = match kept {
+            Some(k) => (k.aggregate.clone(), k.member_offsets.len() - 1),
+            None => {
+                let mut edges: Vec<(u32, u32)> = m.iter().flat_map(|&(i, j, _)| [(i, j), (j, i)]).collect();
+                edges.par_sort_unstable();
+                edges.dedup();
+                aggregate_once(n, &edges)
+            }
+        };
         if count < MIN_AGGREGATES || count * 4 > n {
             return Ok(None);
         }
@@ -366,11 +400,15 @@ impl Coarse {
         }
 
         let m = VertexRows::from_sorted(n, &m);
-        let Some(free) = Hierarchy::build(first_level(&aggregate, count, &m, None), None) else {
+        let downs: Option<Vec<&[u32]>> = kept.map(|k| k.free.levels.iter().map(|l| &l.down[..]).collect());
+        let Some(free) = Hierarchy::build(first_level(&aggregate, count, &m, None), downs.as_deref()) else {
             return Ok(None);
         };
 
-        let (member_offsets, members) = group_members(&aggregate, count);
+        let (member_offsets, members) = match kept {
+            Some(k) => (k.member_offsets.clone(), k.members.clone()),
+            None => group_members(&aggregate, count),
+        };
         Ok(Some(Coarse { aggregate, member_offsets, members, offsets, columns, values, m, free, held: Vec::new(), held_assemblies: 0 }))
     }
 
@@ -523,6 +561,16 @@ impl Coarse {
             offset: a.offset + b.offset,
         })
     }
+}
+
+/// Whether `m` (entries sorted by row and column) has the pattern of `rows`.
+fn same_pattern(m: &[(u32, u32, f32)], rows: &VertexRows) -> bool {
+    m.len() == rows.columns.len()
+        && m.par_iter().zip(&rows.columns).all(|(e, &j)| e.1 == j)
+        && (0..rows.offsets.len() - 1).into_par_iter().all(|i| {
+            let (a, b) = (rows.offsets[i] as usize, rows.offsets[i + 1] as usize);
+            m[a..b].iter().all(|e| e.0 as usize == i)
+        })
 }
 
 /// `Pᵀ(I − M)P` on the first level, symmetrised, both triangles; with

@@ -153,6 +153,8 @@ pub struct Solver {
     /// (rebuilt with the system).
     coarse_enabled: bool,
     coarse: Option<Coarse>,
+    /// How many times the coarse levels were aggregated afresh.
+    aggregations: usize,
     /// An accelerated iteration's positions before the hook ran, and the
     /// vertices the hook then moved.
     before_hook: Vec<Vec3>,
@@ -183,6 +185,7 @@ impl Solver {
             work: Vec::new(),
             coarse_enabled: false,
             coarse: None,
+            aggregations: 0,
             before_hook: Vec::new(),
             hook_moved: MovedVertices::default(),
             unextrapolated: Vec::new(),
@@ -224,6 +227,13 @@ impl Solver {
     /// work contacts cost it; 0 without the coarse correction).
     pub fn held_assemblies(&self) -> usize {
         self.coarse.as_ref().map_or(0, Coarse::held_assemblies)
+    }
+
+    /// How many times the coarse levels were aggregated afresh (on the
+    /// first build and whenever the varying constraints changed; new weights
+    /// of a constant one keep the aggregation, see [`Solver::set_weights`]).
+    pub fn coarse_aggregations(&self) -> usize {
+        self.aggregations
     }
 
     /// Iterations the last solve ran (its count; with a tolerance fewer, or
@@ -290,15 +300,21 @@ impl Solver {
         });
         self.system = None;
         self.symbolic = None;
+        self.coarse = None;
         Ok(ConstraintId(self.entries.len() - 1))
     }
 
     /// Replaces a constraint's row weights; the next solve refactorises
-    /// numerically (the symbolic analysis is kept).
+    /// numerically (the symbolic analysis is kept). A constant constraint's
+    /// weights change only the diagonal: the coarse levels keep their
+    /// aggregations and are built again numerically ([`Coarse::with_values`]).
     pub fn set_weights(&mut self, id: ConstraintId, weights: &[f32]) -> Result<()> {
         let entry = self.entry(id)?;
         check_weights(entry.constraint.as_ref(), weights)?;
         if entry.weights != weights {
+            if !entry.constraint.is_constant() {
+                self.coarse = None;
+            }
             self.entries[id.0].weights = weights.to_vec();
             if let Some(system) = self.system.take() {
                 self.symbolic = system.symbolic().or(self.symbolic.take());
@@ -338,6 +354,8 @@ impl Solver {
     /// Builds (and factorises) the global system if needed; returns its kind.
     pub fn prepare(&mut self) -> Result<SystemKind> {
         if self.system.is_none() {
+            // Built for the variable constraints as they are (see `set_weights`).
+            let kept = self.coarse.take();
             let (variable, constant) = self.blocks();
             let system = System::build(
                 self.vertex_count,
@@ -355,10 +373,16 @@ impl Solver {
                         .filter(|e| !e.constraint.is_constant())
                         .map(|e| e.constraint.coupling())
                         .collect();
-                    Coarse::build(self.vertex_count, &variable, &couplings, inverse)?
+                    match &kept {
+                        Some(kept) => kept.with_values(self.vertex_count, &variable, &couplings, inverse)?,
+                        None => Coarse::build(self.vertex_count, &variable, &couplings, inverse)?,
+                    }
                 }
                 _ => None,
             };
+            if self.coarse.is_some() && kept.is_none() {
+                self.aggregations += 1;
+            }
             self.symbolic = system.symbolic();
             self.system = Some(system);
             self.variable_projections = vec![Vec3::ZERO; variable_rows];
