@@ -70,24 +70,18 @@ fn cells_below(dx: &[f32], dy: &[f32], w: usize, h: usize, margin: f32, thin: Op
 
 /// The cell rows of an iterate in which [`row_folds`] counts a grid
 /// triangle below [`MIN_AREA`], in increasing order: what [`keep_areas`]'s
-/// scan would find. The regularisation finds them while the rows it wrote
-/// are still in cache (`super::regularise`), so that the constraint does not
+/// scan would find. The iteration finds them while the rows it wrote are
+/// still in cache (`super::iteration`), so that the constraint does not
 /// stream the whole grid again (issue 28: the warm frame is memory-bound).
 #[derive(Debug, Clone, Default)]
 pub(super) struct ThinRows(pub(super) Vec<usize>);
 
 impl ThinRows {
-    /// Cell rows `first..first + rows − 1` of the `rows` node rows held in
-    /// `dx`, `dy` (a band of the grid; the cell rows between bands are the
-    /// caller's).
+    /// The listed cell rows among the `rows − 1` between the `rows` node rows
+    /// held in `dx`, `dy`, numbered from grid row `first` (a band of the grid).
     pub(super) fn in_band(dx: &[f32], dy: &[f32], w: usize, first: usize) -> Vec<usize> {
         let rows = dx.len() / w;
         (0..rows.saturating_sub(1)).filter(|&r| row_folds(dx, dy, w, r, MIN_AREA) > 0).map(|r| first + r).collect()
-    }
-
-    /// Whether whole-grid cell row `j` belongs in the list.
-    pub(super) fn row(dx: &[f32], dy: &[f32], w: usize, j: usize) -> bool {
-        row_folds(dx, dy, w, j, MIN_AREA) > 0
     }
 }
 

@@ -37,8 +37,9 @@
 //! level's fixed point; selectable, not yet the default (see [`Variant`]).
 
 //!
-//! Files: this one drives the hierarchy (levels, restriction, prolongation,
-//! the fast sweeps of [`super::sweep`]); `multigrid.rs` the cycles;
+//! Files: this one drives the hierarchy (levels, restriction, prolongation);
+//! `iteration.rs` runs one iteration of a level with the fast sweeps of
+//! [`super::sweep`], fused band by band; `multigrid.rs` the cycles;
 //! `anderson.rs` the multigrid's optional Anderson acceleration of its
 //! finest cycles (issue 28); `reference.rs` is the reference
 //! path, one constraint at a time, which the sweeps must match bit for bit
@@ -47,16 +48,18 @@
 
 mod anderson;
 mod folds;
+mod iteration;
 mod multigrid;
 mod reference;
 
 use rayon::prelude::*;
 
 use folds::{keep_areas, repair_folds, ThinRows};
+use iteration::iterate;
 pub use folds::{cell_dets, count_folds};
 use reference::{iterate_reference, Direct, Indexed};
 use super::maps;
-use super::sweep::{self, ByTexel, ByTriangle, Metric, Sweep, TriRecord};
+use super::sweep::{self, ByTexel, ByTriangle, TriRecord};
 use super::WarpSettings;
 
 /// Smallest side of the coarsest level.
@@ -129,46 +132,6 @@ impl Level {
 /// Levels with fewer texels than this run on the calling thread: their whole
 /// iteration takes less than a fork–join of the pool under load.
 const PARALLEL_TEXELS: usize = 128 * 128;
-
-/// `n` iterations of a level with the [`sweep`] kernels (projection,
-/// regularisation), without the steps [`drive`] adds. `scan`: the last
-/// regularisation also finds the iterate's [`ThinRows`] for the
-/// fold-prevention constraint.
-fn iterate<M: Metric>(lv: &mut Level, metric: M, n: usize, s: &WarpSettings, avx2: bool, scan: bool) -> Option<ThinRows> {
-    let (w, h) = (lv.w, lv.h);
-    let parallel = w * h >= PARALLEL_TEXELS;
-    let mut thin = None;
-    for k in 0..n {
-        {
-            let sw = Sweep { w, active: &lv.active, metric: &metric, orientation: s.orientation, avx2 };
-            let active = &lv.active;
-            let phase_a = |p: usize, cx: &mut [f32], cy: &mut [f32]| {
-                let j = 2 * p;
-                let rows = cx.len() / w;
-                if active.any(j, false) || (rows == 2 && active.any(j + 1, false)) {
-                    sw.phase_a(j, rows, cx, cy);
-                }
-            };
-            let phase_b = |p: usize, cx: &mut [f32], cy: &mut [f32]| {
-                let j = 2 * p + 1;
-                if cx.len() == 2 * w && active.any(j, true) {
-                    sw.between(j, cx, cy);
-                }
-            };
-            if parallel {
-                lv.dx.par_chunks_mut(2 * w).zip(lv.dy.par_chunks_mut(2 * w)).enumerate().for_each(|(p, (cx, cy))| phase_a(p, cx, cy));
-                lv.dx[w..].par_chunks_mut(2 * w).zip(lv.dy[w..].par_chunks_mut(2 * w)).enumerate().for_each(|(p, (cx, cy))| phase_b(p, cx, cy));
-            } else {
-                lv.dx.chunks_mut(2 * w).zip(lv.dy.chunks_mut(2 * w)).enumerate().for_each(|(p, (cx, cy))| phase_a(p, cx, cy));
-                lv.dx[w..].chunks_mut(2 * w).zip(lv.dy[w..].chunks_mut(2 * w)).enumerate().for_each(|(p, (cx, cy))| phase_b(p, cx, cy));
-            }
-        }
-        thin = regularise(lv, s.smoothing, parallel, avx2, scan && k + 1 == n);
-        std::mem::swap(&mut lv.dx, &mut lv.sx);
-        std::mem::swap(&mut lv.dy, &mut lv.sy);
-    }
-    thin
-}
 
 /// What [`drive`] adds to the plain iterations.
 #[derive(Debug, Clone, Copy)]
@@ -269,45 +232,6 @@ const CHEBYSHEV_WARMUP: usize = 2;
 /// squashed so thin that the redirection's round trip missed by up to 1.2
 /// texels (0.47 at ρ = 0.95, 0.29 at 0.9), where plain iterations give 0.25.
 const CHEBYSHEV_SIDE: usize = 512;
-
-/// Rows of the output the regularisation writes per task when it also
-/// scans for thin cells: the cell rows inside a band are scanned while its
-/// rows are in cache; the one between two bands is scanned after them
-/// (1/`SCAN_BAND` of a pass).
-const SCAN_BAND: usize = 16;
-
-/// Seed eqs. 4–5 plus the 8-neighbourhood bounding-box clamp; `dx,dy → sx,sy`.
-/// `scan`: also finds the output's [`ThinRows`], band by band as it is
-/// written, instead of the separate pass over the grid [`keep_areas`] would make.
-fn regularise(lv: &mut Level, smoothing: f32, parallel: bool, avx2: bool, scan: bool) -> Option<ThinRows> {
-    let (w, h) = (lv.w, lv.h);
-    let (dx, dy, rig, mask) = (&lv.dx, &lv.dy, &lv.rig, &lv.mask);
-    let row = |y: usize, ox: &mut [f32], oy: &mut [f32]| sweep::regularise_row(dx, dy, rig, mask, w, h, y, smoothing, ox, oy, avx2);
-    if !scan {
-        let row = |(y, (ox, oy)): (usize, (&mut [f32], &mut [f32]))| row(y, ox, oy);
-        if parallel {
-            lv.sx.par_chunks_mut(w).zip(lv.sy.par_chunks_mut(w)).enumerate().for_each(row);
-        } else {
-            lv.sx.chunks_mut(w).zip(lv.sy.chunks_mut(w)).enumerate().for_each(row);
-        }
-        return None;
-    }
-    let band = |(b, (ox, oy)): (usize, (&mut [f32], &mut [f32]))| {
-        for (r, (rx, ry)) in ox.chunks_mut(w).zip(oy.chunks_mut(w)).enumerate() {
-            row(b * SCAN_BAND + r, rx, ry);
-        }
-        ThinRows::in_band(ox, oy, w, b * SCAN_BAND)
-    };
-    let mut rows: Vec<usize> = if parallel {
-        lv.sx.par_chunks_mut(SCAN_BAND * w).zip(lv.sy.par_chunks_mut(SCAN_BAND * w)).enumerate().flat_map_iter(band).collect()
-    } else {
-        lv.sx.chunks_mut(SCAN_BAND * w).zip(lv.sy.chunks_mut(SCAN_BAND * w)).enumerate().flat_map(band).collect()
-    };
-    let (sx, sy) = (&lv.sx, &lv.sy);
-    rows.extend((1..h.div_ceil(SCAN_BAND)).map(|b| b * SCAN_BAND - 1).filter(|&j| ThinRows::row(sx, sy, w, j)));
-    rows.sort_unstable();
-    Some(ThinRows(rows))
-}
 
 /// The whole hierarchy of one tile.
 #[derive(Debug, Clone)]
