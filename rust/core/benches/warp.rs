@@ -9,7 +9,8 @@
 //! `TEGUMENT_WARP_FRAMES` for the number of warm frames, default 10;
 //! `TEGUMENT_WARP_VARIANT=multigrid` runs the multigrid solver (1 cycle a
 //! frame) instead of the default cascade, `TEGUMENT_WARP_ITERATIONS` another
-//! count than the variant's default).
+//! count than the variant's default; `TEGUMENT_WARP_DUMP=<dir>` writes the
+//! last frame's displacement and redirection there, for comparing builds).
 
 mod common;
 
@@ -91,6 +92,13 @@ fn run_case(n: usize) -> Vec<(&'static str, f64)> {
     }
     let cpu_frame = (cpu_ms() - cpu_start) / frames as f64;
     let tile = &warp.tiles[0];
+    if let Ok(dir) = std::env::var("TEGUMENT_WARP_DUMP") {
+        // The last frame's displacement and redirection, raw little-endian
+        // f32, so that two builds' outputs can be compared byte for byte.
+        let (dx, dy) = tile.displacement();
+        let bytes: Vec<u8> = dx.iter().chain(dy).chain(&tile.redirection).flat_map(|v| v.to_le_bytes()).collect();
+        std::fs::write(std::path::Path::new(&dir).join(format!("warp-{n}-{frames}.f32")), bytes).expect("dump");
+    }
     eprintln!("  {n}²: last frame per level ms (finest first, then fold check): {:?}, iterations {:?}", tile.solver.last_level_ms.iter().map(|v| (v * 10.0).round() / 10.0).collect::<Vec<_>>(), tile.solver.last_iterations);
     let p = pose(&m, frames);
     let q = warp.metrics(&p).expect("metrics");

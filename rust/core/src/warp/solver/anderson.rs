@@ -24,7 +24,7 @@
 use rayon::prelude::*;
 
 use super::folds::keep_areas;
-use super::{count_folds, Level, AREA_PASSES};
+use super::{Level, AREA_PASSES};
 
 /// Values per chunk of a parallel sum: fixed, so the order of the sum is too.
 const CHUNK: usize = 8192;
@@ -154,10 +154,8 @@ impl Anderson {
         let finite = next.par_iter().all(|v| v.is_finite());
         scatter(&next, lv);
         self.x = next;
-        if finite {
-            keep_areas(lv, AREA_PASSES, true);
-        }
-        if !finite || count_folds(&lv.dx, &lv.dy, lv.w, lv.h, 0.0) > 0 {
+        // `keep_areas` tells whether a cell is still folded (no count needed).
+        if !finite || keep_areas(lv, AREA_PASSES, true, None) {
             scatter(&self.g, lv);
             self.restart();
             self.rejected += 1;

@@ -56,16 +56,33 @@ pub(super) const MIN_AREA: f32 = 0.05;
 
 /// Cells (named by their lower-left node) with a triangle whose doubled
 /// area is below `margin`, in row order. The scan is [`row_folds`]' (the
-/// vectorised count): rows without such a cell cost one pass of it.
-fn cells_below(dx: &[f32], dy: &[f32], w: usize, h: usize, margin: f32) -> Vec<usize> {
-    (0..h - 1)
-        .into_par_iter()
-        .flat_map_iter(|j| {
-            let any = row_folds(dx, dy, w, j, margin) > 0;
-            (0..if any { w - 1 } else { 0 }).map(move |i| j * w + i)
-        })
-        .filter(|&c| cell_dets(dx, dy, w, c % w, c / w).iter().any(|&d| d < margin))
-        .collect()
+/// vectorised count): rows without such a cell cost one pass of it. `thin`:
+/// the cell rows where [`row_folds`] with this margin counts a cell, already
+/// found (in increasing order, see [`ThinRows`]); only those are searched.
+fn cells_below(dx: &[f32], dy: &[f32], w: usize, h: usize, margin: f32, thin: Option<&ThinRows>) -> Vec<usize> {
+    let in_row = |j: usize| (0..w - 1).map(move |i| j * w + i);
+    let below = |&c: &usize| cell_dets(dx, dy, w, c % w, c / w).iter().any(|&d| d < margin);
+    match thin {
+        Some(rows) => rows.0.par_iter().flat_map_iter(|&j| in_row(j)).filter(below).collect(),
+        None => (0..h - 1).into_par_iter().filter(|&j| row_folds(dx, dy, w, j, margin) > 0).flat_map_iter(in_row).filter(below).collect(),
+    }
+}
+
+/// The cell rows of an iterate in which [`row_folds`] counts a grid
+/// triangle below [`MIN_AREA`], in increasing order: what [`keep_areas`]'s
+/// scan would find. The iteration finds them while the rows it wrote are
+/// still in cache (`super::iteration`), so that the constraint does not
+/// stream the whole grid again (issue 28: the warm frame is memory-bound).
+#[derive(Debug, Clone, Default)]
+pub(super) struct ThinRows(pub(super) Vec<usize>);
+
+impl ThinRows {
+    /// The listed cell rows among the `rows − 1` between the `rows` node rows
+    /// held in `dx`, `dy`, numbered from grid row `first` (a band of the grid).
+    pub(super) fn in_band(dx: &[f32], dy: &[f32], w: usize, first: usize) -> Vec<usize> {
+        let rows = dx.len() / w;
+        (0..rows.saturating_sub(1)).filter(|&r| row_folds(dx, dy, w, r, MIN_AREA) > 0).map(|r| first + r).collect()
+    }
 }
 
 /// Projects triangle `(p, q, r)` (node indices, corner offsets in texels)
@@ -116,14 +133,20 @@ const SETTLED: f32 = 0.999;
 /// one of them is still folded, up to [`UNFOLD_PASSES`]: on the tests'
 /// squares scene at 4096² four passes left one folded cell in the skin,
 /// which the end-of-solve repair could only flatten, rigid stretch 0.09 →
-/// 0.37). Returns the cells that needed it. Deterministic (sequential over
+/// 0.37). Deterministic (sequential over
 /// a sorted list). `settle`: go on past `passes` until every cell is at
-/// [`SETTLED`] of the limit, not just unfolded (see there).
-pub(super) fn keep_areas(lv: &mut Level, passes: usize, settle: bool) -> usize {
+/// [`SETTLED`] of the limit, not just unfolded (see there). `thin`: the
+/// iterate's rows with cells below the limit, if already found.
+///
+/// Returns whether a cell is still folded (a doubled area ≤ 0, what
+/// [`count_folds`] with margin 0 counts): every cell outside the final list
+/// is at the limit or above (it was when the scan found none there, and no
+/// pass moved a node of it since), so the list alone answers, without
+/// another pass over the grid.
+pub(super) fn keep_areas(lv: &mut Level, passes: usize, settle: bool, thin: Option<&ThinRows>) -> bool {
     let (w, h) = (lv.w, lv.h);
     let min_area = MIN_AREA;
-    let mut bad = cells_below(&lv.dx, &lv.dy, w, h, min_area);
-    let found = bad.len();
+    let mut bad = cells_below(&lv.dx, &lv.dy, w, h, min_area, thin);
     for pass in 0..passes.max(UNFOLD_PASSES) {
         if bad.is_empty() {
             break;
@@ -151,7 +174,7 @@ pub(super) fn keep_areas(lv: &mut Level, passes: usize, settle: bool) -> usize {
         candidates.dedup();
         bad = candidates.into_iter().filter(|&c| cell_dets(&lv.dx, &lv.dy, w, c % w, c / w).iter().any(|&d| d < min_area)).collect();
     }
-    found
+    bad.iter().any(|&c| cell_dets(&lv.dx, &lv.dy, w, c % w, c / w).iter().any(|&d| d <= 0.0))
 }
 
 /// Removes fold-overs of the finest level; returns (relaxation passes, global scale).

@@ -37,8 +37,9 @@
 //! level's fixed point; selectable, not yet the default (see [`Variant`]).
 
 //!
-//! Files: this one drives the hierarchy (levels, restriction, prolongation,
-//! the fast sweeps of [`super::sweep`]); `multigrid.rs` the cycles;
+//! Files: this one drives the hierarchy (levels, restriction, prolongation);
+//! `iteration.rs` runs one iteration of a level with the fast sweeps of
+//! [`super::sweep`], fused band by band; `multigrid.rs` the cycles;
 //! `anderson.rs` the multigrid's optional Anderson acceleration of its
 //! finest cycles (issue 28); `reference.rs` is the reference
 //! path, one constraint at a time, which the sweeps must match bit for bit
@@ -47,16 +48,18 @@
 
 mod anderson;
 mod folds;
+mod iteration;
 mod multigrid;
 mod reference;
 
 use rayon::prelude::*;
 
-use folds::{keep_areas, repair_folds};
+use folds::{keep_areas, repair_folds, ThinRows};
+use iteration::iterate;
 pub use folds::{cell_dets, count_folds};
 use reference::{iterate_reference, Direct, Indexed};
 use super::maps;
-use super::sweep::{self, ByTexel, ByTriangle, Metric, Sweep, TriRecord};
+use super::sweep::{self, ByTexel, ByTriangle, TriRecord};
 use super::WarpSettings;
 
 /// Smallest side of the coarsest level.
@@ -130,42 +133,6 @@ impl Level {
 /// iteration takes less than a fork–join of the pool under load.
 const PARALLEL_TEXELS: usize = 128 * 128;
 
-/// `n` iterations of a level with the [`sweep`] kernels (projection,
-/// regularisation), without the steps [`drive`] adds.
-fn iterate<M: Metric>(lv: &mut Level, metric: M, n: usize, s: &WarpSettings, avx2: bool) {
-    let (w, h) = (lv.w, lv.h);
-    let parallel = w * h >= PARALLEL_TEXELS;
-    for _ in 0..n {
-        {
-            let sw = Sweep { w, active: &lv.active, metric: &metric, orientation: s.orientation, avx2 };
-            let active = &lv.active;
-            let phase_a = |p: usize, cx: &mut [f32], cy: &mut [f32]| {
-                let j = 2 * p;
-                let rows = cx.len() / w;
-                if active.any(j, false) || (rows == 2 && active.any(j + 1, false)) {
-                    sw.phase_a(j, rows, cx, cy);
-                }
-            };
-            let phase_b = |p: usize, cx: &mut [f32], cy: &mut [f32]| {
-                let j = 2 * p + 1;
-                if cx.len() == 2 * w && active.any(j, true) {
-                    sw.between(j, cx, cy);
-                }
-            };
-            if parallel {
-                lv.dx.par_chunks_mut(2 * w).zip(lv.dy.par_chunks_mut(2 * w)).enumerate().for_each(|(p, (cx, cy))| phase_a(p, cx, cy));
-                lv.dx[w..].par_chunks_mut(2 * w).zip(lv.dy[w..].par_chunks_mut(2 * w)).enumerate().for_each(|(p, (cx, cy))| phase_b(p, cx, cy));
-            } else {
-                lv.dx.chunks_mut(2 * w).zip(lv.dy.chunks_mut(2 * w)).enumerate().for_each(|(p, (cx, cy))| phase_a(p, cx, cy));
-                lv.dx[w..].chunks_mut(2 * w).zip(lv.dy[w..].chunks_mut(2 * w)).enumerate().for_each(|(p, (cx, cy))| phase_b(p, cx, cy));
-            }
-        }
-        regularise(lv, s.smoothing, parallel, avx2);
-        std::mem::swap(&mut lv.dx, &mut lv.sx);
-        std::mem::swap(&mut lv.dy, &mut lv.sy);
-    }
-}
-
 /// What [`drive`] adds to the plain iterations.
 #[derive(Debug, Clone, Copy)]
 struct Steps {
@@ -179,20 +146,24 @@ struct Steps {
 }
 
 /// `n` iterations of a level: `one` runs one plain iteration (the fast or
-/// the reference kernels), then, per `steps`, the Chebyshev extrapolation
+/// the reference kernels; asked to, it may return the iterate's
+/// [`ThinRows`]), then, per `steps`, the Chebyshev extrapolation
 /// (Wang 2015) `x_{k+1} = ω_{k+1}(F(x_k) − x_{k−1}) + x_{k−1}` and the
 /// fold-prevention constraint ([`keep_areas`]), so that the iterate every
-/// iteration leaves, extrapolated or not, has no folded cell.
-fn drive(lv: &mut Level, n: usize, steps: Steps, mut one: impl FnMut(&mut Level)) {
+/// iteration leaves, extrapolated or not, has no folded cell. Returns
+/// whether the last iterate has a folded cell, when the constraint ran
+/// (`None`: count them).
+fn drive(lv: &mut Level, n: usize, steps: Steps, mut one: impl FnMut(&mut Level, bool) -> Option<ThinRows>) -> Option<bool> {
     let chebyshev = steps.chebyshev && n > CHEBYSHEV_WARMUP;
+    let mut folded = None;
     if !chebyshev {
         for _ in 0..n {
-            one(lv);
+            let thin = one(lv, steps.areas);
             if steps.areas {
-                keep_areas(lv, AREA_PASSES, steps.settle);
+                folded = Some(keep_areas(lv, AREA_PASSES, steps.settle, thin.as_ref()));
             }
         }
-        return;
+        return folded;
     }
     // `p` = x_k, `q` = x_{k−1}.
     let (mut px, mut py) = (lv.dx.clone(), lv.dy.clone());
@@ -206,7 +177,9 @@ fn drive(lv: &mut Level, n: usize, steps: Steps, mut one: impl FnMut(&mut Level)
         std::mem::swap(&mut qy, &mut py);
         px.copy_from_slice(&lv.dx);
         py.copy_from_slice(&lv.dy);
-        one(lv);
+        // The rows describe the plain iterate, which the extrapolation
+        // replaces: they are only asked for when it is kept.
+        let thin = one(lv, steps.areas && since < CHEBYSHEV_WARMUP);
         if since >= CHEBYSHEV_WARMUP {
             let rho2 = CHEBYSHEV_RHO * CHEBYSHEV_RHO;
             omega = if since == CHEBYSHEV_WARMUP { 2.0 / (2.0 - rho2) } else { 4.0 / (4.0 - rho2 * omega) };
@@ -228,20 +201,21 @@ fn drive(lv: &mut Level, n: usize, steps: Steps, mut one: impl FnMut(&mut Level)
             ry.copy_from_slice(&lv.dy);
             extrapolate(o, &mut lv.dx, &qx);
             extrapolate(o, &mut lv.dy, &qy);
-            keep_areas(lv, AREA_PASSES, steps.settle);
-            if count_folds(&lv.dx, &lv.dy, lv.w, lv.h, 0.0) > 0 {
+            if keep_areas(lv, AREA_PASSES, steps.settle, None) {
                 lv.dx.copy_from_slice(&rx);
                 lv.dy.copy_from_slice(&ry);
             } else {
+                folded = Some(false);
                 since += 1;
                 continue;
             }
         }
         since += 1;
         if steps.areas {
-            keep_areas(lv, AREA_PASSES, steps.settle);
+            folded = Some(keep_areas(lv, AREA_PASSES, steps.settle, thin.as_ref()));
         }
     }
+    folded
 }
 
 /// Passes of the fold-prevention constraint per iteration.
@@ -258,18 +232,6 @@ const CHEBYSHEV_WARMUP: usize = 2;
 /// squashed so thin that the redirection's round trip missed by up to 1.2
 /// texels (0.47 at ρ = 0.95, 0.29 at 0.9), where plain iterations give 0.25.
 const CHEBYSHEV_SIDE: usize = 512;
-
-/// Seed eqs. 4–5 plus the 8-neighbourhood bounding-box clamp; `dx,dy → sx,sy`.
-fn regularise(lv: &mut Level, smoothing: f32, parallel: bool, avx2: bool) {
-    let (w, h) = (lv.w, lv.h);
-    let (dx, dy, rig, mask) = (&lv.dx, &lv.dy, &lv.rig, &lv.mask);
-    let row = |(y, (ox, oy)): (usize, (&mut [f32], &mut [f32]))| sweep::regularise_row(dx, dy, rig, mask, w, h, y, smoothing, ox, oy, avx2);
-    if parallel {
-        lv.sx.par_chunks_mut(w).zip(lv.sy.par_chunks_mut(w)).enumerate().for_each(row);
-    } else {
-        lv.sx.chunks_mut(w).zip(lv.sy.chunks_mut(w)).enumerate().for_each(row);
-    }
-}
 
 /// The whole hierarchy of one tile.
 #[derive(Debug, Clone)]
@@ -460,6 +422,7 @@ impl Solver {
         self.last_iterations = vec![0; self.levels.len()];
         self.last_level_ms = vec![0.0; self.levels.len() + 1];
         self.last_prepare_ms = prepare.elapsed().as_secs_f64() * 1e3;
+        let mut finest_folded = None;
         for l in (0..used).rev() {
             let started = std::time::Instant::now();
             // Cold solves start from the identity and need the coarse levels
@@ -482,17 +445,23 @@ impl Solver {
             // Levels below [`CHEBYSHEV_SIDE`]: no acceleration either.
             let steps = Steps { areas: !legacy, chebyshev: !legacy && !warm && lv.w.min(lv.h) >= CHEBYSHEV_SIDE, settle: false };
             if l == 0 {
-                if reference {
-                    drive(lv, n, steps, |lv| iterate_reference(lv, Indexed(ids, &self.tri_chart), &self.go_tri, gd_tri, 1, s));
+                finest_folded = if reference {
+                    drive(lv, n, steps, |lv, _| {
+                        iterate_reference(lv, Indexed(ids, &self.tri_chart), &self.go_tri, gd_tri, 1, s);
+                        None
+                    })
                 } else {
-                    drive(lv, n, steps, |lv| iterate(lv, ByTriangle { ids, records: &records }, 1, s, avx2));
-                }
+                    drive(lv, n, steps, |lv, scan| iterate(lv, ByTriangle { ids, records: &records }, 1, s, avx2, scan))
+                };
             } else {
                 let (go, gd) = (std::mem::take(&mut lv.go), std::mem::take(&mut lv.gd));
                 if reference {
-                    drive(lv, n, steps, |lv| iterate_reference(lv, Direct, &go, &gd, 1, s));
+                    drive(lv, n, steps, |lv, _| {
+                        iterate_reference(lv, Direct, &go, &gd, 1, s);
+                        None
+                    });
                 } else {
-                    drive(lv, n, steps, |lv| iterate(lv, ByTexel { go: &go, gd: &gd }, 1, s, avx2));
+                    drive(lv, n, steps, |lv, scan| iterate(lv, ByTexel { go: &go, gd: &gd }, 1, s, avx2, scan));
                 }
                 lv.go = go;
                 lv.gd = gd;
@@ -506,8 +475,11 @@ impl Solver {
         // iterations; the repair is for cells that still fold (none in the
         // benchmark's cold solves), not for thin ones, which it would
         // flatten: relaxing them towards their neighbours folds others.
+        // The finest level's last fold-prevention step already knows whether
+        // a cell is folded; only the old solver, which has none, counts.
         let lv = &mut self.levels[0];
-        self.last_repair = if !legacy && count_folds(&lv.dx, &lv.dy, lv.w, lv.h, 0.0) == 0 { (0, 1.0) } else { repair_folds(lv) };
+        let folded = finest_folded.unwrap_or_else(|| count_folds(&lv.dx, &lv.dy, lv.w, lv.h, 0.0) > 0);
+        self.last_repair = if !legacy && !folded { (0, 1.0) } else { repair_folds(lv) };
         self.last_level_ms[self.levels.len()] = started.elapsed().as_secs_f64() * 1e3;
     }
 }
@@ -543,14 +515,14 @@ impl LevelSteps<'_> {
             if self.reference {
                 iterate_reference(lv, Indexed(self.ids, self.tri_chart), self.go_tri, self.gd_tri, 1, s);
             } else {
-                iterate(lv, ByTriangle { ids: self.ids, records: self.records }, 1, s, self.avx2);
+                iterate(lv, ByTriangle { ids: self.ids, records: self.records }, 1, s, self.avx2, false);
             }
         } else {
             let (go, gd) = (std::mem::take(&mut lv.go), std::mem::take(&mut lv.gd));
             if self.reference {
                 iterate_reference(lv, Direct, &go, &gd, 1, s);
             } else {
-                iterate(lv, ByTexel { go: &go, gd: &gd }, 1, s, self.avx2);
+                iterate(lv, ByTexel { go: &go, gd: &gd }, 1, s, self.avx2, false);
             }
             lv.go = go;
             lv.gd = gd;
@@ -658,9 +630,9 @@ impl Solver {
             return 0.0;
         }
         let steps = Steps { areas: true, chebyshev: false, settle: true };
-        drive(lv, n - 1, steps, |lv| iterate(lv, ByTriangle { ids, records: &records }, 1, s, avx2));
+        drive(lv, n - 1, steps, |lv, scan| iterate(lv, ByTriangle { ids, records: &records }, 1, s, avx2, scan));
         let (bx, by) = (lv.dx.clone(), lv.dy.clone());
-        drive(lv, 1, steps, |lv| iterate(lv, ByTriangle { ids, records: &records }, 1, s, avx2));
+        drive(lv, 1, steps, |lv, scan| iterate(lv, ByTriangle { ids, records: &records }, 1, s, avx2, scan));
         lv.dx.par_iter().zip(&bx).chain(lv.dy.par_iter().zip(&by)).map(|(a, b)| (a - b).abs()).reduce(|| 0.0, f32::max)
     }
 

@@ -65,7 +65,7 @@ pub(super) fn smooth(lv: &mut Level, l: usize, n: usize, forced: bool, g: &impl 
         if forced {
             add_forcing(lv);
         }
-        keep_areas(lv, AREA_PASSES, true);
+        keep_areas(lv, AREA_PASSES, true, None);
     }
 }
 
