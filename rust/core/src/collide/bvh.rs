@@ -139,10 +139,18 @@ impl Bounds {
 /// measured. A relative 1e-6 of the margin is kept, for the f32 rounding of
 /// the growth, so that the box less it still holds its primitive.
 fn grown_by(b: &Bounds, margin: f64) -> f64 {
-    if margin <= 0.0 {
-        return 0.0;
-    }
-    (margin - 1e-6 * (1.0 + b.min.abs().max(b.max.abs()).max_element() as f64)).max(0.0)
+    grown_less(margin, rounding_of(b))
+}
+
+/// The allowance for the f32 rounding of box `b`: a relative 1e-6 of its
+/// largest coordinate.
+fn rounding_of(b: &Bounds) -> f64 {
+    1e-6 * (1.0 + b.min.abs().max(b.max.abs()).max_element() as f64)
+}
+
+/// [`grown_by`] for a box whose [`rounding_of`] is known.
+fn grown_less(margin: f64, rounding: f64) -> f64 {
+    if margin <= 0.0 { 0.0 } else { (margin - rounding).max(0.0) }
 }
 
 /// Largest f32 not above `x`.
@@ -469,10 +477,9 @@ impl BoxTree {
         // misses. The box, less the margin, is grown by a relative 1e-6 so
         // that rounding can only let more boxes through.
         let entry = |b: &Bounds| -> Option<f64> {
-            // `grown_by` written out: the box's magnitude is measured once.
-            let rounding = 1e-6 * (1.0 + b.min.abs().max(b.max.abs()).max_element() as f64);
-            let grown = if margin <= 0.0 { 0.0 } else { (margin - rounding).max(0.0) };
-            b.entry_time(p64, q64, rounding - grown)
+            // The box's magnitude measured once for both terms.
+            let rounding = rounding_of(b);
+            b.entry_time(p64, q64, rounding - grown_less(margin, rounding))
         };
         let node_entry = |i: u32| entry(&Bounds::from_aabb(bvh.nodes[i as usize].aabb()));
         let mut best: Option<(usize, f64)> = None;
