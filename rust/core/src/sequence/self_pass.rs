@@ -117,6 +117,19 @@ impl Sequence {
 }
 
 impl SelfPass {
+    /// Whether a substep with self-collision may start warm: only where the
+    /// solve ends where a cold one would, with Converge (`converges`: it
+    /// solves to its tolerance; a fixed count of plain iterations ends
+    /// nearer the contacts the warmer it starts, and Blender's 150° tube
+    /// then spiked above its input, 0.185 ring edges against 0.149), and
+    /// with no rings left out (pairs in a ring left out are kept apart by
+    /// nothing but the solve's pull towards the input, which a cold start
+    /// begins at: warm, the same tube with one ring left out ended frames
+    /// 10–12 with 15–23 intersecting pairs; issue 30, seventeenth round).
+    pub(super) fn starts_warm(&self, converges: bool) -> bool {
+        converges && self.settings.rings == 0
+    }
+
     /// Notes how far the solve has taken each vertex from where a warm
     /// first pass left it, at `positions` (after an iteration).
     fn track(&mut self, positions: &[Vec3]) {

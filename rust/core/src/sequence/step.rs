@@ -195,8 +195,11 @@ impl Sequence {
         // frame where its offset from the input holds; the input alone
         // would sweep it back through the contacts the last solve held it
         // at, and make every iteration of the solve move it beyond the
-        // first pass's margins (issue 30, seventeenth round).
-        let warm = if colliders.is_empty() && options.dynamics.is_none() { self.warm_start(&target) } else { None };
+        // first pass's margins (issue 30, seventeenth round); but only
+        // where that does not change the result (`SelfPass::starts_warm`).
+        let converges = self.deformer.accelerated() && self.deformer.tolerance().is_some();
+        let warm_self = self_pass.as_deref().is_none_or(|pass| pass.starts_warm(converges));
+        let warm = if colliders.is_empty() && options.dynamics.is_none() && warm_self { self.warm_start(&target) } else { None };
         let started_warm = warm.is_some();
         let mut x = warm.unwrap_or(target);
         // A vertex one pass leaves pinched inside a collider starts the next
