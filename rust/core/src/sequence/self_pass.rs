@@ -166,6 +166,7 @@ fn count_work(report: &mut StepReport, stats: &SelfStats, first: bool, candidate
 
 /// The first pass's self-collision, after the colliders' (see the module
 /// documentation).
+#[allow(clippy::too_many_arguments)]
 pub(super) fn first_pass(
     collision: &SelfCollision,
     pass: &mut SelfPass,
