@@ -371,8 +371,8 @@ impl Sequence {
     /// Where a solve that follows the input starts, without colliders or
     /// dynamics: the input plus the offset
     /// from its input that the last frame's solve ended with, so that a bake
-    /// frame starts near its solution (a warm start, issue 28); the input
-    /// itself on a first frame (None). With substeps every substep carries the last
+    /// frame starts near its solution (a warm start, issue 28); None on a
+    /// first frame (it starts at the input). With substeps every substep carries the last
     /// frame's offset. Only the start changes: the solve converges to the
     /// same solution from either.
     fn warm_start(&self, input: &[Vec3]) -> Option<Vec<Vec3>> {
