@@ -20,7 +20,7 @@ pub fn cpu_seconds() -> Option<f64> {
 /// A step's self-collision phases and gatherings, as one line's tail.
 pub fn work_line(w: &SelfWork) -> String {
     format!(
-        "phases ms: begin {:.1}, first pass {:.1}, in-loop rounds {:.1}, in-loop fail-safe {:.1}, tangles {:.1}; gathers {} whole + {} around, most candidates {}; \
+        "phases ms: begin {:.1}, first pass {:.1}, in-loop rounds {:.1}, in-loop fail-safe {:.1}, tangles {:.1}; gathers {} whole ({} in-loop) + {} around, most candidates {}; \
          within, ms: first gathers {:.1}, in-loop gathers {:.1}, around {:.1}, round tests {:.1}, fail-safe checks {:.1}; pairs scanned {}, tested {}",
         w.begin_ms,
         w.first_pass_ms,
@@ -28,6 +28,7 @@ pub fn work_line(w: &SelfWork) -> String {
         w.in_loop_fail_safe_ms,
         w.tangles_ms,
         w.gathers,
+        w.in_loop_gathers,
         w.gathers_around,
         w.most_candidates,
         w.first_gather_ms,

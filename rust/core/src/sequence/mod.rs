@@ -118,6 +118,10 @@ pub struct Sequence {
     self_collision: Option<SelfCollision>,
     /// The last output's self-intersections: the next frame's tangles.
     self_tangles: Option<KeptTangles>,
+    /// How far the last step's solves moved each vertex from where their
+    /// first self-collision passes left it, if every substep of it had
+    /// self-collision and started warm: the next warm first pass's margins.
+    self_moves: Option<Vec<f32>>,
 }
 
 impl Sequence {
@@ -171,6 +175,7 @@ impl Sequence {
             strain_levels: None,
             self_collision: None,
             self_tangles: None,
+            self_moves: None,
         }
     }
 
@@ -194,6 +199,7 @@ impl Sequence {
         self.velocity = None;
         self.last_input = None;
         self.self_tangles = None;
+        self.self_moves = None;
     }
 }
 

@@ -179,6 +179,8 @@ pub struct SelfWork {
     pub tangles_ms: f64,
     /// Candidate gatherings over the whole skin, over the step's passes.
     pub gathers: usize,
+    /// Of those, the in-loop passes' (the rest are the first passes').
+    pub in_loop_gathers: usize,
     /// Candidate gatherings only around vertices that left their margins
     /// (or that the first pass's fail-safe put back).
     pub gathers_around: usize,

@@ -3,7 +3,9 @@
 //!
 //! * **First pass**: after the colliders' sweep, self-collision along each
 //!   vertex's path from the last output; where it changed paths, the
-//!   colliders once more. Skin squeezed between a sweeping collider and
+//!   colliders once more. Without colliders or dynamics the path ends at the
+//!   warm start (the last output carried by the input's motion), and the
+//!   candidates' margins cover how far the last warm solve took the skin. Skin squeezed between a sweeping collider and
 //!   itself is left to the colliders and counted as `self_pinched` (a
 //!   tangle of the next frame, never a NaN).
 //! * **In-loop passes**: after the colliders, strain limits and compliant
@@ -21,6 +23,7 @@
 use std::time::Instant;
 
 use glam::Vec3;
+use rayon::prelude::*;
 
 use super::options::{SelfOptions, StepReport};
 use super::Sequence;
@@ -35,6 +38,13 @@ pub(super) struct SelfPass {
     tangles: Tangles,
     /// The candidates of the current substep, for its first and in-loop passes.
     candidates: Option<Candidates>,
+    /// How far the last step's solves took each vertex from where their
+    /// first passes left it (see [`Sequence`]'s `self_moves`).
+    last_moves: Option<Vec<f32>>,
+    /// The same for this step, while every substep so far started warm.
+    moves: Option<Vec<f32>>,
+    /// Where the current substep's first pass left the skin, if it started warm.
+    first_end: Option<Vec<Vec3>>,
     /// How long readying the step took (for the report's [`super::SelfWork`]).
     begin_ms: f64,
 }
@@ -50,7 +60,7 @@ pub(super) struct KeptTangles {
 impl Sequence {
     /// Readies self-collision for a step from `start` (bound on the first
     /// step that asks for it), or None without it.
-    pub(super) fn begin_self(&mut self, options: Option<&SelfOptions<'_>>, start: &[Vec3]) -> Result<Option<SelfPass>> {
+    pub(super) fn begin_self(&mut self, options: Option<&SelfOptions<'_>>, start: &[Vec3], last_moves: Option<Vec<f32>>) -> Result<Option<SelfPass>> {
         let Some(options) = options else { return Ok(None) };
         let began = Instant::now();
         options.settings.validate()?;
@@ -70,7 +80,8 @@ impl Sequence {
             None => Tangles::at(collision, start, &options.settings, takes_part.as_deref())?.0,
         };
         let begin_ms = milliseconds(began);
-        Ok(Some(SelfPass { settings: options.settings, takes_part, tangles, candidates: None, begin_ms }))
+        let moves = Some(vec![0.0; start.len()]);
+        Ok(Some(SelfPass { settings: options.settings, takes_part, tangles, candidates: None, last_moves, moves, first_end: None, begin_ms }))
     }
 
     /// Counts the output's intersections into the report and keeps them as
@@ -98,9 +109,33 @@ impl Sequence {
         report.self_pinched.sort_unstable();
         report.self_pinched.dedup();
         self.self_tangles = Some(KeptTangles { rings: pass.settings.rings, tangles, takes_part: pass.takes_part });
+        self.self_moves = pass.moves;
         report.self_work.begin_ms += pass.begin_ms;
         report.self_work.tangles_ms += milliseconds(began);
         Ok(())
+    }
+}
+
+impl SelfPass {
+    /// Whether a substep with self-collision may start warm: only where the
+    /// solve ends where a cold one would, with Converge (`converges`: it
+    /// solves to its tolerance; a fixed count of plain iterations ends
+    /// nearer the contacts the warmer it starts, and Blender's 150° tube
+    /// then spiked above its input, 0.185 ring edges against 0.149), and
+    /// with no rings left out (pairs in a ring left out are kept apart by
+    /// nothing but the solve's pull towards the input, which a cold start
+    /// begins at: warm, the same tube with one ring left out ended frames
+    /// 10–12 with 15–23 intersecting pairs; issue 30, seventeenth round).
+    pub(super) fn starts_warm(&self, converges: bool) -> bool {
+        converges && self.settings.rings == 0
+    }
+
+    /// Notes how far the solve has taken each vertex from where a warm
+    /// first pass left it, at `positions` (after an iteration).
+    fn track(&mut self, positions: &[Vec3]) {
+        if let (Some(first_end), Some(moves)) = (self.first_end.as_deref(), self.moves.as_mut()) {
+            moves.par_iter_mut().zip(first_end).zip(positions).with_min_len(4096).for_each(|((m, a), b)| *m = m.max((*b - *a).length()));
+        }
     }
 }
 
@@ -118,6 +153,7 @@ fn count_work(report: &mut StepReport, stats: &SelfStats, first: bool, candidate
     if first {
         work.first_gather_ms += stats.whole_gather_ms;
     } else {
+        work.in_loop_gathers += stats.gathers;
         work.in_loop_gather_ms += stats.whole_gather_ms;
     }
     work.around_gather_ms += stats.around_gather_ms;
@@ -130,6 +166,7 @@ fn count_work(report: &mut StepReport, stats: &SelfStats, first: bool, candidate
 
 /// The first pass's self-collision, after the colliders' (see the module
 /// documentation).
+#[allow(clippy::too_many_arguments)]
 pub(super) fn first_pass(
     collision: &SelfCollision,
     pass: &mut SelfPass,
@@ -137,18 +174,25 @@ pub(super) fn first_pass(
     x: &mut [Vec3],
     colliders: &[&Collider],
     skin: &Skin,
+    warm: bool,
     report: &mut StepReport,
 ) -> Result<()> {
     let began = Instant::now();
     let part = pass.takes_part.as_deref();
-    // The least margins: each vertex's own corrections widen its margin as
-    // the rounds make them (`resolve_path`). Margins from the last frame's
-    // solve (twice how far it moved each vertex from where its first pass
-    // ended) paired up the character's closing fold by the million: 9.8M
-    // candidates where the least margins list 76k (issue 30, eighth round).
-    let least = vec![0.0; x.len()];
+    // From a warm start, margins for the solve to come, from how far the
+    // last warm solve moved the skin: its iterations then stay within this
+    // list, with no whole gathering of their own. From a cold one, the
+    // least margins (each vertex's own corrections widen its margin as the
+    // rounds make them, `resolve_path`): a cold solve pulls the skin back
+    // from the contacts to the input, and margins from that move paired up
+    // the character's closing fold by the million: 9.8M candidates where
+    // the least margins list 76k (issue 30, eighth round).
+    let margins = match (warm, pass.last_moves.as_deref()) {
+        (true, Some(moves)) => collision.warm_margins(&pass.settings, moves)?,
+        _ => vec![0.0; x.len()],
+    };
     let gathering = Instant::now();
-    pass.candidates = Some(collision.candidates(x_n, x, &least, &pass.settings, &pass.tangles, part)?);
+    pass.candidates = Some(collision.candidates(x_n, x, &margins, &pass.settings, &pass.tangles, part)?);
     let gathered_ms = milliseconds(gathering);
     let mut stats = collision.resolve_path(&mut pass.candidates, x_n, x, &pass.settings, &pass.tangles, part)?;
     stats.gathers += 1;
@@ -157,6 +201,11 @@ pub(super) fn first_pass(
     report.self_work.first_pass_ms += milliseconds(began);
     report.self_contacts += stats.contacts;
     report.self_held += stats.held.len();
+    // Only a warm solve's moves say how far the next warm one goes.
+    pass.first_end = warm.then(|| x.to_vec());
+    if !warm {
+        pass.moves = None;
+    }
     if colliders.is_empty() || (stats.contacts == 0 && stats.held.is_empty()) {
         return Ok(());
     }
@@ -182,6 +231,9 @@ pub(super) fn in_loop(
     report: &mut StepReport,
 ) -> Result<()> {
     let began = Instant::now();
+    // The iteration's own move, before the contacts take any of it back,
+    // is what the candidates must cover.
+    pass.track(after);
     let (settings, tangles, part) = (&pass.settings, &pass.tangles, pass.takes_part.as_deref());
     let stats = collision.resolve_in_loop(&mut pass.candidates, before, after, settings, tangles, part)?;
     report.self_contacts += stats.contacts;
@@ -209,6 +261,7 @@ pub(super) fn in_loop(
         if bad.is_empty() {
             count_work(report, &checks, false, pass.candidates.as_ref());
             report.self_work.in_loop_fail_safe_ms += milliseconds(began);
+            pass.track(after);
             return Ok(());
         }
         // With the vertices whose rings those mostly hold: a held patch moves

@@ -58,7 +58,8 @@ impl Sequence {
 
         let substeps = options.substeps;
         let start = self.history.clone().unwrap_or_else(|| input.to_vec());
-        let mut self_pass = self.begin_self(options.self_collision.as_ref(), &start)?;
+        let last_moves = self.self_moves.take();
+        let mut self_pass = self.begin_self(options.self_collision.as_ref(), &start, last_moves)?;
         // Copies only where substeps interpolate or compliant colliders move:
         // the plain frame (one substep, kinematic colliders) allocates nothing here.
         let last_input = match (&self.last_input, substeps > 1) {
@@ -185,11 +186,22 @@ impl Sequence {
         }
         report.compliant_skin_vertices = report.compliant_skin_vertices.max(contacts.as_ref().map_or(0, |(_, w)| w.iter().filter(|&&w| w > 0.0).count()));
         self.set_contact_targets(contacts)?;
-        // A warm start only where nothing else depends on the path from the
-        // last output: with colliders or self-collision the first pass's path
-        // from there to the input is where friction holds the skin, and with
-        // dynamics the target is already the inertial prediction.
-        let mut x = if colliders.is_empty() && options.dynamics.is_none() && self_pass.is_none() { self.warm_start(&target) } else { target };
+        // A warm start unless the path from the last output to the target
+        // means something else: with colliders the first pass's path from
+        // there to the input is where friction holds the skin against them,
+        // and with dynamics the target is already the inertial prediction.
+        // With self-collision the warm start is that path too: the last
+        // output carried by the input's own motion, the skin's path over the
+        // frame where its offset from the input holds; the input alone
+        // would sweep it back through the contacts the last solve held it
+        // at, and make every iteration of the solve move it beyond the
+        // first pass's margins (issue 30, seventeenth round); but only
+        // where that does not change the result (`SelfPass::starts_warm`).
+        let converges = self.deformer.accelerated() && self.deformer.tolerance().is_some();
+        let warm_self = self_pass.as_deref().is_none_or(|pass| pass.starts_warm(converges));
+        let warm = if colliders.is_empty() && options.dynamics.is_none() && warm_self { self.warm_start(&target) } else { None };
+        let started_warm = warm.is_some();
+        let mut x = warm.unwrap_or(target);
         // A vertex one pass leaves pinched inside a collider starts the next
         // pass inside, where no contact is seen again: keep the suspects and
         // look at where they end.
@@ -226,7 +238,7 @@ impl Sequence {
         // 2b. The skin against itself along the same paths (with the colliders again where it moved skin).
         if let (Some(pass), Some(collision)) = (self_pass.as_deref_mut(), self.self_collision.as_ref()) {
             let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
-            self_pass::first_pass(collision, pass, x_n, &mut x, &refs, &self.skin, report)?;
+            self_pass::first_pass(collision, pass, x_n, &mut x, &refs, &self.skin, started_warm, report)?;
         }
 
         // 3. The solve, with the in-loop passes after every iteration.
@@ -359,16 +371,16 @@ impl Sequence {
     /// Where a solve that follows the input starts, without colliders or
     /// dynamics: the input plus the offset
     /// from its input that the last frame's solve ended with, so that a bake
-    /// frame starts near its solution (a warm start, issue 28); the input
-    /// itself on a first frame. With substeps every substep carries the last
+    /// frame starts near its solution (a warm start, issue 28); None on a
+    /// first frame (it starts at the input). With substeps every substep carries the last
     /// frame's offset. Only the start changes: the solve converges to the
     /// same solution from either.
-    fn warm_start(&self, input: &[Vec3]) -> Vec<Vec3> {
+    fn warm_start(&self, input: &[Vec3]) -> Option<Vec<Vec3>> {
         match (&self.history, &self.last_input) {
             (Some(solved), Some(last)) if solved.len() == input.len() && last.len() == input.len() => {
-                input.iter().zip(solved).zip(last).map(|((i, s), l)| *i + (*s - *l)).collect()
+                Some(input.iter().zip(solved).zip(last).map(|((i, s), l)| *i + (*s - *l)).collect())
             }
-            _ => input.to_vec(),
+            _ => None,
         }
     }
 

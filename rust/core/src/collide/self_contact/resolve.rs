@@ -26,7 +26,13 @@
 //!     a vertex its rounds correct is gathered around again with a margin
 //!     as large as its correction so far. A margin taken from the last
 //!     frame instead (twice how far its solve moved the skin) paired up a
-//!     closing fold by the million (issue 30, eighth round).
+//!     closing fold by the million (issue 30, eighth round): a cold solve
+//!     starts at the input and pulls the skin back from its contacts. A
+//!     warm solve (from the last output carried by the input's motion)
+//!     moves the skin little, and its first pass takes margins from how far
+//!     the last warm solve did ([`SelfCollision::warm_margins`]), so that
+//!     its iterations stay within the first pass's list (issue 30,
+//!     seventeenth round).
 //!   - An in-loop whole gathering follows the iteration's own paths, `before
 //!     → after`, with margins for the iterations to come (eight times the
 //!     iteration's move, at most four separations); later iterations are
@@ -94,6 +100,15 @@ const IN_LOOP_MARGIN_MOVES: f32 = 8.0;
 /// whole frame. Capped, such a vertex leaves its margin sooner and is
 /// gathered around (issue 30, ninth round).
 const IN_LOOP_MARGIN_SEPARATIONS: f32 = 4.0;
+
+/// A warm-started first pass's margin: this many times how far the last
+/// frame's solve took the vertex ([`SelfCollision::warm_margins`]). On the
+/// MakeHuman character's replay, with twice, the first iteration of the
+/// frame after the first warm one still left thousands of vertices beyond
+/// their margins (an in-loop gathering over the whole skin); with four
+/// times, no frame after it did, and frames 1–6 cost 12.53G instructions
+/// against twice's 13.04G (issue 30, seventeenth round).
+const WARM_MARGIN_MOVES: f32 = 4.0;
 
 /// How finely [`Candidates::fitted`] looks for the time along the gathered
 /// paths at which positions fit them best (1/n of the paths).
@@ -462,6 +477,22 @@ impl SelfCollision {
     /// examined pair by pair anyway), and almost none elsewhere.
     pub fn margin_floor(&self, _settings: &SelfSettings) -> f32 {
         8.0 * self.rounding
+    }
+
+    /// The first pass's margins for a solve that starts warm (from the last
+    /// output carried by the input's motion): [`WARM_MARGIN_MOVES`] times how
+    /// far the last frame's solve took each vertex from where its first pass
+    /// left it (`last_moves`: its iterations' own moves, before the contacts
+    /// took any back, and where the passes left it), at most [`IN_LOOP_MARGIN_SEPARATIONS`] times
+    /// its separation, at least [`Self::margin_floor`]. A warm solve moves
+    /// the skin about as far as the last one did, so its iterations stay
+    /// within these and the first in-loop pass needs no whole gathering.
+    pub fn warm_margins(&self, settings: &SelfSettings, last_moves: &[f32]) -> Result<Vec<f32>> {
+        if last_moves.len() != self.vertex_count || last_moves.iter().any(|m| !(m.is_finite() && *m >= 0.0)) {
+            return Err(Error::invalid(format!("self-collision moves: {} given for {} vertices, each finite and ≥ 0", last_moves.len(), self.vertex_count)));
+        }
+        let floor = self.margin_floor(settings);
+        Ok(last_moves.par_iter().zip(self.separations()).map(|(&m, &s)| (WARM_MARGIN_MOVES * m).min(IN_LOOP_MARGIN_SEPARATIONS * s).max(floor)).collect())
     }
 
     /// Gathers the candidates of the straight paths `start → end`, each
