@@ -14,10 +14,15 @@
 //! their names; collisions only, the baseline, always runs) with
 //! `TEGUMENT_BENCH_DIR=/tmp/somewhere` so the partial run does not replace
 //! `bench/results/flesh.json`.
+//!
+//! Under `valgrind --tool=callgrind` every step of the rows is dumped on its
+//! own (`common::callgrind`), labelled `<row> frame <k>`: the instructions of
+//! one step, all threads, without the bind, the audits or the other rows.
 
 mod common;
 
-use common::{machine, with_threads, Report};
+use common::{callgrind, machine, with_threads, Report};
+use std::ffi::CString;
 use glam::Vec3;
 use tegument_core::mesh::fan_triangles;
 use tegument_core::collide::{audit, AuditParams, Collider, ColliderSettings};
@@ -130,7 +135,9 @@ fn main() {
                 collider.update(&at(k)).unwrap();
                 let started = std::time::Instant::now();
                 let cpu_started = process_cpu_ms();
+                callgrind::zero_stats();
                 let (x, step) = deformer.step(&skin.positions, &mut [&mut collider], &config.options).unwrap();
+                callgrind::dump_stats_at(&CString::new(format!("{} frame {k}", config.name)).unwrap());
                 let ms = started.elapsed().as_secs_f64() * 1e3;
                 let cpu_ms = cpu_started.zip(process_cpu_ms()).map(|(a, b)| b - a);
                 let found = audit(MeshInput { positions: &x, ..skin.input() }, &[&collider], &AuditParams::default()).unwrap();

@@ -7,6 +7,7 @@
 
 #![allow(dead_code)] // each bench binary uses a different part of this module
 
+pub mod callgrind;
 pub mod self_work;
 
 use std::io::Write;

@@ -293,6 +293,43 @@ impl Clearance {
         (s - x).length_squared().max((e - x).length_squared()).sqrt() * UP
     }
 
+    /// [`Self::unproven`] where `wider`, a clearance of a wider reach
+    /// measured since against the same colliders (both valid for them as
+    /// they stand, [`Self::is_valid_for`]), proves apart too: what neither
+    /// proves apart, except that a vertex with one of this clearance's
+    /// planes is listed wherever this one leaves it (a plane may lift a
+    /// vertex that a lookup would leave where it is). Each proof holds on
+    /// its own, so an element either proves apart has no contact to find.
+    ///
+    /// Read from `wider`'s lists, which are the shorter where the skin moved
+    /// farther than this clearance's radius since it was measured (issue 29:
+    /// the unified strain rounds, whose multilevel cycles move a wide band).
+    pub fn unproven_with(&self, wider: &Clearance, skin: &Skin, start: &[Vec3], end: &[Vec3]) -> Unproven {
+        let Unproven { vertices, mut edges, mut triangles } = wider.unproven(skin, start, end);
+        let reach = |v: u32| self.reach_of(v as usize, start, end);
+        let unproven = |v: u32| reach(v) >= self.vertex[v as usize];
+        let vertices: Vec<u32> = vertices.into_iter().filter(|&v| unproven(v)).collect();
+        let with_planes: Vec<u32> = match &self.planes {
+            Some(planes) => (0..self.reference.len() as u32).into_par_iter().with_min_len(4096).filter(|&v| planes.has_planes(v) && unproven(v)).collect(),
+            None => Vec::new(),
+        };
+        edges.retain(|&k| {
+            let [a, b] = skin.edges()[k as usize];
+            reach(a).max(reach(b)) >= self.edge[k as usize]
+        });
+        triangles.retain(|&k| {
+            let [a, b, c] = skin.triangles()[k as usize];
+            reach(a).max(reach(b)).max(reach(c)) >= self.triangle[k as usize]
+        });
+        Unproven { vertices: merge_ascending(&vertices, &with_planes), edges, triangles }
+    }
+
+    /// The radius searched: a vertex that moves farther than this from where
+    /// it was measured is tested again.
+    pub fn radius(&self) -> f32 {
+        self.radius
+    }
+
     /// [`Self::reach_of`] every vertex.
     fn reach(&self, start: &[Vec3], end: &[Vec3]) -> Vec<f32> {
         (0..self.reference.len()).into_par_iter().with_min_len(4096).map(|i| self.reach_of(i, start, end)).collect()

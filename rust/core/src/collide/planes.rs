@@ -203,6 +203,11 @@ impl LocalPlanes {
         self.offsets.windows(2).filter(|w| w[1] > w[0]).count()
     }
 
+    /// Whether vertex `v` has a plane.
+    pub fn has_planes(&self, v: u32) -> bool {
+        !self.of(v).is_empty()
+    }
+
     fn of(&self, v: u32) -> &[Plane] {
         let v = v as usize;
         match self.offsets.get(v..v + 2) {

@@ -75,6 +75,28 @@ pub(super) const STRAIN_TOLERANCE: f32 = 1e-3;
 /// 0.1 % took rounds 10–16 of 16 on frames 6–8 to reach 1.0058–1.0075,
 /// ~40 % of the strain pass for a bound nobody is promised.
 pub(super) const HOLDS: f32 = 9e-3;
+/// The reach of the clearance the last iteration's rounds measure for their
+/// contact resolutions once those test far more than the contact region, in
+/// radii of the in-loop passes' clearance. The rounds' multilevel cycles
+/// move a band of skin some 50 edges wide, much farther than an in-loop pass
+/// moves it: against the in-loop clearance, measured before the frame's
+/// first in-loop pass, vertices that moved beyond its radius are tested
+/// again, far from any collider. On issue 29's 100k-vertex flesh benchmark
+/// the rounds after the first tested 19,000–41,000 vertices each in frames
+/// 6–8, against 7,000–11,000 in the first (the contact region), and about
+/// 9,000 with a clearance of 4 radii. Frames 6–8 took 19.81 G instructions
+/// with 2 radii, 20.15 G with 4 and 20.07 G with 8 (21.35 G without): a
+/// wider reach proves more but costs more to measure, the tree searched
+/// farther around more of the skin.
+pub(super) const ROUNDS_CLEARANCE_REACH: f32 = 2.0;
+/// The wider clearance is measured once a round's resolution tested more
+/// than this many times what the pass's first round tested: the measurement
+/// costs about what testing 40,000 vertices does on the benchmark (a whole
+/// skin's bounds and the tree searched within the wider radius), so it is
+/// not paid for passes whose rounds stay on the contact region (a frame's
+/// first rounds, or all three features together, where the rounds are one
+/// or two and test what the first did).
+pub(super) const WIDER_CLEARANCE_AFTER: usize = 2;
 /// Sweeps of the post-collision strain pass (one long projection, as many
 /// sweeps as the unified loop had before its contact planes).
 pub(super) const POST_STRAIN_SWEEPS: usize = 128;
@@ -134,6 +156,12 @@ pub(super) fn limit_strain_with_contacts(
     let mut pass = StrainPass { pinched: Vec::new(), rounds: 0, cycles: 0 };
     // Per vertex, the plane of its last push out of a collider (zero normal: none).
     let mut above: Vec<(Vec3, f32)> = Vec::new();
+    // With the levels, a clearance of a wider reach around where a round
+    // starts, measured once the rounds test far more than the first did (see
+    // `ROUNDS_CLEARANCE_REACH`); the colliders stand still through the pass,
+    // so it holds for the rounds after.
+    let mut wider: Option<Clearance> = None;
+    let (mut first_tested, mut last_tested) = (None, 0);
     for _ in 0..rounds {
         if limits.worst_ratio(x) <= 1.0 + HOLDS {
             break;
@@ -159,7 +187,13 @@ pub(super) fn limit_strain_with_contacts(
         }
         if !set.colliders().is_empty() {
             let projected = shortened.clone();
-            let stats = set.resolve_path_with(x, &mut shortened, skin, &params, clearance, None)?;
+            let spread = first_tested.is_some_and(|first: usize| last_tested > WIDER_CLEARANCE_AFTER * first.max(1));
+            if let (Some(_), Some(first), None, true) = (levels, clearance, &wider, spread) {
+                wider = Some(Clearance::new(set.colliders(), skin, x, ROUNDS_CLEARANCE_REACH * first.radius())?);
+            }
+            let stats = set.resolve_path_within(x, &mut shortened, skin, &params, clearance, wider.as_ref())?;
+            first_tested.get_or_insert(stats.tested);
+            last_tested = stats.tested;
             if !stats.moved.is_empty() && above.is_empty() {
                 above = vec![(Vec3::ZERO, 0.0); x.len()];
             }

@@ -146,7 +146,8 @@ pub struct ContactStats {
     /// or the sweeping colliders' ([`LocalPlanes::drifting`]).
     pub plane_lifts: usize,
     /// Skin vertices tested against the colliders: those neither the
-    /// clearance nor the colliders' whole boxes ruled out.
+    /// clearance (nor a wider one, [`ColliderSet::resolve_path_within`]) nor
+    /// the colliders' whole boxes ruled out.
     pub tested: usize,
     /// Vertices whose end position changed, ascending.
     pub moved: Vec<u32>,
@@ -301,7 +302,26 @@ impl<'a> ColliderSet<'a> {
         clearance: Option<&Clearance>,
         anchors: Option<&mut Anchors>,
     ) -> Result<ContactStats> {
-        self.resolve(start, end, skin, params, clearance, None, anchors)
+        self.resolve(start, end, skin, params, clearance, None, None, anchors)
+    }
+
+    /// [`resolve_path_with`](Self::resolve_path_with) without anchors, where
+    /// `wider`, a clearance with a wider reach measured since `clearance`
+    /// against the same colliders (both used only while the colliders stand
+    /// as measured), also proves apart what moved beyond `clearance`'s
+    /// radius ([`Clearance::unproven_with`]): the same result from fewer tests.
+    /// `clearance`'s planes still decide where they apply, so a vertex with
+    /// a plane is tested as before.
+    pub fn resolve_path_within(
+        &self,
+        start: &[Vec3],
+        end: &mut [Vec3],
+        skin: &Skin,
+        params: &ResolveParams,
+        clearance: Option<&Clearance>,
+        wider: Option<&Clearance>,
+    ) -> Result<ContactStats> {
+        self.resolve(start, end, skin, params, clearance, wider, None, None)
     }
 
     /// [`resolve_path`](Self::resolve_path) for colliders that sweep, with the
@@ -309,6 +329,6 @@ impl<'a> ColliderSet<'a> {
     /// with them where they still hold (see [`LocalPlanes::drifting`] for
     /// what `carried` must have been measured against).
     pub fn resolve_path_carrying(&self, start: &[Vec3], end: &mut [Vec3], skin: &Skin, params: &ResolveParams, carried: Option<&LocalPlanes>) -> Result<ContactStats> {
-        self.resolve(start, end, skin, params, None, carried, None)
+        self.resolve(start, end, skin, params, None, None, carried, None)
     }
 }

@@ -290,6 +290,7 @@ impl<'a> ColliderSet<'a> {
         skin: &Skin,
         params: &ResolveParams,
         clearance: Option<&Clearance>,
+        wider: Option<&Clearance>,
         carried: Option<&LocalPlanes>,
         anchors: Option<&mut Anchors>,
     ) -> Result<ContactStats> {
@@ -333,8 +334,12 @@ impl<'a> ColliderSet<'a> {
         };
         let (mut active, mut active_edges, mut active_triangles) = match clearance {
             // Elements the clearance proves apart are left out from the start.
+            // With a wider one too, what neither proves apart.
             Some(clearance) => {
-                let unproven = clearance.unproven(skin, start, end);
+                let unproven = match wider.filter(|w| still && w.is_valid_for(&self.colliders, n)) {
+                    Some(wider) => clearance.unproven_with(wider, skin, start, end),
+                    None => clearance.unproven(skin, start, end),
+                };
                 (unproven.vertices, unproven.edges, unproven.triangles)
             }
             // Without one, those whose step misses every collider's whole box.

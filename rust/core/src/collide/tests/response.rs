@@ -358,6 +358,46 @@ fn a_clearance_changes_nothing_but_the_work() {
 }
 
 #[test]
+fn a_wider_clearance_changes_nothing_but_the_work() {
+    // The pressed skin pulled sideways across the sphere, far beyond the
+    // radius of the clearance (and planes) measured where the passes start:
+    // every pass, once with a clearance of a wider reach measured there too
+    // and once without it. What the wider one proves apart has no contact,
+    // so positions and contacts agree exactly, from fewer tests (issue 29:
+    // the unified strain rounds move skin beyond the in-loop clearance).
+    let PressedSkin { skin, collider: c, topology: topo, target, start } = pressed_skin(0.02);
+    let set = ColliderSet::new([&c]);
+    let first = Clearance::new(&[&c], &topo, &start, 0.05).unwrap().with_planes(&[&c]).unwrap();
+    let wider = Clearance::new(&[&c], &topo, &start, 0.4).unwrap();
+    assert_eq!(wider.radius(), 0.4);
+    let params = ResolveParams { friction: false, ..ResolveParams::in_loop() };
+    let sideways: Vec<Vec3> = target.iter().map(|&p| p + Vec3::new(0.3, 0.0, 0.0)).collect();
+    let (mut with, mut without) = (start.clone(), start.clone());
+    let (mut tested_with, mut tested_without, mut contacts) = (0, 0, 0);
+    for _ in 0..6 {
+        let (b1, b2) = (pull(&mut with, &sideways), pull(&mut without, &sideways));
+        let s1 = set.resolve_path_within(&b1, &mut with, &topo, &params, Some(&first), Some(&wider)).unwrap();
+        let s2 = set.resolve_path_with(&b2, &mut without, &topo, &params, Some(&first), None).unwrap();
+        assert_eq!(with, without);
+        assert_eq!((s1.moved, s1.pinched, s1.held), (s2.moved, s2.pinched, s2.held));
+        assert_eq!(
+            (s1.vertex_contacts, s1.edge_contacts, s1.collider_vertex_contacts, s1.plane_lifts, s1.rounds),
+            (s2.vertex_contacts, s2.edge_contacts, s2.collider_vertex_contacts, s2.plane_lifts, s2.rounds)
+        );
+        tested_with += s1.tested;
+        tested_without += s2.tested;
+        contacts += s2.vertex_contacts + s2.edge_contacts + s2.collider_vertex_contacts;
+    }
+    assert!(contacts > 100, "the passes must have contacts for this test to mean anything ({contacts})");
+    assert!(
+        tested_with * 2 < tested_without,
+        "the wider clearance should have spared the skin that moved beyond the first one's radius: {tested_with} tested with it, {tested_without} without"
+    );
+    let report = audit(PolyMesh { positions: with, ..skin.clone() }.input(), &[&c], &AuditParams::default()).unwrap();
+    assert!(report.vertices_inside.is_empty() && report.edges_crossing.is_empty() && report.collider_edges_crossing.is_empty());
+}
+
+#[test]
 fn planes_lift_the_skin_pulled_back_in_without_a_lookup_and_keep_it_out() {
     // The scene of the test above, with the colliders' supporting planes
     // measured with the clearance: the vertices each pass pulls back into the
