@@ -603,6 +603,19 @@ impl SelfCollision {
         Ok(pass.crossing_corners(&pairs, start, end, None).0)
     }
 
+    /// For the tests: the first pass's fail-safe alone over `start → end`
+    /// (no tangles, no weights), from `candidates` where they hold (else
+    /// gathering, as in [`Self::resolve_path`]); `end` is changed as there.
+    /// Returns its stats: what it held and how it gathered.
+    #[cfg(test)]
+    pub(super) fn hold_back_path_alone(&self, candidates: Option<&Candidates>, start: &[Vec3], end: &mut [Vec3], settings: &SelfSettings) -> SelfStats {
+        let tangles = Tangles::default();
+        let pass = self.pass(settings, &tangles, None).expect("prepared");
+        let mut stats = SelfStats::default();
+        stats.held = pass.hold_back_path(candidates, start, end, &mut stats);
+        stats
+    }
+
     /// Makes the in-loop motion `before → after` free of new
     /// self-intersections by changing `after`, with `candidates` (gathered
     /// again if a vertex strayed beyond them). Runs the
