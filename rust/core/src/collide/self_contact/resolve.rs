@@ -586,7 +586,7 @@ impl SelfCollision {
             }
         }
         if !converged {
-            stats.held = pass.hold_back_path(start, end, &mut stats);
+            stats.held = pass.hold_back_path(candidates.as_ref(), start, end, &mut stats);
         }
         stats.max_correction = max_correction(&requested, end);
         Ok(stats)
@@ -601,6 +601,19 @@ impl SelfCollision {
         let zero = vec![0.0; self.vertex_count];
         let pairs = pass.gather(&Motion { start, end, margin: &zero }, None);
         Ok(pass.crossing_corners(&pairs, start, end, None).0)
+    }
+
+    /// For the tests: the first pass's fail-safe alone over `start → end`
+    /// (no tangles, no weights), from `candidates` where they hold (else
+    /// gathering, as in [`Self::resolve_path`]); `end` is changed as there.
+    /// Returns its stats: what it held and how it gathered.
+    #[cfg(test)]
+    pub(super) fn hold_back_path_alone(&self, candidates: Option<&Candidates>, start: &[Vec3], end: &mut [Vec3], settings: &SelfSettings) -> SelfStats {
+        let tangles = Tangles::default();
+        let pass = self.pass(settings, &tangles, None).expect("prepared");
+        let mut stats = SelfStats::default();
+        stats.held = pass.hold_back_path(candidates, start, end, &mut stats);
+        stats
     }
 
     /// Makes the in-loop motion `before → after` free of new
@@ -932,20 +945,46 @@ impl Pass<'_> {
     /// pairs with a corner among the vertices just put back. A pair with
     /// none has the same path as at the check before, which found it clear
     /// (or put a corner of it back, which put it in this batch).
-    fn hold_back_path(&self, start: &[Vec3], end: &mut [Vec3], stats: &mut SelfStats) -> Vec<u32> {
+    ///
+    /// A check takes its pairs from the rounds' `candidates` where every
+    /// vertex's `end` is within its margin of its reference (and the
+    /// candidates start at `start`), else it gathers them (the whole skin,
+    /// or around the batch) with no margin, as before. Why the list holds
+    /// every pair whose paths `start → end` can cross: it lists every pair
+    /// that can come within its reach (the thickness, more than the 0 of a
+    /// crossing) while each vertex `v` stays within its margin `m_v` of its
+    /// gathered path `p_v(t) = start_v + t·(reference_v − start_v)`, `t` one
+    /// time for all vertices ([`Candidates::fitted`]'s argument, the same
+    /// gathering). The check's path is `x_v(t) = start_v + t·(end_v −
+    /// start_v)`: its offset `x_v(t) − p_v(t) = t·(end_v − reference_v)` is
+    /// never longer than `|end_v − reference_v| ≤ m_v`. After the rounds
+    /// this holds for every vertex (each round gathers again, around or
+    /// whole, where a correction left its margin), so the first check needs
+    /// no gathering; a vertex put back at `start` may leave its margin, and
+    /// the later checks then gather around the batch as before.
+    fn hold_back_path(&self, candidates: Option<&Candidates>, start: &[Vec3], end: &mut [Vec3], stats: &mut SelfStats) -> Vec<u32> {
         let zero = vec![0.0; start.len()];
         let mut held = Vec::new();
         let mut holding = Held::none(start.len());
         let mut batch: Option<Vec<bool>> = None;
         loop {
-            let ((focus, pairs), ms) = timed(|| {
-                let focus = batch.as_deref().map(|b| self.collision.focus_around(b));
-                let pairs = self.gather(&Motion { start, end, margin: &zero }, focus.as_ref());
-                (focus, pairs)
-            });
-            stats.count(if focus.is_some() { Gathered::Around } else { Gathered::Whole }, ms);
+            let listed = candidates.filter(|c| c.start.as_slice() == start && c.holds(&[end]));
+            let gathered;
+            let pairs: &[ElementPair] = match listed {
+                Some(c) => &c.pairs,
+                None => {
+                    let ((focus, pairs), ms) = timed(|| {
+                        let focus = batch.as_deref().map(|b| self.collision.focus_around(b));
+                        let pairs = self.gather(&Motion { start, end, margin: &zero }, focus.as_ref());
+                        (focus, pairs)
+                    });
+                    stats.count(if focus.is_some() { Gathered::Around } else { Gathered::Whole }, ms);
+                    gathered = pairs;
+                    &gathered
+                }
+            };
             let began = Instant::now();
-            let (bad, tested) = self.crossing_corners(&pairs, start, end, batch.as_deref());
+            let (bad, tested) = self.crossing_corners(pairs, start, end, batch.as_deref());
             stats.pairs_scanned += pairs.len();
             stats.pairs_tested += tested;
             stats.fail_safe_ms += 1000.0 * began.elapsed().as_secs_f64();

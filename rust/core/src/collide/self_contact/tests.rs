@@ -664,3 +664,85 @@ fn an_edge_through_a_squeezed_corner_is_no_contact_wherever_the_seams_fall() {
     }
     assert!(dropped > 0, "the seams list edge–edge pairs inside a star, which the rule leaves out");
 }
+
+/// Two folds from rest, each pushed through itself at the reference: the
+/// upper of two sheets dimpled down through the lower one, and a tube
+/// squashed flat past its axis in the middle (its walls pass each other).
+fn folds() -> Vec<(&'static str, PolyMesh, Vec<Vec3>)> {
+    let sheets = two_sheets(12, 0.03);
+    let half = sheets.positions.len() / 2;
+    let dimpled = sheets.positions.iter().enumerate().map(|(v, p)| if v >= half { *p - Vec3::new(0.0, 0.0, 0.08 * (1.0 - 4.0 * p.truncate().length()).max(0.0)) } else { *p }).collect();
+    let tube = crate::mesh::shapes::cylinder(16, 12, 0.1, 1.0);
+    let squashed = tube.positions.iter().map(|p| Vec3::new(p.x, p.y * (1.0 - 1.3 * (1.0 - (p.z - 0.5).abs() / 0.25).max(0.0)), p.z)).collect();
+    vec![("sheets", sheets, dimpled), ("tube", tube, squashed)]
+}
+
+/// The property the first pass's fail-safe relies on to check the rounds'
+/// own candidates instead of gathering afresh ([`Pass::hold_back_path`]):
+/// for a list gathered along `start → reference` with margins, and any
+/// `end` with every vertex within its margin of its reference (random
+/// perturbations, several seeds, on folds that cross), every pair a fresh
+/// zero-margin whole gathering along `start → end` lists is in the list,
+/// and the fail-safe from the list holds back exactly what it holds back
+/// from fresh gatherings, without a whole gathering. With one vertex
+/// beyond its margin it gathers the whole skin again.
+#[test]
+fn the_first_pass_fail_safe_from_its_candidates_finds_what_a_fresh_gathering_finds() {
+    use super::bounds::Motion;
+    for (what, mesh, reference) in folds() {
+        let collision = bound(&mesh, &SETTINGS);
+        let start = &mesh.positions;
+        let n = start.len();
+        let candidates = collision.candidates(start, &reference, &vec![0.004; n], &SETTINGS, &Tangles::default(), None).unwrap();
+        let (_, _, margin, listed) = candidates.parts();
+        let margin = margin.to_vec();
+        let mut listed = listed.to_vec();
+        listed.sort_unstable();
+        let accept = |a: &[u32], b: &[u32]| !collision.excluded(a, b);
+        let zero = vec![0.0; n];
+        let mut held_somewhere = false;
+        for seed in 0..6u64 {
+            // Each vertex off its reference in a random direction, by up to
+            // all but a hair of its margin (a few exactly at the edge).
+            let mut rng = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ 0x2545_f491_4f6c_dd1d;
+            let mut next = move || {
+                rng ^= rng << 13;
+                rng ^= rng >> 7;
+                rng ^= rng << 17;
+                (rng >> 11) as f32 / (1u64 << 53) as f32
+            };
+            let end: Vec<Vec3> = (0..n)
+                .map(|v| {
+                    let direction = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5).normalize_or_zero();
+                    let length = if v % 17 == 0 { 0.999 } else { 0.999 * next() };
+                    reference[v] + length * margin[v] * direction
+                })
+                .collect();
+            assert!(end.iter().zip(&reference).zip(&margin).all(|((e, r), m)| (*e - *r).length() <= *m), "{what} {seed}: within the margins");
+            let fresh = collision.gather(&Motion { start, end: &end, margin: &zero }, SETTINGS.thickness, true, None, &accept, None, None);
+            assert!(!fresh.is_empty(), "{what} {seed}: the fold brings the skin within reach");
+            let missing: Vec<_> = fresh.iter().filter(|p| listed.binary_search(p).is_err()).collect();
+            assert!(missing.is_empty(), "{what} {seed}: {} of {} pairs within reach along start → end not listed: {:?}", missing.len(), fresh.len(), &missing[..missing.len().min(5)]);
+            // The fail-safe from the list and from fresh gatherings.
+            let (mut from_list, mut from_fresh) = (end.clone(), end.clone());
+            let by_list = collision.hold_back_path_alone(Some(&candidates), start, &mut from_list, &SETTINGS);
+            let by_fresh = collision.hold_back_path_alone(None, start, &mut from_fresh, &SETTINGS);
+            assert_eq!(by_list.held, by_fresh.held, "{what} {seed}: held back");
+            assert_eq!(from_list, from_fresh, "{what} {seed}");
+            assert_eq!(by_list.gathers, 0, "{what} {seed}: the first check takes the list: {by_list:?}");
+            assert!(by_fresh.gathers >= 1, "{what} {seed}: {by_fresh:?}");
+            held_somewhere |= !by_list.held.is_empty();
+            // One vertex beyond its margin: the list no longer holds, and the
+            // first check gathers the whole skin.
+            let mut beyond = end.clone();
+            let v = (seed as usize * 7919) % n;
+            beyond[v] = reference[v] + Vec3::new(1.5 * margin[v], 0.0, 0.0);
+            let (mut out_list, mut out_fresh) = (beyond.clone(), beyond.clone());
+            let by_list = collision.hold_back_path_alone(Some(&candidates), start, &mut out_list, &SETTINGS);
+            let by_fresh = collision.hold_back_path_alone(None, start, &mut out_fresh, &SETTINGS);
+            assert_eq!(by_list.gathers, 1, "{what} {seed}: a vertex beyond its margin: gathered afresh: {by_list:?}");
+            assert_eq!((by_list.held, out_list), (by_fresh.held, out_fresh), "{what} {seed}");
+        }
+        assert!(held_somewhere, "{what}: the fold's paths cross: the fail-safe holds some back");
+    }
+}
