@@ -36,6 +36,7 @@ INTERNAL = {
     "self-collision is not prepared for these settings": "the sequence prepares self-collision before every pass",
     "the triangles taking part are of another skin": "the sequence takes the triangles taking part from its own skin",
     "self-collision margins": "the sequence makes the margins for its own skin",
+    "self-collision moves": "the sequence measures the last solve's moves on its own skin",
     "vertex flags given for": "the sequence flags the last tangles and pinched vertices of its own skin",
     "positions given for a collider of": "compliant colliders' envelopes are made by the sequence from their own goals",
     "envelope margin is": "compliant colliders' envelopes are made by the sequence with the clearance's radius",
