@@ -18,6 +18,10 @@
 //! Under `valgrind --tool=callgrind` every step of the rows is dumped on its
 //! own (`common::callgrind`), labelled `<row> frame <k>`: the instructions of
 //! one step, all threads, without the bind, the audits or the other rows.
+//! `TEGUMENT_BENCH_THREADS=1` runs the rows on one thread instead of two:
+//! rayon's work then never moves to another thread, so a profile's inclusive
+//! costs tell the step's phases apart (with two, work a phase hands to the
+//! other thread is counted under rayon's job, not under the phase).
 
 mod common;
 
@@ -70,6 +74,23 @@ fn process_cpu_ms() -> Option<f64> {
     let ticks = |k: usize| fields.get(k)?.parse::<f64>().ok();
     // utime and stime are fields 14 and 15 of the line, 12 and 13 after the name.
     Some((ticks(11)? + ticks(12)?) * 10.0)
+}
+
+/// With `TEGUMENT_BENCH_DUMP=<dir>`, writes the skin's and the collider's
+/// positions after frame `k` of row `name` there (little-endian f32 triples),
+/// so that two builds' results can be compared vertex by vertex.
+fn dump_positions(name: &str, k: usize, skin: &[Vec3], collider: &[Vec3]) {
+    let Ok(dir) = std::env::var("TEGUMENT_BENCH_DUMP") else { return };
+    let slug: String = name.chars().map(|c| if c.is_ascii_alphanumeric() { c } else { '-' }).collect();
+    for (what, points) in [("skin", skin), ("collider", collider)] {
+        let bytes: Vec<u8> = points.iter().flat_map(|p| p.to_array()).flat_map(f32::to_le_bytes).collect();
+        std::fs::write(format!("{dir}/{slug}-frame{k}-{what}.bin"), bytes).expect("dump positions");
+    }
+}
+
+/// Threads the rows run on: 2, or `TEGUMENT_BENCH_THREADS`.
+fn threads() -> usize {
+    std::env::var("TEGUMENT_BENCH_THREADS").ok().and_then(|t| t.parse().ok()).filter(|&t| t > 0).unwrap_or(2)
 }
 
 struct Config {
@@ -130,7 +151,7 @@ fn main() {
         // polygons, not by the strain limits' own code) and what the audit
         // (its own geometry, not the passes') finds.
         let (mut worst, mut penetrations) = (0.0f32, 0usize);
-        with_threads(2, || {
+        with_threads(threads(), || {
             for k in 1..=FRAMES {
                 collider.update(&at(k)).unwrap();
                 let started = std::time::Instant::now();
@@ -141,6 +162,7 @@ fn main() {
                 let ms = started.elapsed().as_secs_f64() * 1e3;
                 let cpu_ms = cpu_started.zip(process_cpu_ms()).map(|(a, b)| b - a);
                 let found = audit(MeshInput { positions: &x, ..skin.input() }, &[&collider], &AuditParams::default()).unwrap();
+                dump_positions(config.name, k, &x, collider.current());
                 println!(
                     "{:<28} frame {k}: {ms:.0} ms ({} ms CPU), {} pinched, worst stretch {:.4}, recession {:.4}, in-loop: {} clearances, {} vertices tested, {} skin refits; audit {} inside {} crossing {} collider edges crossing",
                     config.name,
@@ -228,7 +250,7 @@ fn contact_region_scaling(report: &mut Report, sphere: &PolyMesh, tris: &[[u32; 
             let mut times = Vec::new();
             let mut cpu_times = Vec::new();
             let mut penetrations = 0;
-            with_threads(2, || {
+            with_threads(threads(), || {
                 for k in 1..=FRAMES {
                     collider.update(&at(k)).unwrap();
                     let started = std::time::Instant::now();

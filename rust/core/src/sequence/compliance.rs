@@ -114,10 +114,11 @@ pub(super) fn contact_targets(
     Ok(Some(rows.into_iter().unzip()))
 }
 
-/// In-loop recessions of compliant colliders run after every other
+/// In-loop recessions of compliant colliders run after every third
 /// iteration, counted back from the one that ends the solve (issue 29: one
 /// after every iteration cost the compliant flesh bench ~3.3–4.2× a
-/// collisions-only step; every other one saves about a quarter of that).
+/// collisions-only step; every other one saved about a quarter of that, and
+/// every third saves another ~8 % of the step by instruction count).
 ///
 /// Why skipping one is safe: the colliders' pass still runs after every
 /// iteration against every collider where it stands, compliant ones
@@ -126,21 +127,26 @@ pub(super) fn contact_targets(
 /// skin, so a skipped one leaves the collider where the last one put it, a
 /// position the contact pass then holds the skin against. What skipping
 /// costs is how closely the collider follows the skin: it lags the skin by
-/// at most one iteration. Only in the last three iterations was measured
-/// too: where the skin slides under the collider, the collider then lags the
-/// whole solve, and frames ended up to 14 % of the skin's displacement away
-/// from receding after every iteration (every other: 1.4 %; see
-/// `docs/performance.md`). The iteration that ends the solve always
-/// recedes: it decides where the collider rests. Counted from the end, as
+/// at most two iterations. Measured on the flesh bench's sliding frames
+/// (`docs/performance.md`): every other iteration ended 0.6 % (RMS) and
+/// 1.4 % (at most) of the skin's displacement away from receding after
+/// every iteration, every third another 0.5 % and 2.2 % away from every
+/// other; only in the last three iterations, where the skin slides under
+/// the collider, the collider lagged the whole solve and frames ended up to
+/// 14 % away. The iteration that ends the solve always recedes: it decides
+/// where the collider rests. Counted from the end, as
 /// [`Iteration::remaining`] tells it, that holds where Converge's stopping
 /// rule ends the solve too: the hook's closing iteration
 /// ([`RECESSION_CLOSING_ITERATIONS`]) follows once the rule is met.
 pub(super) fn recedes_after(iteration: Iteration) -> bool {
     match iteration.remaining {
-        Some(remaining) => remaining % 2 == 0,
-        None => iteration.index % 2 == 1,
+        Some(remaining) => remaining % RECESSION_EVERY == 0,
+        None => iteration.index % RECESSION_EVERY == RECESSION_EVERY - 1,
     }
 }
+
+/// In-loop recessions run after one iteration in this many ([`recedes_after`]).
+pub(super) const RECESSION_EVERY: usize = 3;
 
 /// Iterations the solve runs after Converge's stopping rule is met where
 /// compliant colliders recede: the last, which must know it is the last.

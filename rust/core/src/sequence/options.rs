@@ -124,8 +124,8 @@ pub struct StepReport {
     /// It follows the region near the colliders, not the skin's size.
     pub in_loop_tested: usize,
     /// In-loop recessions of compliant colliders (one per collider and
-    /// iteration that ran one, over all substeps): every other iteration's
-    /// and the last's.
+    /// iteration that ran one, over all substeps): every third iteration's,
+    /// counted back from the last, which always recedes.
     pub in_loop_recessions: usize,
     /// Skin vertices whose boxes were made again for compliant colliders to
     /// recede from, after the solver's iterations: those that moved since.

@@ -323,8 +323,8 @@ impl Sequence {
                 report.contact_work.strain_cycles += pass.cycles;
                 report.contact_work.strain_ms += ms_since(started);
             }
-            // Compliant colliders recede after every other iteration and
-            // the last (why that is safe: `recedes_after`).
+            // Compliant colliders recede after every third iteration,
+            // counted back from the last (why that is safe: `recedes_after`).
             let recede = recedes_after(iteration);
             for &c in compliant.iter().filter(|_| recede) {
                 let goal = goals[c].as_deref().expect("compliant colliders have goals");

@@ -314,7 +314,7 @@ mod compliance {
 
     /// A compliant ball pressed into a free skin rests on it; then the
     /// skin's input rises into the ball and slides sideways under it while
-    /// the ball's animation holds still. Every other iteration the ball's
+    /// the ball's animation holds still. Every third iteration the ball's
     /// resting vertices recede from where the skin has moved: the skin is never
     /// passed through (by the audit, which shares no geometry with the
     /// passes), the ball keeps receding as the skin comes up, and nothing
@@ -327,18 +327,20 @@ mod compliance {
         assert!(recessions[9] > recessions[4] + 0.02, "the skin came up 0.1 into the ball, which should recede: {recessions:?}");
     }
 
-    /// Issue 29: compliant colliders recede in the solve after every other
-    /// iteration and the last, counted back from the last (the contact pass
-    /// still runs after every one, so no iteration leaves the skin inside):
-    /// with a count of 10, 5 recessions a frame (10 when they receded after
-    /// every iteration). With Converge the stopping rule ends the solve and
-    /// the last iteration's recession runs in the closing iteration that
-    /// follows it: at most one more than half the iterations the solve ran.
+    /// Issue 29: compliant colliders recede in the solve after every third
+    /// iteration, counted back from the last, which always recedes (the
+    /// contact pass still runs after every one, so no iteration leaves the
+    /// skin inside): with a count of 10, 4 recessions a frame, after
+    /// iterations 1, 4, 7 and 10 (10 when they receded after every
+    /// iteration, 5 after every other). With Converge the stopping rule ends
+    /// the solve and the last iteration's recession runs in the closing
+    /// iteration that follows it: at most one more than a third of the
+    /// iterations the solve ran.
     #[test]
-    fn compliant_colliders_recede_after_every_other_iteration() {
+    fn compliant_colliders_recede_after_every_third_iteration() {
         let counted = skin_sliding_under_a_resting_ball(10, false);
         let recessions: Vec<usize> = counted.iter().map(|f| f.report.in_loop_recessions).collect();
-        assert!(recessions.iter().all(|&r| r == 5), "recessions per frame with 10 iterations: {recessions:?}");
+        assert!(recessions.iter().all(|&r| r == 4), "recessions per frame with 10 iterations: {recessions:?}");
         assert!(counted[9].report.max_recession > counted[4].report.max_recession + 0.02, "the skin came up 0.1 into the ball, which should recede");
 
         let converged = skin_sliding_under_a_resting_ball(40, true);
@@ -348,7 +350,7 @@ mod compliance {
         assert!(ran.iter().any(|&r| r + 3 < 40), "no solve stopped before its limit, so this tests nothing: {ran:?}");
         for (f, frame) in converged.iter().enumerate() {
             let r = frame.report.in_loop_recessions;
-            assert!(r >= 1 && r <= frame.ran / 2 + 1, "frame {f}: {r} recessions in {} iterations (all: {recessions:?}, iterations {ran:?})", frame.ran);
+            assert!(r >= 1 && r <= frame.ran / 3 + 1, "frame {f}: {r} recessions in {} iterations (all: {recessions:?}, iterations {ran:?})", frame.ran);
         }
         assert!(converged[9].report.max_recession > converged[4].report.max_recession + 0.02, "the skin came up 0.1 into the ball, which should recede");
     }
