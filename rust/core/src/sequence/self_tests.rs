@@ -117,6 +117,54 @@ fn measure_converge_on_the_self_collision_bend() {
     }
 }
 
+/// Issue 28's convergence error of Converge with self-collision on the
+/// tube of [`converge_bend`], per frame: the result against the same bake
+/// continued (Converge up to the frame before, then that frame by the
+/// same accelerated solver without a tolerance for 200 iterations), next
+/// to the same frame run to Converge's iteration limit: the independent
+/// check for a stopping rule that ends fold frames sooner (issue 30,
+/// nineteenth round):
+/// `cargo test --release -p tegument-core --lib measure_converge_error_with_self_collision -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn measure_converge_error_with_self_collision() {
+    for blender in [true, false] {
+        let (tube, low, high, settings) = match blender {
+            false => (cylinder(24, 48, 0.2, 2.0), 0.85, 1.15, SETTINGS),
+            true => (capped_tube(32, 48, 0.25, 2.0), 0.8, 1.2, SelfSettings::default()),
+        };
+        let limit = crate::solve::iteration_limit(ACCELERATED_ITERATIONS, tube.positions.len());
+        let input = |frame: usize| smooth_bend(&tube, 1.0, low, high, 150f32.to_radians() * frame as f32 / 12.0, 0.0);
+        // The bake to `last` with Converge, `last` itself with `iterations` and no tolerance if given.
+        let bake = |last: usize, own: Option<usize>| -> (Vec<Vec3>, usize) {
+            let mut sequence = Sequence::bind(tube.input(), DeformerOptions::default()).unwrap();
+            sequence.deformer_mut().set_accelerated(true);
+            let mut out = (Vec::new(), 0);
+            for frame in 0..=last {
+                let (iterations, tolerance) = match own.filter(|_| frame == last) {
+                    Some(n) => (n, None),
+                    None => (ACCELERATED_ITERATIONS, Some(CONVERGE_TOLERANCE)),
+                };
+                sequence.deformer_mut().set_tolerance(tolerance).unwrap();
+                let options = StepOptions { iterations, ..with_self(settings) };
+                let (x, _) = sequence.step(&input(frame), &mut [], &options).unwrap();
+                out = (x, sequence.deformer_mut().last_iterations());
+            }
+            out
+        };
+        let rms = |a: &[Vec3], b: &[Vec3]| (a.iter().zip(b).map(|(p, q)| (*p - *q).as_dvec3().length_squared()).sum::<f64>() / a.len() as f64).sqrt();
+        let mut rows = Vec::new();
+        for frame in 1..=12 {
+            let (converge, ran) = bake(frame, None);
+            let (reference, _) = bake(frame, Some(200));
+            let (to_limit, _) = bake(frame, Some(limit));
+            let offset = rms(&reference, &input(frame));
+            rows.push(format!("{frame}: {:.1} % in {ran} (to the limit {limit}: {:.1} %)", 100.0 * rms(&converge, &reference) / offset, 100.0 * rms(&to_limit, &reference) / offset));
+        }
+        println!("blender's tube {blender}: error per frame {rows:?}");
+    }
+}
+
 /// A warm start with self-collision (issue 30, seventeenth round): the
 /// first pass sweeps the last output by the input's motion and gathers with
 /// margins from how far the last solve took the skin, so that the solve's
