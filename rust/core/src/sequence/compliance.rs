@@ -128,10 +128,10 @@ pub(super) fn contact_targets(
 /// position the contact pass then holds the skin against. What skipping
 /// costs is how closely the collider follows the skin: it lags the skin by
 /// at most two iterations. Measured on the flesh bench's sliding frames
-/// (`docs/performance.md`): every other iteration ended 0.6 % (RMS) and
+/// (`docs/performance.md`): every other iteration ended 0.75 % (RMS) and
 /// 1.4 % (at most) of the skin's displacement away from receding after
-/// every iteration, every third another 0.5 % and 2.2 % away from every
-/// other; only in the last three iterations, where the skin slides under
+/// every iteration, every third 1.2 % and 3.4 % (RMS within Converge's own
+/// 2 % tolerance); only in the last three iterations, where the skin slides under
 /// the collider, the collider lagged the whole solve and frames ended up to
 /// 14 % away. The iteration that ends the solve always recedes: it decides
 /// where the collider rests. Counted from the end, as

@@ -50,6 +50,31 @@ fn a_tube_bent_150_degrees_folds_without_passing_through_itself() {
     assert!(reports.iter().all(|r| r.self_intersections == 0 && r.self_tangled == 0));
 }
 
+/// The tube of the 150° bend at one joint: the core's own
+/// (`blender` false) or the one Blender's test bends with an armature.
+struct BendScene {
+    tube: PolyMesh,
+    /// Where along the tube's axis the bend starts and ends.
+    low: f32,
+    high: f32,
+    settings: SelfSettings,
+}
+
+impl BendScene {
+    fn new(blender: bool) -> Self {
+        let (tube, low, high, settings) = match blender {
+            false => (cylinder(24, 48, 0.2, 2.0), 0.85, 1.15, SETTINGS),
+            true => (capped_tube(32, 48, 0.25, 2.0), 0.8, 1.2, SelfSettings::default()),
+        };
+        BendScene { tube, low, high, settings }
+    }
+
+    /// The input of `frame` (0–12): bent by 150° · frame / 12.
+    fn input(&self, frame: usize) -> Vec<Vec3> {
+        smooth_bend(&self.tube, 1.0, self.low, self.high, 150f32.to_radians() * frame as f32 / 12.0, 0.0)
+    }
+}
+
 /// A tube bent to 150° with self-collision, baked with Converge (the
 /// accelerated solver, its tolerance and iteration limit; the add-on's
 /// setting) or with 10 plain iterations: per frame the spike maximum of the
@@ -58,10 +83,8 @@ fn a_tube_bent_150_degrees_folds_without_passing_through_itself() {
 /// 0.25, fan caps, the bend blended over the middle fifth, the add-on's
 /// self-collision settings) instead of [`bend`]'s.
 fn converge_bend(converge: bool, blender: bool) -> Vec<(f32, f32, usize)> {
-    let (tube, low, high, settings) = match blender {
-        false => (cylinder(24, 48, 0.2, 2.0), 0.85, 1.15, SETTINGS),
-        true => (capped_tube(32, 48, 0.25, 2.0), 0.8, 1.2, SelfSettings::default()),
-    };
+    let scene = BendScene::new(blender);
+    let (tube, settings) = (&scene.tube, scene.settings);
     let mut sequence = Sequence::bind(tube.input(), DeformerOptions::default()).unwrap();
     let iterations = if converge { ACCELERATED_ITERATIONS } else { 10 };
     sequence.deformer_mut().set_accelerated(converge);
@@ -69,8 +92,7 @@ fn converge_bend(converge: bool, blender: bool) -> Vec<(f32, f32, usize)> {
     let options = StepOptions { iterations, ..with_self(settings) };
     (0..=12)
         .map(|frame| {
-            let angle = 150f32.to_radians() * frame as f32 / 12.0;
-            let input = smooth_bend(&tube, 1.0, low, high, angle, 0.0);
+            let input = scene.input(frame);
             let (x, _) = sequence.step(&input, &mut [], &options).unwrap();
             assert!(x.iter().all(|p| p.is_finite()), "frame {frame}: non-finite output");
             (spike_max(&tube, &x), spike_max(&tube, &input), sequence.deformer_mut().last_iterations())
@@ -129,12 +151,10 @@ fn measure_converge_on_the_self_collision_bend() {
 #[ignore]
 fn measure_converge_error_with_self_collision() {
     for blender in [true, false] {
-        let (tube, low, high, settings) = match blender {
-            false => (cylinder(24, 48, 0.2, 2.0), 0.85, 1.15, SETTINGS),
-            true => (capped_tube(32, 48, 0.25, 2.0), 0.8, 1.2, SelfSettings::default()),
-        };
+        let scene = BendScene::new(blender);
+        let (tube, settings) = (&scene.tube, scene.settings);
         let limit = crate::solve::iteration_limit(ACCELERATED_ITERATIONS, tube.positions.len());
-        let input = |frame: usize| smooth_bend(&tube, 1.0, low, high, 150f32.to_radians() * frame as f32 / 12.0, 0.0);
+        let input = |frame: usize| scene.input(frame);
         // The bake to `last` with Converge, `last` itself with `iterations` and no tolerance if given.
         let bake = |last: usize, own: Option<usize>| -> (Vec<Vec3>, usize) {
             let mut sequence = Sequence::bind(tube.input(), DeformerOptions::default()).unwrap();
