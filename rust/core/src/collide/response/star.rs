@@ -16,7 +16,7 @@ use rayon::prelude::*;
 use super::scratch::{Scratch, CANDIDATES};
 use super::{d, ColliderMotion, ColliderSet, ResolveParams};
 use crate::collide::bvh::Bounds;
-use crate::collide::geometry::triangle_normal;
+use crate::collide::geometry::unit;
 use crate::collide::proximity;
 use crate::collide::skin::Skin;
 
@@ -39,7 +39,8 @@ impl<'a> ColliderSet<'a> {
 
     /// [`Self::stars_apart`] for one vertex.
     fn star_apart(&self, start: &[Vec3], end: &[Vec3], skin: &Skin, v: u32) -> bool {
-        // The star's corners: the vertex and every corner of its edges and triangles.
+        // The star's corners (the vertex and every corner of its edges and
+        // triangles) at both ends of the step.
         let mut corners: Vec<u32> = Vec::with_capacity(16);
         corners.push(v);
         let around = skin.edges_of(v).iter().flat_map(|&k| skin.edges()[k as usize]).chain(skin.triangles_of(v).iter().flat_map(|&k| skin.triangles()[k as usize]));
@@ -48,8 +49,16 @@ impl<'a> ColliderSet<'a> {
                 corners.push(w);
             }
         }
-        let from: Vec<DVec3> = corners.iter().map(|&w| d(start[w as usize])).collect();
-        let to: Vec<DVec3> = corners.iter().map(|&w| d(end[w as usize])).collect();
+        let ends: Vec<DVec3> = corners.iter().flat_map(|&w| [d(start[w as usize]), d(end[w as usize])]).collect();
+        // The slab's direction: the star's own normal where it ends. A
+        // vertex resting a little beyond the thickness over a smooth
+        // collider lies, with its star, nearly parallel to the collider's
+        // surface there, which then stays on one side of the star's plane.
+        let normal = skin.triangles_of(v).iter().fold(DVec3::ZERO, |sum, &k| {
+            let [a, b, c] = skin.triangles()[k as usize].map(|w| d(end[w as usize]));
+            sum + (b - a).cross(c - a)
+        });
+        let n = unit(normal);
         let reach = corners.iter().fold(Bounds::EMPTY, |b, &w| b.union(Bounds::of_points(&[start[w as usize], end[w as usize]])));
         let mut candidates = Scratch::lend(&CANDIDATES);
         self.colliders.iter().enumerate().all(|(c, col)| {
@@ -60,37 +69,14 @@ impl<'a> ColliderSet<'a> {
                 candidates.push(t as u32);
                 true
             });
+            // Each candidate is the convex hull of its corners, each element
+            // of the star that of its own, which move linearly: corners on
+            // either side of the slab at both ends keep them apart. (Corners
+            // are read as often as their triangles list them: gathering each
+            // once cost more than the repeats.)
             let separation = self.ccd_params(col.settings().thickness as f64).min_separation;
-            candidates.is_empty() || self.star_beyond_slab(c, &candidates, &from, &to, separation)
+            let patch = candidates.iter().flat_map(|&t| col.triangles()[t as usize]).map(|w| d(col.current()[w as usize]));
+            candidates.is_empty() || n.is_some_and(|n| proximity::separated_along_still(n, &ends, patch, self.scale, separation))
         })
-    }
-
-    /// Whether the star's corners (`from → to`) stay beyond one slab from
-    /// collider `c`'s `candidates` (standing still), farther than
-    /// `separation`. The slab's direction is the normal of the candidate
-    /// whose centroid is nearest the star's centre: under a vertex resting a
-    /// little beyond the thickness over a smooth collider, the tangent plane
-    /// there bounds the whole patch. Each element of the star is the convex
-    /// hull of its corners, which move linearly, and each candidate that of
-    /// its own, so corners beyond the slab at both ends keep them apart.
-    /// (The corners are read straight from the collider, each as often as
-    /// its triangles list it: gathering them once, as the per-element slabs
-    /// do, cost more than the repeats on the flesh bench.)
-    fn star_beyond_slab(&self, c: usize, candidates: &[u32], from: &[DVec3], to: &[DVec3], separation: f64) -> bool {
-        let col = self.colliders[c];
-        let corners = |t: u32| col.triangles()[t as usize].map(|v| d(col.current()[v as usize]));
-        let centre = from.iter().chain(to).copied().sum::<DVec3>() / (from.len() + to.len()) as f64;
-        let mut nearest = (f64::INFINITY, candidates[0]);
-        for &t in candidates {
-            let [a, b, q] = corners(t);
-            let gap = ((a + b + q) / 3.0 - centre).length_squared();
-            if gap < nearest.0 {
-                nearest = (gap, t);
-            }
-        }
-        let [a, b, q] = corners(nearest.1);
-        let Some(n) = triangle_normal(a, b, q) else { return false };
-        let patch = candidates.iter().flat_map(|&t| corners(t)).map(|p| (p, p));
-        proximity::separated_along(n, DVec3::ZERO, from, to, patch, separation)
     }
 }
