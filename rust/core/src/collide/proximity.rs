@@ -48,6 +48,31 @@ use glam::DVec3;
 use super::ccd::CcdHit;
 use super::geometry::{closest_on_segments, closest_on_triangle, point_triangle_distance_squared, segment_segment_distance_squared, unit};
 
+/// [`separated_along`] against a collider standing still, whose points
+/// (`collider`, each measured once) are no larger in magnitude than
+/// `collider_scale`: the element's corners (`element`, at both ends of the
+/// step) on one side of a slab of direction `n`, the collider's on the
+/// other, farther apart than `separation`. With the bound on the collider's
+/// magnitude given, each of its points costs one dot product, where a
+/// whole patch is measured at once (`response::star`).
+pub fn separated_along_still(n: DVec3, element: &[DVec3], collider: impl Iterator<Item = DVec3>, collider_scale: f64, separation: f64) -> bool {
+    let mut scale = collider_scale;
+    let mut own = (f64::INFINITY, f64::NEG_INFINITY);
+    for &p in element {
+        let h = n.dot(p);
+        own = (own.0.min(h), own.1.max(h));
+        scale = scale.max(p.abs().max_element());
+    }
+    let mut other = (f64::INFINITY, f64::NEG_INFINITY);
+    for p in collider {
+        let h = n.dot(p);
+        other = (other.0.min(h), other.1.max(h));
+    }
+    // NaN heights fail both comparisons: nothing proven.
+    let clearance = separation + RELATIVE_MARGIN * scale;
+    own.0 - other.1 > clearance || other.0 - own.1 > clearance
+}
+
 /// Halvings of the step before the sampled test gives up: at most 2⁸ − 1
 /// distance evaluations (a few µs), usually one, still far cheaper than the
 /// interval search it spares. A contact sliding over a curved collider needs

@@ -191,7 +191,9 @@ pub(super) fn recede_from(
     // In the loop the skin's own pass has just cleared the skin of the
     // collider where it stands: only what moves now needs testing. The first
     // recession of a substep starts from last substep's state and tests all.
-    let params = ResolveParams { motion: ColliderMotion::AtCurrent, friction: false, moving_only: !fresh, ..ResolveParams::in_loop() };
+    // Most moving vertices rest at twice the thickness from the skin, which
+    // is smooth under them: one slab proves each one's star apart.
+    let params = ResolveParams { motion: ColliderMotion::AtCurrent, friction: false, moving_only: !fresh, star_slabs: true, ..ResolveParams::in_loop() };
     let set = ColliderSet::new([&*obstacle]);
     // Where a goal lies behind the skin (or within the thickness of it), the
     // vertex recedes along its own normal (the direction its region pushes

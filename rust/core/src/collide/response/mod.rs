@@ -68,14 +68,16 @@
 //! points; `resolve.rs` runs the rounds, vertex–triangle
 //! contacts are in `vertex.rs`, edge–edge in `edge.rs`, collider vertex–skin
 //! triangle in `face.rs`, the side and entry-time helpers in `contact.rs`,
-//! the per-thread candidate lists in `scratch.rs`, and `verify.rs` checks
-//! given vertices' steps again after a caller changed them.
+//! the per-thread candidate lists in `scratch.rs`, whole stars proven apart
+//! by one slab in `star.rs`, and `verify.rs` checks given vertices' steps
+//! again after a caller changed them.
 
 mod contact;
 mod edge;
 mod face;
 mod resolve;
 mod scratch;
+mod star;
 mod verify;
 mod vertex;
 
@@ -119,16 +121,24 @@ pub struct ResolveParams {
     /// has just cleared the skin of it: most of the collider stands still
     /// (at its goal, or resting where it was), and only the rest costs.
     pub moving_only: bool,
+    /// Before the first round, prove each tested vertex's whole star (the
+    /// vertex, its edges and its triangles) apart from the colliders by one
+    /// slab, and leave the elements of proven stars out of the pairwise
+    /// tests. Only where the colliders stand still ([`ColliderMotion::AtCurrent`]).
+    /// Pays where most moving vertices rest a little beyond the thickness
+    /// over a smooth collider, each element otherwise proven apart on its own:
+    /// a compliant collider receding from the skin it rests on.
+    pub star_slabs: bool,
 }
 
 impl ResolveParams {
     /// Pass 1: colliders sweep over the frame, friction on.
     pub fn first_pass() -> Self {
-        ResolveParams { motion: ColliderMotion::Swept, max_rounds: 12, edge_edge: true, collider_vertices: true, friction: true, moving_only: false }
+        ResolveParams { motion: ColliderMotion::Swept, max_rounds: 12, edge_edge: true, collider_vertices: true, friction: true, moving_only: false, star_slabs: false }
     }
     /// Pass 2: colliders at their current positions, friction on.
     pub fn in_loop() -> Self {
-        ResolveParams { motion: ColliderMotion::AtCurrent, max_rounds: 12, edge_edge: true, collider_vertices: true, friction: true, moving_only: false }
+        ResolveParams { motion: ColliderMotion::AtCurrent, max_rounds: 12, edge_edge: true, collider_vertices: true, friction: true, moving_only: false, star_slabs: false }
     }
 }
 

@@ -385,6 +385,15 @@ impl<'a> ColliderSet<'a> {
         if skin.has_inverse_mass() {
             active.retain(|&i| skin.inverse_mass(i) > 0.0);
         }
+        // A vertex whose whole star one slab proves apart needs no test, nor
+        // do its edges and triangles (`ResolveParams::star_slabs`). Only in
+        // the first round: what a round moves is tested again in the next.
+        if params.star_slabs && still {
+            let apart = self.stars_apart(start, end, skin, &active, params);
+            active.retain(|&i| !apart[i as usize]);
+            active_edges.retain(|&e| !skin.edges()[e as usize].iter().any(|&v| apart[v as usize]));
+            active_triangles.retain(|&t| !skin.triangles()[t as usize].iter().any(|&v| apart[v as usize]));
+        }
         stats.tested = active.len();
         // Supporting planes: the clearance's for still colliders; for sweeping
         // ones, planes around the active vertices in the frame drifting with

@@ -591,3 +591,58 @@ fn a_skin_edge_on_a_collider_ridge_sticks_within_the_static_cone_and_slides_beyo
     let slid = pulled(0.1, 0.01);
     assert!(slid > 0.05 && slid < 0.2 - 1e-3, "beyond the cone (0.01 > 0.1 · 0.05): slides, less than the pull ({slid})");
 }
+
+/// `star_slabs` proves whole stars apart by one slab each and changes
+/// nothing but the work: a sheet draped over a sphere at twice the
+/// thickness (as a compliant collider's resting vertices head for), every
+/// vertex stepping a little along it, and a patch of it pressed through
+/// the sphere. The same positions, contacts, moves and rounds with and
+/// without; most of the resting stars proven, so far fewer vertices tested.
+#[test]
+fn star_slabs_change_nothing_but_the_work() {
+    let thickness = 0.01;
+    let radius = 0.5;
+    let c = collider_of(&quad_sphere(16, radius), Vec3::ZERO, ColliderSettings::new(thickness, 0.0));
+    let sheet = grid(24, 24, 0.6);
+    let skin = Skin::from_mesh(sheet.input()).unwrap();
+    // Each vertex over the sphere's top at `lift` beyond its surface.
+    let draped = |p: Vec3, lift: f32| {
+        let up = Vec3::new(p.x, p.y, radius).normalize();
+        up * (radius + lift)
+    };
+    let start: Vec<Vec3> = sheet.positions.iter().map(|&p| draped(p, 2.0 * thickness)).collect();
+    let request: Vec<Vec3> = sheet
+        .positions
+        .iter()
+        .map(|&p| {
+            let along = p + Vec3::new(0.3 * thickness, 0.2 * thickness, 0.0);
+            // A patch pressed through the surface; the rest still twice the thickness off it.
+            let pressed = (p.x - 0.1).abs() < 0.05 && p.y.abs() < 0.05;
+            draped(along, if pressed { -0.02 } else { 2.0 * thickness })
+        })
+        .collect();
+    let set = ColliderSet::new([&c]);
+    let run = |star_slabs: bool| {
+        let mut end = request.clone();
+        let params = ResolveParams { friction: false, star_slabs, ..ResolveParams::in_loop() };
+        let stats = set.resolve_path(&start, &mut end, &skin, &params).unwrap();
+        (end, stats)
+    };
+    let (plain, plain_stats) = run(false);
+    let (starred, stats) = run(true);
+    assert!(plain_stats.vertex_contacts > 0, "the pressed patch must make contacts for this test to mean anything");
+    assert_eq!(starred, plain, "the same positions");
+    assert_eq!(
+        (stats.vertex_contacts, stats.edge_contacts, stats.collider_vertex_contacts, &stats.moved, &stats.pinched, stats.rounds),
+        (plain_stats.vertex_contacts, plain_stats.edge_contacts, plain_stats.collider_vertex_contacts, &plain_stats.moved, &plain_stats.pinched, plain_stats.rounds)
+    );
+    assert!(stats.pinched.is_empty() && stats.held.is_empty());
+    assert!(
+        stats.tested * 4 < plain_stats.tested,
+        "most resting stars are proven apart: {} vertices tested with star slabs, {} without",
+        stats.tested,
+        plain_stats.tested
+    );
+    let report = audit(PolyMesh { positions: starred, ..sheet.clone() }.input(), &[&c], &AuditParams::default()).unwrap();
+    assert!(report.vertices_inside.is_empty() && report.edges_crossing.is_empty() && report.collider_edges_crossing.is_empty(), "{report:?}");
+}
