@@ -10,11 +10,14 @@ outside the project tree (a new temporary directory unless a path is given); not
 ``make bench`` or CI.
 
     make extension
-    .venv/bin/python bench/record_self_replay.py dist/tegument-0.1.0-linux_x64.zip [out.replay]
+    .venv/bin/python bench/record_self_replay.py dist/tegument-0.1.0-linux_x64.zip [out.replay] [--tube]
     cargo run --release -p tegument-core --example self_replay -- <out.replay> [frames]
 
 Needs ``../shared/data/makehuman`` (as the character bench does). The layout of the file is in the
-example's header.
+example's header. With ``--tube`` it records instead the Blender test's tube
+(``blender_tests/test_self_collision.py::bent_tube``: a capped tube of 32 × 48 bent 150° over 12
+frames by a two-bone armature), the scene whose frame 9 spiked under a stopping rule the core's own
+copy of the tube did not reproduce (issue 30, twenty-first round).
 """
 
 import importlib
@@ -27,7 +30,19 @@ import numpy as np
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 
 
-def record(zip_path: pathlib.Path, out: pathlib.Path) -> None:
+def bent_tube():
+    """The Blender test's tube, built and bent as ``blender_tests/test_self_collision.py::bent_tube``
+    does (the same calls and figures)."""
+    import bpy
+    import scene
+
+    limb, rig = scene.build_limb("Limb", segments=32, rings=48, radius=0.25, length=2.0, heat_weights=False)
+    scene.animate_bend(rig, 1, 12, angle_deg=150.0)
+    bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, 12
+    return limb
+
+
+def record(zip_path: pathlib.Path, out: pathlib.Path, tube: bool = False) -> None:
     sys.path.insert(0, str(ROOT / "demo"))
     import extension
 
@@ -69,8 +84,12 @@ def record(zip_path: pathlib.Path, out: pathlib.Path) -> None:
 
     solve_frame = bake.solve_frame
     bake.solve_frame = lambda scene, obj, frame, deformer, *a, **k: solve_frame(scene, obj, frame, Recorder(deformer), *a, **k)
-    obj, _ = character_demo.build("obj", workdir)
-    character_demo.add_and_bake(obj, "//replay.pc2", self_collision=True)
+    if tube:
+        obj = bent_tube()
+        character_demo.add_and_bake(obj, "//replay.pc2", frames=(1, 12), self_collision=True)
+    else:
+        obj, _ = character_demo.build("obj", workdir)
+        character_demo.add_and_bake(obj, "//replay.pc2", self_collision=True)
     rest, corners, sizes = evaluate.bound_mesh(obj)
     settings = seen["self_collision"]
     closeness, tolerance = seen["closeness"], seen.get("tolerance")
@@ -88,9 +107,12 @@ def record(zip_path: pathlib.Path, out: pathlib.Path) -> None:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) not in (2, 3):
+    tube = "--tube" in sys.argv[1:]
+    arguments = [a for a in sys.argv[1:] if a != "--tube"]
+    if len(arguments) not in (1, 2):
         sys.exit(__doc__)
-    target = pathlib.Path(sys.argv[2]) if len(sys.argv) == 3 else pathlib.Path(tempfile.mkdtemp(prefix="tegument-replay-")) / "character.replay"
+    name = "tube.replay" if tube else "character.replay"
+    target = pathlib.Path(arguments[1]) if len(arguments) == 2 else pathlib.Path(tempfile.mkdtemp(prefix="tegument-replay-")) / name
     if target.resolve().is_relative_to(ROOT):
         sys.exit(f"{target}: write the recording outside the project tree")
-    record(pathlib.Path(sys.argv[1]), target)
+    record(pathlib.Path(arguments[0]), target, tube)

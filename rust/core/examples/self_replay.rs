@@ -20,7 +20,9 @@
 //!
 //! (`frames`: replay only the first that many; a third argument `without`
 //! replays the same frames without Self Collision, the step it is compared
-//! with.) The recording's layout, all
+//! with; `TEGUMENT_REPLAY_OUTPUT=<path>` writes every frame's result there,
+//! f32 xyz frame after frame, for an independent measure such as
+//! `demo/measures.py`'s spike.) The recording's layout, all
 //! little-endian 32-bit: a header of 16 words (vertex, corner, polygon and
 //! frame counts, iterations, Converge as 0/1, then as f32 the tolerance (NaN:
 //! none) and closeness (NaN: the default), thickness, static and kinetic
@@ -142,10 +144,15 @@ fn main() -> Result<(), String> {
     let closeness = if r.closeness.is_nan() { Closeness::Default } else { Closeness::Uniform(r.closeness) };
     let self_collision = (!without).then_some(SelfOptions { settings: r.settings, weights: None });
     let options = StepOptions { self_collision, ..StepOptions::new(r.iterations, closeness) };
+    let mut output = std::env::var_os("TEGUMENT_REPLAY_OUTPUT").map(std::fs::File::create).transpose().map_err(|e| format!("TEGUMENT_REPLAY_OUTPUT: {e}"))?;
     let (mut wall_total, mut cpu_total, mut held_total, mut contacts_total) = (0.0, 0.0, 0, 0);
     for (k, input) in r.frames.iter().enumerate().take(only.unwrap_or(usize::MAX)) {
         let (clock, cpu) = (Instant::now(), cpu_seconds());
-        let (_, report) = sequence.step(input, &mut [], &options).map_err(|e| format!("frame {}: {e}", k + 1))?;
+        let (x, report) = sequence.step(input, &mut [], &options).map_err(|e| format!("frame {}: {e}", k + 1))?;
+        if let Some(file) = output.as_mut() {
+            let words: Vec<u8> = x.iter().flat_map(|p| p.to_array()).flat_map(f32::to_le_bytes).collect();
+            std::io::Write::write_all(file, &words).map_err(|e| format!("TEGUMENT_REPLAY_OUTPUT: {e}"))?;
+        }
         let wall = 1000.0 * clock.elapsed().as_secs_f64();
         let cpu = cpu.zip(cpu_seconds()).map_or(f64::NAN, |(a, b)| 1000.0 * (b - a));
         wall_total += wall;
