@@ -12,8 +12,7 @@
 //!   colliders of an iteration, self-collision's rounds; where they moved
 //!   skin, the (still) colliders' pass again; then the joint fail-safe: every
 //!   vertex whose path still crosses other skin, or whose step a collider
-//!   now meets, goes back half way along its move, and where it crosses
-//!   again from there, to where the iteration started, which was free of
+//!   now meets, goes back to where the iteration started, which was free of
 //!   both, with every vertex most of whose ring goes back, until none is
 //!   left. The output satisfies both.
 //!
@@ -247,22 +246,12 @@ pub(super) fn in_loop(
         report.held += again.held.len();
     }
     report.self_work.in_loop_rounds_ms += milliseconds(began);
-    // The joint fail-safe: until nothing crosses, every vertex whose path
-    // still crosses goes back half way along the iteration's move, and one
-    // that crosses again from there all the way to `before` (free of both).
-    // Why half way first: put back whole, a patch the rounds cannot clear
-    // stays where the solve started while the solve asks it for the same
-    // move at every iteration, and its ring converges away from it (Blender's
-    // 150° tube under a stopping rule that ended frames 6–8 sooner: a patch
-    // of ~100 vertices held at all 18 iterations of frame 9, the same 0.031
-    // asked of it each time 0.008 from the fold's other side, a spike of 0.55
-    // mean ring edges against the input's 0.165; issue 30, twenty-first
-    // round). Half way, it closes on what it meets and the rounds take it.
+    // The joint fail-safe: back to `before` (free of both) until nothing crosses.
     let began = Instant::now();
     let mut touching: Option<Vec<bool>> = None;
     let mut last: Vec<u32> = Vec::new();
     let mut checks = SelfStats::default();
-    let (mut halved, mut holding) = (Held::none(before.len()), Held::none(before.len()));
+    let mut holding = Held::none(before.len());
     loop {
         let mut bad = collision.in_loop_crossings(&mut pass.candidates, before, after, touching.as_deref(), settings, tangles, part, &mut checks)?;
         bad.extend(set.violations(before, after, skin, &last, &params));
@@ -276,26 +265,15 @@ pub(super) fn in_loop(
             return Ok(());
         }
         // With the vertices whose rings those mostly hold: a held patch moves
-        // as a patch (`collide::self_contact::held`). Every crossing vertex
-        // moves here, so the next check, of the pairs round the batch, sees
-        // every pair that may still cross.
-        let (again, first): (Vec<u32>, Vec<u32>) = bad.iter().partition(|&&v| halved.holds(v));
-        let moved = |v: u32| after[v as usize] != before[v as usize];
-        let half = collision.put_back(&mut halved, &first, moved);
-        let whole = collision.put_back(&mut holding, &again, moved);
+        // as a patch (`collide::self_contact::held`).
+        let batch = collision.put_back(&mut holding, &bad, |v| after[v as usize] != before[v as usize]);
         let mut flags = vec![false; before.len()];
-        for &v in &half {
-            after[v as usize] = before[v as usize].lerp(after[v as usize], 0.5);
-            flags[v as usize] = true;
-        }
-        for &v in &whole {
+        for &v in &batch {
             after[v as usize] = before[v as usize];
             flags[v as usize] = true;
         }
-        report.self_held += half.len() + whole.len();
+        report.self_held += batch.len();
         touching = Some(flags);
-        last = half.into_iter().chain(whole).collect();
-        last.sort_unstable();
-        last.dedup();
+        last = batch;
     }
 }

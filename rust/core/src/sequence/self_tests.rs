@@ -320,13 +320,14 @@ fn recorded_blender_tube() -> (PolyMesh, Vec<Vec<Vec3>>, DeformerOptions, StepOp
 
 /// The spike guarantee on Blender's 150° tube with Converge, from its
 /// recorded inputs (issue 30, twenty-first round): no frame spikes above
-/// its input or intersects. A stopping rule that ended frames 6–8 on the
-/// skin the contacts leave free started frame 9 where a patch of ~100
+/// its input or intersects. It guards any change of the stopping rule or
+/// the fail-safe: a rule that ended frames 6–8 on the skin the contacts
+/// leave free (measured, not kept) started frame 9 where a patch of ~100
 /// vertices the in-loop rounds could not clear was put back where the
 /// solve started at every one of its iterations (the solver asking it for
 /// the same move each time) while its ring converged away: 0.548 mean ring
 /// edges at frame 9, up to 0.874 at frame 11, against the input's
-/// 0.165–0.181. The fail-safe now puts such vertices back half way first.
+/// 0.165–0.181.
 #[test]
 fn blenders_tube_with_converge_makes_no_spike_its_input_does_not_have() {
     let (tube, inputs, deformer, options, tolerance) = recorded_blender_tube();

@@ -74,11 +74,6 @@ impl Held {
         Held { flags: vec![false; vertex_count] }
     }
 
-    /// Whether `v` has been put back.
-    pub fn holds(&self, v: u32) -> bool {
-        self.flags[v as usize]
-    }
-
     /// The batch to put back now: the `crossing` corners, and every vertex
     /// that `moved` more than half of whose ring is held with them (the
     /// module documentation says why), each once and ascending. They are
