@@ -15,7 +15,7 @@ outside the project tree (a new temporary directory unless a path is given); not
 
 Needs ``../shared/data/makehuman`` (as the character bench does). The layout of the file is in the
 example's header. With ``--tube`` it records instead the Blender test's tube
-(``blender_tests/test_self_collision.py::bent_tube``: a capped tube of 32 × 48 bent 150° over 12
+(``demo/scene.py::bent_tube``, the scene of ``blender_tests/test_self_collision.py``: a capped tube of 32 × 48 bent 150° over 12
 frames by a two-bone armature), the scene whose frame 9 spiked under a stopping rule the core's own
 copy of the tube did not reproduce (issue 30, twenty-first round).
 """
@@ -28,18 +28,6 @@ import tempfile
 import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-
-
-def bent_tube():
-    """The Blender test's tube, built and bent as ``blender_tests/test_self_collision.py::bent_tube``
-    does (the same calls and figures)."""
-    import bpy
-    import scene
-
-    limb, rig = scene.build_limb("Limb", segments=32, rings=48, radius=0.25, length=2.0, heat_weights=False)
-    scene.animate_bend(rig, 1, 12, angle_deg=150.0)
-    bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, 12
-    return limb
 
 
 def record(zip_path: pathlib.Path, out: pathlib.Path, tube: bool = False) -> None:
@@ -85,7 +73,9 @@ def record(zip_path: pathlib.Path, out: pathlib.Path, tube: bool = False) -> Non
     solve_frame = bake.solve_frame
     bake.solve_frame = lambda scene, obj, frame, deformer, *a, **k: solve_frame(scene, obj, frame, Recorder(deformer), *a, **k)
     if tube:
-        obj = bent_tube()
+        import scene
+
+        obj = scene.bent_tube()
         character_demo.add_and_bake(obj, "//replay.pc2", frames=(1, 12), self_collision=True)
     else:
         obj, _ = character_demo.build("obj", workdir)

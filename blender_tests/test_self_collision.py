@@ -41,10 +41,7 @@ def bent_tube(tmp_path, name: str = "Limb"):
     """A capped tube (32 around, 48 along, ~1.6k vertices) bent from straight to 150° over 12
     frames by a two-bone armature whose weights blend over the middle fifth."""
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "tube.blend"))
-    limb, rig = scene.build_limb(name, segments=32, rings=48, radius=0.25, length=2.0, heat_weights=False)
-    scene.animate_bend(rig, 1, FRAMES, angle_deg=BEND_DEGREES)
-    bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, FRAMES
-    return limb
+    return scene.bent_tube(name, frames=FRAMES, angle_deg=BEND_DEGREES)
 
 
 def topology(obj):

@@ -156,6 +156,17 @@ def animate_bend(rig, frame_start: int = 1, frame_end: int = 24, angle_deg: floa
         bone.keyframe_insert("rotation_euler", frame=frame)
 
 
+def bent_tube(name: str = "Limb", frames: int = 12, angle_deg: float = 150.0):
+    """Self Collision's test tube: a capped tube (32 around, 48 along, ~1.6k vertices) bent from
+    straight to `angle_deg` over frames 1..`frames` by a two-bone armature whose weights blend over
+    the middle fifth; the scene's frame range set to match. Shared by the Blender tests and
+    ``bench/record_self_replay.py --tube``, so that a recording is of the tested scene."""
+    limb, rig = build_limb(name, segments=32, rings=48, radius=0.25, length=2.0, heat_weights=False)
+    animate_bend(rig, 1, frames, angle_deg=angle_deg)
+    bpy.context.scene.frame_start, bpy.context.scene.frame_end = 1, frames
+    return limb
+
+
 def pressed_body_centre(angle_deg: float, along: float, body_radius: float, limb_radius: float, depth: float):
     """Where to put a sphere so that the forearm, bent to `angle_deg` about the elbow at the
     origin, reaches `depth` into it at `along` from the elbow; the sphere lies on the side the
