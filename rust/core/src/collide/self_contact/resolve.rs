@@ -401,21 +401,22 @@ impl Candidates {
 }
 
 /// What [`Pass::ensure`] had to do for the candidates to hold.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 enum Gathered {
     Nothing,
-    /// Only around some vertices (those the fail-safe put back).
-    Around,
+    /// Only around some vertices (flags per vertex): only pairs with a
+    /// corner among them were listed again.
+    Around(Vec<bool>),
     /// The whole skin.
     Whole,
 }
 
 impl SelfStats {
     /// Counts a gathering that took `ms`.
-    fn count(&mut self, gathered: Gathered, ms: f64) {
+    fn count(&mut self, gathered: &Gathered, ms: f64) {
         match gathered {
             Gathered::Nothing => {}
-            Gathered::Around => {
+            Gathered::Around(_) => {
                 self.gathers_around += 1;
                 self.around_gather_ms += ms;
             }
@@ -542,7 +543,7 @@ impl SelfCollision {
             let margin = candidates.take().map_or_else(|| vec![self.margin_floor(settings); self.vertex_count], |c| c.margin);
             let (gathered, ms) = timed(|| pass.candidates(start, end, margin));
             *candidates = Some(gathered);
-            stats.count(Gathered::Whole, ms);
+            stats.count(&Gathered::Whole, ms);
         }
         let mut moved: Option<Vec<bool>> = None;
         let mut converged = false;
@@ -573,7 +574,7 @@ impl SelfCollision {
             let margin: Vec<f32> = (0..end.len()).map(|v| if left[v] { c.margin[v].max((end[v] - c.reference[v]).length()) } else { c.margin[v] }).collect();
             if count <= end.len() / AROUND_FIRST_PASS {
                 let ((), ms) = timed(|| pass.gather_around(c, &left, start, end, &margin));
-                stats.count(Gathered::Around, ms);
+                stats.count(&Gathered::Around(Vec::new()), ms);
                 // The pairs listed again have a corner among `left`: the
                 // next round looks at them, as at every pair of a moved vertex.
                 flags.iter_mut().zip(&left).for_each(|(f, l)| *f |= l);
@@ -581,7 +582,7 @@ impl SelfCollision {
             } else {
                 let (gathered, ms) = timed(|| pass.candidates(start, end, margin));
                 *candidates = Some(gathered);
-                stats.count(Gathered::Whole, ms);
+                stats.count(&Gathered::Whole, ms);
                 moved = None;
             }
         }
@@ -637,7 +638,7 @@ impl SelfCollision {
         let requested = after.to_vec();
         let mut stats = SelfStats::default();
         let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
-        stats.count(gathered, ms);
+        stats.count(&gathered, ms);
         let mut moved: Option<Vec<bool>> = None;
         for _ in 0..SELF_ROUNDS {
             stats.rounds += 1;
@@ -654,12 +655,24 @@ impl SelfCollision {
                 after[v as usize] = p;
                 flags[v as usize] = true;
             }
-            moved = Some(flags);
             let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
-            if gathered != Gathered::Nothing {
-                stats.count(gathered, ms);
-                moved = None;
-            }
+            stats.count(&gathered, ms);
+            moved = match gathered {
+                Gathered::Nothing => Some(flags),
+                // Only the pairs with a corner among those gathered around
+                // are new; every other pair is the one the rounds so far
+                // looked at, with the same corners' positions unless a
+                // corner was just moved (flagged): the next round looks at
+                // both, the rest would find what it found before (nothing
+                // to correct). Testing the whole list again after each of
+                // a fold frame's around-gatherings was most of its rounds'
+                // tests (issue 30, twenty-second round).
+                Gathered::Around(left) => {
+                    flags.iter_mut().zip(&left).for_each(|(f, l)| *f |= l);
+                    Some(flags)
+                }
+                Gathered::Whole => None,
+            };
         }
         stats.max_correction = max_correction(&requested, after);
         Ok(stats)
@@ -682,7 +695,7 @@ impl SelfCollision {
     ) -> Result<Vec<u32>> {
         let pass = self.pass(settings, tangles, takes_part)?;
         let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
-        stats.count(gathered, ms);
+        stats.count(&gathered, ms);
         let began = Instant::now();
         let current = candidates.as_ref().expect("ensured");
         let strayed = current.open(before, after);
@@ -793,7 +806,7 @@ impl Pass<'_> {
                 // iterations' moves, which shrink as the solve converges.
                 let ball: Vec<f32> = (0..before.len()).into_par_iter().with_min_len(4096).map(|v| (4.0 * moved(v)).max(floor)).collect();
                 self.gather_around(c, &left, before, before, &ball);
-                return Gathered::Around;
+                return Gathered::Around(left);
             }
         }
         // Along the iteration's own paths, not a ball about `before` holding
@@ -978,7 +991,7 @@ impl Pass<'_> {
                         let pairs = self.gather(&Motion { start, end, margin: &zero }, focus.as_ref());
                         (focus, pairs)
                     });
-                    stats.count(if focus.is_some() { Gathered::Around } else { Gathered::Whole }, ms);
+                    stats.count(&if focus.is_some() { Gathered::Around(Vec::new()) } else { Gathered::Whole }, ms);
                     gathered = pairs;
                     &gathered
                 }
