@@ -329,16 +329,22 @@ impl Candidates {
     /// between 0 and the distance), so it finds more than the threshold and
     /// proves the pair apart. The decisions are the same as testing every
     /// pair; only the pairs of open vertices are looked at.
-    fn open(&self, before: &[Vec3], after: &[Vec3]) -> Vec<bool> {
-        (0..self.reference.len())
+    fn open(&self, strays: &Strays) -> Vec<bool> {
+        strays.from_reference.par_iter().zip(&self.clearance).with_min_len(4096).map(|(&strayed, &clearance)| strayed as f64 >= clearance).collect()
+    }
+
+    /// How far each vertex strayed over `before → after`, from the
+    /// reference and from `before`, once for all the pairs that ask.
+    fn strays(&self, before: &[Vec3], after: &[Vec3]) -> Strays {
+        let (from_reference, from_before) = (0..self.reference.len())
             .into_par_iter()
             .with_min_len(4096)
             .map(|v| {
                 let r = self.reference[v];
-                let strayed = (before[v] - r).length().max((after[v] - r).length());
-                strayed as f64 >= self.clearance[v]
+                ((before[v] - r).length().max((after[v] - r).length()), (after[v] - before[v]).length())
             })
-            .collect()
+            .unzip();
+        Strays { from_reference, from_before }
     }
 
     /// Whether pair `k` has a corner among the `open` vertices.
@@ -369,10 +375,11 @@ impl Candidates {
     pub(super) fn active_set_counts(&self, collision: &SelfCollision, settings: &SelfSettings, before: &[Vec3], after: &[Vec3]) -> (usize, usize, usize) {
         let tangles = Tangles::default();
         let pass = collision.pass(settings, &tangles, None).expect("prepared");
-        let open = self.open(before, after);
+        let strays = self.strays(before, after);
+        let open = self.open(&strays);
         let (mut outside, mut missed, mut unproven) = (0, 0, 0);
         for k in 0..self.pairs.len() {
-            let proven = self.proves_apart(k, before, after, &pass);
+            let proven = self.proves_apart(k, &strays, &pass);
             if self.opens(k, &open) {
                 unproven += usize::from(!proven);
             } else {
@@ -384,19 +391,79 @@ impl Candidates {
     }
 
     /// Whether pair `k` provably stays farther apart than its separation
-    /// over `before → after`: its sides have strayed from the reference by
-    /// less, together, than its distance there less the separation.
-    fn proves_apart(&self, k: usize, before: &[Vec3], after: &[Vec3], pass: &Pass<'_>) -> bool {
-        let pair = &self.pairs[k];
-        let strayed = |corners: &[u32]| {
-            corners.iter().fold(0.0f32, |m, &v| {
-                let r = self.reference[v as usize];
-                m.max((before[v as usize] - r).length()).max((after[v as usize] - r).length())
-            })
-        };
-        let (a, b) = pair.sides();
-        let room = self.distance[k] - strayed(a) - strayed(b);
-        room as f64 > pass.collision.pair_separation(pair) + pass.params.tolerance + pass.collision.rounding as f64
+    /// over the motion of `strays`: its sides have strayed from the
+    /// reference by less, together, than its distance there less the
+    /// separation.
+    fn proves_apart(&self, k: usize, strays: &Strays, pass: &Pass<'_>) -> bool {
+        apart(&self.pairs[k], self.distance[k], &strays.from_reference, pass)
+    }
+}
+
+/// Per vertex, how far it strayed over an in-loop motion `before → after`
+/// ([`Candidates::strays`]).
+struct Strays {
+    /// From the candidates' reference, in `before` or `after`.
+    from_reference: Vec<f32>,
+    /// From `before` (how far from it the path goes).
+    from_before: Vec<f32>,
+}
+
+/// Whether `pair`, `distance` apart at some positions, provably stays
+/// farther apart than its separation while each vertex strays at most
+/// `strayed` from those: its sides strayed less, together, than that
+/// distance less the separation (the threshold has room for the f32
+/// arithmetic, [`Candidates::open`]).
+fn apart(pair: &ElementPair, distance: f32, strayed: &[f32], pass: &Pass<'_>) -> bool {
+    let side = |corners: &[u32]| corners.iter().fold(0.0f32, |m, &v| m.max(strayed[v as usize]));
+    let (a, b) = pair.sides();
+    let room = distance - side(a) - side(b);
+    room as f64 > pass.collision.pair_separation(pair) + pass.params.tolerance + pass.collision.rounding as f64
+}
+
+/// The listed pairs' distances at the start of an in-loop pass (`before`),
+/// computed for the pairs a round would test: a second proof that a pair
+/// stays apart, from where the iteration started rather than from the
+/// candidates' reference ([`Candidates::proves_apart`]).
+///
+/// Why it pays: the reference is where the skin was when the list was
+/// gathered, iterations ago on a fold frame, and the skin held by its
+/// contacts creeps from it at every iteration; so there nearly every pair of
+/// a vertex the rounds move was left unproven and tested, about 800 pairs
+/// a moved vertex on the 19k tube's frame 7, again at each of the 8 rounds.
+/// From `before`, a side strays only by the iteration's move and the
+/// rounds' corrections, and only the pairs near at `before` are tested.
+///
+/// Why it is sound: the distance of two elements changes by at most how
+/// far each side's farthest corner moves, and a vertex's path `before →
+/// after` stays within `|after − before|` of `before`; the test is the
+/// reference proof's, with `before` as the reference, and the same room for
+/// the f32 arithmetic (`SelfCollision::rounding` in the threshold).
+#[derive(Debug, Default)]
+struct AtStart {
+    /// Per listed pair, its distance at `before`; NaN where not computed
+    /// (never proves anything).
+    distance: Vec<f32>,
+}
+
+impl AtStart {
+    /// Forgets every distance: the list was gathered again.
+    fn clear(&mut self) {
+        self.distance.clear();
+    }
+
+    /// Computes the distance at `before` of every pair `k` of `c` that
+    /// `needs(k)` and has none yet.
+    fn fill(&mut self, c: &Candidates, before: &[Vec3], needs: impl Fn(usize) -> bool + Sync) {
+        self.distance.resize(c.pairs.len(), f32::NAN);
+        self.distance.par_iter_mut().enumerate().with_min_len(1024).filter(|(k, d)| d.is_nan() && needs(*k)).for_each(|(k, d)| *d = distance(&c.pairs[k], before));
+    }
+
+    /// Whether pair `k` of `c` provably stays farther apart than its
+    /// separation over the motion of `strays`: its sides have moved from
+    /// `before` by less, together, than its distance there less the
+    /// separation.
+    fn proves_apart(&self, k: usize, c: &Candidates, strays: &Strays, pass: &Pass<'_>) -> bool {
+        self.distance.get(k).is_some_and(|&d| apart(&c.pairs[k], d, &strays.from_before, pass))
     }
 }
 
@@ -640,11 +707,16 @@ impl SelfCollision {
         let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
         stats.count(&gathered, ms);
         let mut moved: Option<Vec<bool>> = None;
+        let mut at_start = AtStart::default();
         for _ in 0..SELF_ROUNDS {
             stats.rounds += 1;
             let current = candidates.as_ref().expect("ensured");
-            let open = current.open(before, after);
-            let skip = |k: usize| !current.opens(k, &open) || current.proves_apart(k, before, after, &pass);
+            let strays = current.strays(before, after);
+            let open = current.open(&strays);
+            let looked_at = |k: usize| moved.as_deref().is_none_or(|m| current.pairs[k].corners.iter().any(|&v| m[v as usize]));
+            let unproven = |k: usize| current.opens(k, &open) && !current.proves_apart(k, &strays, &pass);
+            at_start.fill(current, before, |k| looked_at(k) && unproven(k));
+            let skip = |k: usize| !unproven(k) || at_start.proves_apart(k, current, &strays, &pass);
             let (contacts, changes) = pass.round(&current.pairs, before, after, moved.as_deref(), skip, &mut stats);
             stats.contacts += contacts;
             if changes.is_empty() {
@@ -657,6 +729,10 @@ impl SelfCollision {
             }
             let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
             stats.count(&gathered, ms);
+            if gathered != Gathered::Nothing {
+                // Its pairs are listed anew (in another order).
+                at_start.clear();
+            }
             moved = match gathered {
                 Gathered::Nothing => Some(flags),
                 // Only the pairs with a corner among those gathered around
@@ -698,11 +774,12 @@ impl SelfCollision {
         stats.count(&gathered, ms);
         let began = Instant::now();
         let current = candidates.as_ref().expect("ensured");
-        let strayed = current.open(before, after);
+        let strays = current.strays(before, after);
+        let strayed = current.open(&strays);
         let open: Vec<ElementPair> = (0..current.pairs.len())
             .into_par_iter()
             .with_min_len(256)
-            .filter(|&k| current.opens(k, &strayed) && !current.proves_apart(k, before, after, &pass))
+            .filter(|&k| current.opens(k, &strayed) && !current.proves_apart(k, &strays, &pass))
             .map(|k| current.pairs[k])
             .collect();
         let (bad, tested) = pass.crossing_corners(&open, before, after, touching);
