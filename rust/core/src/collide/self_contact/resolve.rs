@@ -451,19 +451,34 @@ impl AtStart {
         self.distance.clear();
     }
 
-    /// Computes the distance at `before` of every pair `k` of `c` that
-    /// `needs(k)` and has none yet.
-    fn fill(&mut self, c: &Candidates, before: &[Vec3], needs: impl Fn(usize) -> bool + Sync) {
+    /// The pairs of `c` a round over `before → after` tests, ascending:
+    /// those with a corner among `moved` (or all) and among the `open`
+    /// vertices, that neither proof puts apart. A pair's distance at
+    /// `before` is computed the first time the reference's proof fails
+    /// for it; from then on that is its proof (the closer one as the
+    /// rounds go on).
+    #[allow(clippy::too_many_arguments)]
+    fn chosen(&mut self, c: &Candidates, before: &[Vec3], strays: &Strays, open: &[bool], moved: Option<&[bool]>, pass: &Pass<'_>) -> Vec<usize> {
         self.distance.resize(c.pairs.len(), f32::NAN);
-        self.distance.par_iter_mut().enumerate().with_min_len(1024).filter(|(k, d)| d.is_nan() && needs(*k)).for_each(|(k, d)| *d = distance(&c.pairs[k], before));
-    }
-
-    /// Whether pair `k` of `c` provably stays farther apart than its
-    /// separation over the motion of `strays`: its sides have moved from
-    /// `before` by less, together, than its distance there less the
-    /// separation.
-    fn proves_apart(&self, k: usize, c: &Candidates, strays: &Strays, pass: &Pass<'_>) -> bool {
-        self.distance.get(k).is_some_and(|&d| apart(&c.pairs[k], d, &strays.from_before, pass))
+        self.distance
+            .par_iter_mut()
+            .enumerate()
+            .with_min_len(1024)
+            .filter_map(|(k, d)| {
+                let pair = &c.pairs[k];
+                let looked_at = moved.is_none_or(|m| pair.corners.iter().any(|&v| m[v as usize]));
+                if !looked_at || !c.opens(k, open) {
+                    return None;
+                }
+                if d.is_nan() {
+                    if c.proves_apart(k, strays, pass) {
+                        return None;
+                    }
+                    *d = distance(pair, before);
+                }
+                (!apart(pair, *d, &strays.from_before, pass)).then_some(k)
+            })
+            .collect()
     }
 }
 
@@ -618,7 +633,8 @@ impl SelfCollision {
             stats.rounds += 1;
             let current = candidates.as_ref().expect("gathered");
             debug_assert!(current.start.as_slice() == start, "the candidates are of this path");
-            let (contacts, changes) = pass.round(&current.pairs, start, end, moved.as_deref(), |_| false, &mut stats);
+            let chosen = touching(&current.pairs, moved.as_deref());
+            let (contacts, changes) = pass.round(&current.pairs, start, end, &chosen, &mut stats);
             stats.contacts += contacts;
             if changes.is_empty() {
                 converged = true;
@@ -713,11 +729,8 @@ impl SelfCollision {
             let current = candidates.as_ref().expect("ensured");
             let strays = current.strays(before, after);
             let open = current.open(&strays);
-            let looked_at = |k: usize| moved.as_deref().is_none_or(|m| current.pairs[k].corners.iter().any(|&v| m[v as usize]));
-            let unproven = |k: usize| current.opens(k, &open) && !current.proves_apart(k, &strays, &pass);
-            at_start.fill(current, before, |k| looked_at(k) && unproven(k));
-            let skip = |k: usize| !unproven(k) || at_start.proves_apart(k, current, &strays, &pass);
-            let (contacts, changes) = pass.round(&current.pairs, before, after, moved.as_deref(), skip, &mut stats);
+            let chosen = at_start.chosen(current, before, &strays, &open, moved.as_deref(), &pass);
+            let (contacts, changes) = pass.round(&current.pairs, before, after, &chosen, &mut stats);
             stats.contacts += contacts;
             if changes.is_empty() {
                 break;
@@ -945,47 +958,24 @@ impl Pass<'_> {
         c.tighten(kept, self);
     }
 
-    /// One round: the corrections of every pair touching a moved vertex (or
-    /// all) and not proven apart by `skip`, averaged per vertex. Its work
-    /// is added to `stats`.
-    fn round(
-        &self,
-        pairs: &[ElementPair],
-        start: &[Vec3],
-        end: &[Vec3],
-        moved: Option<&[bool]>,
-        skip: impl Fn(usize) -> bool + Sync,
-        stats: &mut SelfStats,
-    ) -> (usize, Vec<(u32, Vec3)>) {
+    /// One round: the corrections of the `chosen` pairs (ascending indices
+    /// into `pairs`), averaged per vertex. Its work is added to `stats`.
+    fn round(&self, pairs: &[ElementPair], start: &[Vec3], end: &[Vec3], chosen: &[usize], stats: &mut SelfStats) -> (usize, Vec<(u32, Vec3)>) {
         let began = Instant::now();
-        // Folded per chunk and concatenated in order: the same corrections,
-        // in the same order, as a plain filter, with the count of pairs tested.
-        let (tested, found): (usize, Vec<(usize, [DVec3; 4])>) = (0..pairs.len())
-            .into_par_iter()
+        // Collected in order: the corrections are summed in the order of
+        // the list, whatever the threads.
+        let found: Vec<(usize, [DVec3; 4])> = chosen
+            .par_iter()
             .with_min_len(256)
-            .filter(|&k| moved.is_none_or(|m| pairs[k].corners.iter().any(|&v| m[v as usize])))
-            .filter(|&k| !skip(k))
-            .fold(
-                || (0, Vec::new()),
-                |(tested, mut found), k| {
-                    let pair = &pairs[k];
-                    let separation = self.collision.pair_separation(pair);
-                    let hit = first_contact(pair, start, end, separation, self.params.tolerance);
-                    if let Some(c) = hit.and_then(|hit| correction(pair, start, end, &hit, separation, &self.params)) {
-                        found.push((k, c));
-                    }
-                    (tested + 1, found)
-                },
-            )
-            .reduce(
-                || (0, Vec::new()),
-                |(a, mut left), (b, right)| {
-                    left.extend(right);
-                    (a + b, left)
-                },
-            );
+            .filter_map(|&k| {
+                let pair = &pairs[k];
+                let separation = self.collision.pair_separation(pair);
+                let hit = first_contact(pair, start, end, separation, self.params.tolerance)?;
+                correction(pair, start, end, &hit, separation, &self.params).map(|c| (k, c))
+            })
+            .collect();
         stats.pairs_scanned += pairs.len();
-        stats.pairs_tested += tested;
+        stats.pairs_tested += chosen.len();
         let mut sum: BTreeMap<u32, (DVec3, u32)> = BTreeMap::new();
         for (k, deltas) in &found {
             for (&v, delta) in pairs[*k].corners.iter().zip(deltas) {
@@ -1094,6 +1084,11 @@ impl Pass<'_> {
         held.dedup();
         held
     }
+}
+
+/// The indices of the `pairs` with a corner among `moved` (or all), ascending.
+fn touching(pairs: &[ElementPair], moved: Option<&[bool]>) -> Vec<usize> {
+    (0..pairs.len()).into_par_iter().with_min_len(1024).filter(|&k| moved.is_none_or(|m| pairs[k].corners.iter().any(|&v| m[v as usize]))).collect()
 }
 
 fn max_correction(requested: &[Vec3], end: &[Vec3]) -> f32 {
