@@ -429,7 +429,7 @@ fn apart(pair: &ElementPair, distance: f32, strayed: &[f32], pass: &Pass<'_>) ->
 /// gathered, iterations ago on a fold frame, and the skin held by its
 /// contacts creeps from it at every iteration; so there nearly every pair of
 /// a vertex the rounds move was left unproven and tested, about 800 pairs
-/// a moved vertex on the 19k tube's frame 7, again at each of the 8 rounds.
+/// a moved vertex on the 19k tube's frame 8, again at each of the 8 rounds.
 /// From `before`, a side strays only by the iteration's move and the
 /// rounds' corrections, and only the pairs near at `before` are tested.
 ///
@@ -753,9 +753,7 @@ impl SelfCollision {
                 // looked at, with the same corners' positions unless a
                 // corner was just moved (flagged): the next round looks at
                 // both, the rest would find what it found before (nothing
-                // to correct). Testing the whole list again after each of
-                // a fold frame's around-gatherings was most of its rounds'
-                // tests (issue 30, twenty-second round).
+                // to correct), as in the first pass's rounds.
                 Gathered::Around(left) => {
                     flags.iter_mut().zip(&left).for_each(|(f, l)| *f |= l);
                     Some(flags)
