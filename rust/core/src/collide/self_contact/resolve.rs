@@ -390,6 +390,26 @@ impl Candidates {
         (outside, missed, unproven)
     }
 
+    /// For the tests, over the motion `before → after`: how many pairs the
+    /// first in-loop round leaves out ([`AtStart::chosen`]), how many of
+    /// those its CCD test would find in contact (none, if leaving them out
+    /// changes no decision), and how many it tests.
+    #[cfg(test)]
+    pub(super) fn round_choice_counts(&self, collision: &SelfCollision, settings: &SelfSettings, before: &[Vec3], after: &[Vec3]) -> (usize, usize, usize) {
+        let tangles = Tangles::default();
+        let pass = collision.pass(settings, &tangles, None).expect("prepared");
+        let strays = self.strays(before, after);
+        let chosen = AtStart::default().chosen(self, before, &strays, &self.open(&strays), None, &pass);
+        let mut tested = vec![false; self.pairs.len()];
+        chosen.iter().for_each(|&k| tested[k] = true);
+        let left_out: Vec<usize> = (0..self.pairs.len()).filter(|&k| !tested[k]).collect();
+        let in_contact = left_out
+            .iter()
+            .filter(|&&k| first_contact(&self.pairs[k], before, after, collision.pair_separation(&self.pairs[k]), pass.params.tolerance).is_some())
+            .count();
+        (left_out.len(), in_contact, chosen.len())
+    }
+
     /// Whether pair `k` provably stays farther apart than its separation
     /// over the motion of `strays`: its sides have strayed from the
     /// reference by less, together, than its distance there less the
