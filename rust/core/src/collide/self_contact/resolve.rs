@@ -329,16 +329,22 @@ impl Candidates {
     /// between 0 and the distance), so it finds more than the threshold and
     /// proves the pair apart. The decisions are the same as testing every
     /// pair; only the pairs of open vertices are looked at.
-    fn open(&self, before: &[Vec3], after: &[Vec3]) -> Vec<bool> {
-        (0..self.reference.len())
+    fn open(&self, strays: &Strays) -> Vec<bool> {
+        strays.from_reference.par_iter().zip(&self.clearance).with_min_len(4096).map(|(&strayed, &clearance)| strayed as f64 >= clearance).collect()
+    }
+
+    /// How far each vertex strayed over `before → after`, from the
+    /// reference and from `before`, once for all the pairs that ask.
+    fn strays(&self, before: &[Vec3], after: &[Vec3]) -> Strays {
+        let (from_reference, from_before) = (0..self.reference.len())
             .into_par_iter()
             .with_min_len(4096)
             .map(|v| {
                 let r = self.reference[v];
-                let strayed = (before[v] - r).length().max((after[v] - r).length());
-                strayed as f64 >= self.clearance[v]
+                ((before[v] - r).length().max((after[v] - r).length()), (after[v] - before[v]).length())
             })
-            .collect()
+            .unzip();
+        Strays { from_reference, from_before }
     }
 
     /// Whether pair `k` has a corner among the `open` vertices.
@@ -369,10 +375,11 @@ impl Candidates {
     pub(super) fn active_set_counts(&self, collision: &SelfCollision, settings: &SelfSettings, before: &[Vec3], after: &[Vec3]) -> (usize, usize, usize) {
         let tangles = Tangles::default();
         let pass = collision.pass(settings, &tangles, None).expect("prepared");
-        let open = self.open(before, after);
+        let strays = self.strays(before, after);
+        let open = self.open(&strays);
         let (mut outside, mut missed, mut unproven) = (0, 0, 0);
         for k in 0..self.pairs.len() {
-            let proven = self.proves_apart(k, before, after, &pass);
+            let proven = self.proves_apart(k, &strays, &pass);
             if self.opens(k, &open) {
                 unproven += usize::from(!proven);
             } else {
@@ -383,39 +390,135 @@ impl Candidates {
         (outside, missed, unproven)
     }
 
+    /// For the tests, over the motion `before → after`: how many pairs the
+    /// first in-loop round leaves out ([`AtStart::chosen`]), how many of
+    /// those its CCD test would find in contact (none, if leaving them out
+    /// changes no decision), and how many it tests.
+    #[cfg(test)]
+    pub(super) fn round_choice_counts(&self, collision: &SelfCollision, settings: &SelfSettings, before: &[Vec3], after: &[Vec3]) -> (usize, usize, usize) {
+        let tangles = Tangles::default();
+        let pass = collision.pass(settings, &tangles, None).expect("prepared");
+        let strays = self.strays(before, after);
+        let chosen = AtStart::default().chosen(self, before, &strays, &self.open(&strays), None, &pass);
+        let mut tested = vec![false; self.pairs.len()];
+        chosen.iter().for_each(|&k| tested[k] = true);
+        let left_out: Vec<usize> = (0..self.pairs.len()).filter(|&k| !tested[k]).collect();
+        let in_contact = left_out
+            .iter()
+            .filter(|&&k| first_contact(&self.pairs[k], before, after, collision.pair_separation(&self.pairs[k]), pass.params.tolerance).is_some())
+            .count();
+        (left_out.len(), in_contact, chosen.len())
+    }
+
     /// Whether pair `k` provably stays farther apart than its separation
-    /// over `before → after`: its sides have strayed from the reference by
-    /// less, together, than its distance there less the separation.
-    fn proves_apart(&self, k: usize, before: &[Vec3], after: &[Vec3], pass: &Pass<'_>) -> bool {
-        let pair = &self.pairs[k];
-        let strayed = |corners: &[u32]| {
-            corners.iter().fold(0.0f32, |m, &v| {
-                let r = self.reference[v as usize];
-                m.max((before[v as usize] - r).length()).max((after[v as usize] - r).length())
+    /// over the motion of `strays`: its sides have strayed from the
+    /// reference by less, together, than its distance there less the
+    /// separation.
+    fn proves_apart(&self, k: usize, strays: &Strays, pass: &Pass<'_>) -> bool {
+        apart(&self.pairs[k], self.distance[k], &strays.from_reference, pass)
+    }
+}
+
+/// Per vertex, how far it strayed over an in-loop motion `before → after`
+/// ([`Candidates::strays`]).
+struct Strays {
+    /// From the candidates' reference, in `before` or `after`.
+    from_reference: Vec<f32>,
+    /// From `before` (how far from it the path goes).
+    from_before: Vec<f32>,
+}
+
+/// Whether `pair`, `distance` apart at some positions, provably stays
+/// farther apart than its separation while each vertex strays at most
+/// `strayed` from those: its sides strayed less, together, than that
+/// distance less the separation (the threshold has room for the f32
+/// arithmetic, [`Candidates::open`]).
+fn apart(pair: &ElementPair, distance: f32, strayed: &[f32], pass: &Pass<'_>) -> bool {
+    let side = |corners: &[u32]| corners.iter().fold(0.0f32, |m, &v| m.max(strayed[v as usize]));
+    let (a, b) = pair.sides();
+    let room = distance - side(a) - side(b);
+    room as f64 > pass.collision.pair_separation(pair) + pass.params.tolerance + pass.collision.rounding as f64
+}
+
+/// The listed pairs' distances at the start of an in-loop pass (`before`),
+/// computed for the pairs a round would test: a second proof that a pair
+/// stays apart, from where the iteration started rather than from the
+/// candidates' reference ([`Candidates::proves_apart`]).
+///
+/// Why it pays: the reference is where the skin was when the list was
+/// gathered, iterations ago on a fold frame, and the skin held by its
+/// contacts creeps from it at every iteration; so there nearly every pair of
+/// a vertex the rounds move was left unproven and tested, about 800 pairs
+/// a moved vertex on the 19k tube's frame 8, again at each of the 8 rounds.
+/// From `before`, a side strays only by the iteration's move and the
+/// rounds' corrections, and only the pairs near at `before` are tested.
+///
+/// Why it is sound: the distance of two elements changes by at most how
+/// far each side's farthest corner moves, and a vertex's path `before →
+/// after` stays within `|after − before|` of `before`; the test is the
+/// reference proof's, with `before` as the reference, and the same room for
+/// the f32 arithmetic (`SelfCollision::rounding` in the threshold).
+#[derive(Debug, Default)]
+struct AtStart {
+    /// Per listed pair, its distance at `before`; NaN where not computed
+    /// (never proves anything).
+    distance: Vec<f32>,
+}
+
+impl AtStart {
+    /// Forgets every distance: the list was gathered again.
+    fn clear(&mut self) {
+        self.distance.clear();
+    }
+
+    /// The pairs of `c` a round over `before → after` tests, ascending:
+    /// those with a corner among `moved` (or all) and among the `open`
+    /// vertices, that neither proof puts apart. A pair's distance at
+    /// `before` is computed the first time the reference's proof fails
+    /// for it; from then on that is its proof (the closer one as the
+    /// rounds go on).
+    #[allow(clippy::too_many_arguments)]
+    fn chosen(&mut self, c: &Candidates, before: &[Vec3], strays: &Strays, open: &[bool], moved: Option<&[bool]>, pass: &Pass<'_>) -> Vec<usize> {
+        self.distance.resize(c.pairs.len(), f32::NAN);
+        self.distance
+            .par_iter_mut()
+            .enumerate()
+            .with_min_len(1024)
+            .filter_map(|(k, d)| {
+                let pair = &c.pairs[k];
+                let looked_at = moved.is_none_or(|m| pair.corners.iter().any(|&v| m[v as usize]));
+                if !looked_at || !c.opens(k, open) {
+                    return None;
+                }
+                if d.is_nan() {
+                    if c.proves_apart(k, strays, pass) {
+                        return None;
+                    }
+                    *d = distance(pair, before);
+                }
+                (!apart(pair, *d, &strays.from_before, pass)).then_some(k)
             })
-        };
-        let (a, b) = pair.sides();
-        let room = self.distance[k] - strayed(a) - strayed(b);
-        room as f64 > pass.collision.pair_separation(pair) + pass.params.tolerance + pass.collision.rounding as f64
+            .collect()
     }
 }
 
 /// What [`Pass::ensure`] had to do for the candidates to hold.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 enum Gathered {
     Nothing,
-    /// Only around some vertices (those the fail-safe put back).
-    Around,
+    /// Only around some vertices (flags per vertex): only pairs with a
+    /// corner among them were listed again.
+    Around(Vec<bool>),
     /// The whole skin.
     Whole,
 }
 
 impl SelfStats {
     /// Counts a gathering that took `ms`.
-    fn count(&mut self, gathered: Gathered, ms: f64) {
+    fn count(&mut self, gathered: &Gathered, ms: f64) {
         match gathered {
             Gathered::Nothing => {}
-            Gathered::Around => {
+            Gathered::Around(_) => {
                 self.gathers_around += 1;
                 self.around_gather_ms += ms;
             }
@@ -542,7 +645,7 @@ impl SelfCollision {
             let margin = candidates.take().map_or_else(|| vec![self.margin_floor(settings); self.vertex_count], |c| c.margin);
             let (gathered, ms) = timed(|| pass.candidates(start, end, margin));
             *candidates = Some(gathered);
-            stats.count(Gathered::Whole, ms);
+            stats.count(&Gathered::Whole, ms);
         }
         let mut moved: Option<Vec<bool>> = None;
         let mut converged = false;
@@ -550,7 +653,8 @@ impl SelfCollision {
             stats.rounds += 1;
             let current = candidates.as_ref().expect("gathered");
             debug_assert!(current.start.as_slice() == start, "the candidates are of this path");
-            let (contacts, changes) = pass.round(&current.pairs, start, end, moved.as_deref(), |_| false, &mut stats);
+            let chosen = touching(&current.pairs, moved.as_deref());
+            let (contacts, changes) = pass.round(&current.pairs, start, end, &chosen, &mut stats);
             stats.contacts += contacts;
             if changes.is_empty() {
                 converged = true;
@@ -573,7 +677,7 @@ impl SelfCollision {
             let margin: Vec<f32> = (0..end.len()).map(|v| if left[v] { c.margin[v].max((end[v] - c.reference[v]).length()) } else { c.margin[v] }).collect();
             if count <= end.len() / AROUND_FIRST_PASS {
                 let ((), ms) = timed(|| pass.gather_around(c, &left, start, end, &margin));
-                stats.count(Gathered::Around, ms);
+                stats.count(&Gathered::Around(Vec::new()), ms);
                 // The pairs listed again have a corner among `left`: the
                 // next round looks at them, as at every pair of a moved vertex.
                 flags.iter_mut().zip(&left).for_each(|(f, l)| *f |= l);
@@ -581,7 +685,7 @@ impl SelfCollision {
             } else {
                 let (gathered, ms) = timed(|| pass.candidates(start, end, margin));
                 *candidates = Some(gathered);
-                stats.count(Gathered::Whole, ms);
+                stats.count(&Gathered::Whole, ms);
                 moved = None;
             }
         }
@@ -637,14 +741,16 @@ impl SelfCollision {
         let requested = after.to_vec();
         let mut stats = SelfStats::default();
         let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
-        stats.count(gathered, ms);
+        stats.count(&gathered, ms);
         let mut moved: Option<Vec<bool>> = None;
+        let mut at_start = AtStart::default();
         for _ in 0..SELF_ROUNDS {
             stats.rounds += 1;
             let current = candidates.as_ref().expect("ensured");
-            let open = current.open(before, after);
-            let skip = |k: usize| !current.opens(k, &open) || current.proves_apart(k, before, after, &pass);
-            let (contacts, changes) = pass.round(&current.pairs, before, after, moved.as_deref(), skip, &mut stats);
+            let strays = current.strays(before, after);
+            let open = current.open(&strays);
+            let chosen = at_start.chosen(current, before, &strays, &open, moved.as_deref(), &pass);
+            let (contacts, changes) = pass.round(&current.pairs, before, after, &chosen, &mut stats);
             stats.contacts += contacts;
             if changes.is_empty() {
                 break;
@@ -654,12 +760,26 @@ impl SelfCollision {
                 after[v as usize] = p;
                 flags[v as usize] = true;
             }
-            moved = Some(flags);
             let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
+            stats.count(&gathered, ms);
             if gathered != Gathered::Nothing {
-                stats.count(gathered, ms);
-                moved = None;
+                // Its pairs are listed anew (in another order).
+                at_start.clear();
             }
+            moved = match gathered {
+                Gathered::Nothing => Some(flags),
+                // Only the pairs with a corner among those gathered around
+                // are new; every other pair is the one the rounds so far
+                // looked at, with the same corners' positions unless a
+                // corner was just moved (flagged): the next round looks at
+                // both, the rest would find what it found before (nothing
+                // to correct), as in the first pass's rounds.
+                Gathered::Around(left) => {
+                    flags.iter_mut().zip(&left).for_each(|(f, l)| *f |= l);
+                    Some(flags)
+                }
+                Gathered::Whole => None,
+            };
         }
         stats.max_correction = max_correction(&requested, after);
         Ok(stats)
@@ -682,14 +802,15 @@ impl SelfCollision {
     ) -> Result<Vec<u32>> {
         let pass = self.pass(settings, tangles, takes_part)?;
         let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
-        stats.count(gathered, ms);
+        stats.count(&gathered, ms);
         let began = Instant::now();
         let current = candidates.as_ref().expect("ensured");
-        let strayed = current.open(before, after);
+        let strays = current.strays(before, after);
+        let strayed = current.open(&strays);
         let open: Vec<ElementPair> = (0..current.pairs.len())
             .into_par_iter()
             .with_min_len(256)
-            .filter(|&k| current.opens(k, &strayed) && !current.proves_apart(k, before, after, &pass))
+            .filter(|&k| current.opens(k, &strayed) && !current.proves_apart(k, &strays, &pass))
             .map(|k| current.pairs[k])
             .collect();
         let (bad, tested) = pass.crossing_corners(&open, before, after, touching);
@@ -793,7 +914,7 @@ impl Pass<'_> {
                 // iterations' moves, which shrink as the solve converges.
                 let ball: Vec<f32> = (0..before.len()).into_par_iter().with_min_len(4096).map(|v| (4.0 * moved(v)).max(floor)).collect();
                 self.gather_around(c, &left, before, before, &ball);
-                return Gathered::Around;
+                return Gathered::Around(left);
             }
         }
         // Along the iteration's own paths, not a ball about `before` holding
@@ -855,47 +976,24 @@ impl Pass<'_> {
         c.tighten(kept, self);
     }
 
-    /// One round: the corrections of every pair touching a moved vertex (or
-    /// all) and not proven apart by `skip`, averaged per vertex. Its work
-    /// is added to `stats`.
-    fn round(
-        &self,
-        pairs: &[ElementPair],
-        start: &[Vec3],
-        end: &[Vec3],
-        moved: Option<&[bool]>,
-        skip: impl Fn(usize) -> bool + Sync,
-        stats: &mut SelfStats,
-    ) -> (usize, Vec<(u32, Vec3)>) {
+    /// One round: the corrections of the `chosen` pairs (ascending indices
+    /// into `pairs`), averaged per vertex. Its work is added to `stats`.
+    fn round(&self, pairs: &[ElementPair], start: &[Vec3], end: &[Vec3], chosen: &[usize], stats: &mut SelfStats) -> (usize, Vec<(u32, Vec3)>) {
         let began = Instant::now();
-        // Folded per chunk and concatenated in order: the same corrections,
-        // in the same order, as a plain filter, with the count of pairs tested.
-        let (tested, found): (usize, Vec<(usize, [DVec3; 4])>) = (0..pairs.len())
-            .into_par_iter()
+        // Collected in order: the corrections are summed in the order of
+        // the list, whatever the threads.
+        let found: Vec<(usize, [DVec3; 4])> = chosen
+            .par_iter()
             .with_min_len(256)
-            .filter(|&k| moved.is_none_or(|m| pairs[k].corners.iter().any(|&v| m[v as usize])))
-            .filter(|&k| !skip(k))
-            .fold(
-                || (0, Vec::new()),
-                |(tested, mut found), k| {
-                    let pair = &pairs[k];
-                    let separation = self.collision.pair_separation(pair);
-                    let hit = first_contact(pair, start, end, separation, self.params.tolerance);
-                    if let Some(c) = hit.and_then(|hit| correction(pair, start, end, &hit, separation, &self.params)) {
-                        found.push((k, c));
-                    }
-                    (tested + 1, found)
-                },
-            )
-            .reduce(
-                || (0, Vec::new()),
-                |(a, mut left), (b, right)| {
-                    left.extend(right);
-                    (a + b, left)
-                },
-            );
+            .filter_map(|&k| {
+                let pair = &pairs[k];
+                let separation = self.collision.pair_separation(pair);
+                let hit = first_contact(pair, start, end, separation, self.params.tolerance)?;
+                correction(pair, start, end, &hit, separation, &self.params).map(|c| (k, c))
+            })
+            .collect();
         stats.pairs_scanned += pairs.len();
-        stats.pairs_tested += tested;
+        stats.pairs_tested += chosen.len();
         let mut sum: BTreeMap<u32, (DVec3, u32)> = BTreeMap::new();
         for (k, deltas) in &found {
             for (&v, delta) in pairs[*k].corners.iter().zip(deltas) {
@@ -978,7 +1076,7 @@ impl Pass<'_> {
                         let pairs = self.gather(&Motion { start, end, margin: &zero }, focus.as_ref());
                         (focus, pairs)
                     });
-                    stats.count(if focus.is_some() { Gathered::Around } else { Gathered::Whole }, ms);
+                    stats.count(&if focus.is_some() { Gathered::Around(Vec::new()) } else { Gathered::Whole }, ms);
                     gathered = pairs;
                     &gathered
                 }
@@ -1004,6 +1102,11 @@ impl Pass<'_> {
         held.dedup();
         held
     }
+}
+
+/// The indices of the `pairs` with a corner among `moved` (or all), ascending.
+fn touching(pairs: &[ElementPair], moved: Option<&[bool]>) -> Vec<usize> {
+    (0..pairs.len()).into_par_iter().with_min_len(1024).filter(|&k| moved.is_none_or(|m| pairs[k].corners.iter().any(|&v| m[v as usize]))).collect()
 }
 
 fn max_correction(requested: &[Vec3], end: &[Vec3]) -> f32 {
