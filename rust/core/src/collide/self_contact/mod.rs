@@ -35,6 +35,7 @@ mod contact;
 mod exclusion;
 mod gather;
 mod held;
+mod ramp;
 mod hinge;
 mod resolve;
 mod separation;
@@ -44,6 +45,7 @@ mod tree;
 
 pub use collision::SelfCollision;
 pub use held::Held;
+pub use ramp::HeldBorder;
 pub use resolve::{Candidates, Tangles, SELF_ROUNDS};
 pub use settings::{SelfSettings, SelfStats, MAX_RINGS};
 
