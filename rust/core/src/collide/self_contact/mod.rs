@@ -26,7 +26,8 @@
 //! pairs), `contact` (one pair's CCD and projection with friction),
 //! `collision` ([`SelfCollision`]: the bind, the separations at rest, the
 //! intersections of a state), `held` (which vertices the fail-safe puts
-//! back: a held patch moves as a patch), `resolve` (the passes, the
+//! back: a held patch moves as a patch), `ramp` (how far the skin round
+//! a held patch goes without Converge: a slope, not a step), `resolve` (the passes, the
 //! fail-safe, [`Tangles`]).
 
 mod bounds;
