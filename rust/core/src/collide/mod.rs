@@ -60,7 +60,7 @@ pub use envelope::Envelope;
 pub use friction::{Anchor, Anchors, Cone, Hold, Slide};
 pub use inside::is_inside;
 pub use response::{ColliderMotion, ColliderSet, ContactStats, ResolveParams};
-pub use self_contact::{Candidates, Held, SelfCollision, SelfSettings, SelfStats, Tangles};
+pub use self_contact::{Candidates, Held, HeldBorder, SelfCollision, SelfSettings, SelfStats, Tangles};
 pub use skin::Skin;
 
 #[cfg(test)]

@@ -27,7 +27,7 @@ use rayon::prelude::*;
 
 use super::options::{SelfOptions, StepReport};
 use super::Sequence;
-use crate::collide::{Candidates, Clearance, Collider, ColliderSet, Held, ResolveParams, SelfCollision, SelfSettings, SelfStats, Skin, Tangles};
+use crate::collide::{Candidates, Clearance, Collider, ColliderSet, Held, HeldBorder, ResolveParams, SelfCollision, SelfSettings, SelfStats, Skin, Tangles};
 use crate::mesh::MeshInput;
 use crate::{Error, Result};
 
@@ -175,6 +175,7 @@ pub(super) fn first_pass(
     colliders: &[&Collider],
     skin: &Skin,
     warm: bool,
+    converges: bool,
     report: &mut StepReport,
 ) -> Result<()> {
     let began = Instant::now();
@@ -194,7 +195,13 @@ pub(super) fn first_pass(
     let gathering = Instant::now();
     pass.candidates = Some(collision.candidates(x_n, x, &margins, &pass.settings, &pass.tangles, part)?);
     let gathered_ms = milliseconds(gathering);
-    let mut stats = collision.resolve_path(&mut pass.candidates, x_n, x, &pass.settings, &pass.tangles, part)?;
+    // A held patch's border sloped where the solve is a fixed count of plain
+    // iterations, which may end before they smooth a step away
+    // (`collide::self_contact::ramp`); with Converge they do, and the
+    // solve's path is left as it was (a slope there led Blender's tube
+    // elsewhere, into a lock at frame 12; issue 30, twenty-second round (b)).
+    let border = if converges { HeldBorder::Step } else { HeldBorder::Sloped };
+    let mut stats = collision.resolve_path(&mut pass.candidates, x_n, x, &pass.settings, &pass.tangles, part, border)?;
     stats.gathers += 1;
     stats.whole_gather_ms += gathered_ms;
     count_work(report, &stats, true, pass.candidates.as_ref());

@@ -238,7 +238,7 @@ impl Sequence {
         // 2b. The skin against itself along the same paths (with the colliders again where it moved skin).
         if let (Some(pass), Some(collision)) = (self_pass.as_deref_mut(), self.self_collision.as_ref()) {
             let refs: Vec<&Collider> = colliders.iter().map(|c| &**c).collect();
-            self_pass::first_pass(collision, pass, x_n, &mut x, &refs, &self.skin, started_warm, report)?;
+            self_pass::first_pass(collision, pass, x_n, &mut x, &refs, &self.skin, started_warm, converges, report)?;
         }
 
         // 3. The solve, with the in-loop passes after every iteration.

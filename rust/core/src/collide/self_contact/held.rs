@@ -50,7 +50,7 @@ impl Rings {
         Rings { offsets, neighbours }
     }
 
-    fn ring(&self, v: u32) -> &[u32] {
+    pub(super) fn ring(&self, v: u32) -> &[u32] {
         &self.neighbours[self.offsets[v as usize] as usize..self.offsets[v as usize + 1] as usize]
     }
 
@@ -72,6 +72,11 @@ impl Held {
     /// None held, of a skin of `vertex_count` vertices.
     pub fn none(vertex_count: usize) -> Self {
         Held { flags: vec![false; vertex_count] }
+    }
+
+    /// Which vertices are held so far.
+    pub(super) fn flags(&self) -> &[bool] {
+        &self.flags
     }
 
     /// The batch to put back now: the `crossing` corners, and every vertex

@@ -26,7 +26,8 @@
 //! pairs), `contact` (one pair's CCD and projection with friction),
 //! `collision` ([`SelfCollision`]: the bind, the separations at rest, the
 //! intersections of a state), `held` (which vertices the fail-safe puts
-//! back: a held patch moves as a patch), `resolve` (the passes, the
+//! back: a held patch moves as a patch), `ramp` (how far the skin round
+//! a held patch goes without Converge: a slope, not a step), `resolve` (the passes, the
 //! fail-safe, [`Tangles`]).
 
 mod bounds;
@@ -35,6 +36,7 @@ mod contact;
 mod exclusion;
 mod gather;
 mod held;
+mod ramp;
 mod hinge;
 mod resolve;
 mod separation;
@@ -44,6 +46,7 @@ mod tree;
 
 pub use collision::SelfCollision;
 pub use held::Held;
+pub use ramp::HeldBorder;
 pub use resolve::{Candidates, Tangles, SELF_ROUNDS};
 pub use settings::{SelfSettings, SelfStats, MAX_RINGS};
 

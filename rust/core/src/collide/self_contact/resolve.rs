@@ -64,6 +64,7 @@ use super::collision::{distance, SelfCollision};
 use super::contact::{correction, first_contact, ContactParams};
 use super::gather::{ElementPair, Focus};
 use super::held::Held;
+use super::ramp::{self, HeldBorder};
 use super::settings::{SelfSettings, SelfStats};
 use crate::mesh::validate_positions;
 use crate::{Error, Result};
@@ -634,6 +635,7 @@ impl SelfCollision {
         settings: &SelfSettings,
         tangles: &Tangles,
         takes_part: Option<&[bool]>,
+        border: HeldBorder,
     ) -> Result<SelfStats> {
         self.check("start positions", start)?;
         self.check("end positions", end)?;
@@ -690,7 +692,7 @@ impl SelfCollision {
             }
         }
         if !converged {
-            stats.held = pass.hold_back_path(candidates.as_ref(), start, end, &mut stats);
+            stats.held = pass.hold_back_path(candidates.as_ref(), start, end, border, &mut stats);
         }
         stats.max_correction = max_correction(&requested, end);
         Ok(stats)
@@ -709,14 +711,15 @@ impl SelfCollision {
 
     /// For the tests: the first pass's fail-safe alone over `start → end`
     /// (no tangles, no weights), from `candidates` where they hold (else
-    /// gathering, as in [`Self::resolve_path`]); `end` is changed as there.
+    /// gathering, as in [`Self::resolve_path`]), with the held patches'
+    /// `border`; `end` is changed as there.
     /// Returns its stats: what it held and how it gathered.
     #[cfg(test)]
-    pub(super) fn hold_back_path_alone(&self, candidates: Option<&Candidates>, start: &[Vec3], end: &mut [Vec3], settings: &SelfSettings) -> SelfStats {
+    pub(super) fn hold_back_path_alone(&self, candidates: Option<&Candidates>, start: &[Vec3], end: &mut [Vec3], settings: &SelfSettings, border: HeldBorder) -> SelfStats {
         let tangles = Tangles::default();
         let pass = self.pass(settings, &tangles, None).expect("prepared");
         let mut stats = SelfStats::default();
-        stats.held = pass.hold_back_path(candidates, start, end, &mut stats);
+        stats.held = pass.hold_back_path(candidates, start, end, border, &mut stats);
         stats
     }
 
@@ -1060,11 +1063,12 @@ impl Pass<'_> {
     /// whole, where a correction left its margin), so the first check needs
     /// no gathering; a vertex put back at `start` may leave its margin, and
     /// the later checks then gather around the batch as before.
-    fn hold_back_path(&self, candidates: Option<&Candidates>, start: &[Vec3], end: &mut [Vec3], stats: &mut SelfStats) -> Vec<u32> {
+    fn hold_back_path(&self, candidates: Option<&Candidates>, start: &[Vec3], end: &mut [Vec3], border: HeldBorder, stats: &mut SelfStats) -> Vec<u32> {
         let zero = vec![0.0; start.len()];
         let mut held = Vec::new();
         let mut holding = Held::none(start.len());
         let mut batch: Option<Vec<bool>> = None;
+        let mut requested: Option<Vec<Vec3>> = None;
         loop {
             let listed = candidates.filter(|c| c.start.as_slice() == start && c.holds(&[end]));
             let gathered;
@@ -1089,11 +1093,23 @@ impl Pass<'_> {
             if bad.is_empty() {
                 break;
             }
+            // Where the rounds left the skin, for a sloped border (kept once needed).
+            let requested: &Vec<Vec3> = requested.get_or_insert_with(|| if border == HeldBorder::Sloped { end.to_vec() } else { Vec::new() });
             let put_back = self.collision.put_back(&mut holding, &bad, |v| start[v as usize] != end[v as usize]);
             let mut flags = vec![false; start.len()];
             for &v in &put_back {
                 end[v as usize] = start[v as usize];
                 flags[v as usize] = true;
+            }
+            // The skin round the patch goes part of its way (`ramp`).
+            if border == HeldBorder::Sloped {
+                for (v, share) in ramp::shares(&self.collision.rings, holding.flags(), start, requested) {
+                    let p = start[v as usize] + share * (requested[v as usize] - start[v as usize]);
+                    if end[v as usize] != p {
+                        end[v as usize] = p;
+                        flags[v as usize] = true;
+                    }
+                }
             }
             batch = Some(flags);
             held.extend(put_back);

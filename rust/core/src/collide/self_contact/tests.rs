@@ -51,7 +51,7 @@ fn a_sheet_pushed_through_another_stops_on_it_and_both_give_way() {
         p.z -= 0.3 * (1.0 - 2.0 * p.truncate().length()).max(0.0);
     }
     assert!(!audited(&mesh, &end).is_empty(), "the unresolved motion must cross");
-    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None).unwrap();
+    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None, HeldBorder::Step).unwrap();
     assert!(stats.contacts > 0);
     assert!(audited(&mesh, &end).is_empty(), "{stats:?}");
     assert!(end.iter().all(|p| p.is_finite()));
@@ -67,7 +67,7 @@ fn pairs_closer_than_the_thickness_at_rest_stay_as_they_are() {
     let mesh = two_sheets(6, 0.004); // closer than the thickness of 0.01
     let collision = bound(&mesh, &SETTINGS);
     let mut end = mesh.positions.clone();
-    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None).unwrap();
+    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None, HeldBorder::Step).unwrap();
     assert_eq!(stats.contacts, 0);
     assert_eq!(end, mesh.positions);
     // Moved towards each other they are still kept apart, at a fraction of their rest gap.
@@ -75,7 +75,7 @@ fn pairs_closer_than_the_thickness_at_rest_stay_as_they_are() {
     for p in &mut end[half..] {
         p.z -= 0.01;
     }
-    collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None).unwrap();
+    collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None, HeldBorder::Step).unwrap();
     assert!(audited(&mesh, &end).is_empty());
 }
 
@@ -115,7 +115,7 @@ fn tangled_input_is_left_to_come_apart_and_nothing_else_passes_through() {
             p.z -= 0.3;
         }
     }
-    let stats = collision.resolve_path(&mut None, &start, &mut end, &SETTINGS, &tangles, None).unwrap();
+    let stats = collision.resolve_path(&mut None, &start, &mut end, &SETTINGS, &tangles, None, HeldBorder::Step).unwrap();
     assert!(end.iter().all(|p| p.is_finite()));
     assert!(stats.contacts > 0, "the third sheet must have been stopped");
     let after = audited(&mesh, &end);
@@ -166,7 +166,7 @@ fn a_quad_crossed_only_under_its_other_diagonal_is_kept_apart() {
     assert_eq!((count(0, &target), count(1, &target) > 0), (0, true), "unresolved, the motion crosses under the other split only");
     let collision = bound(&mesh, &SETTINGS);
     let mut end = target.clone();
-    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None).unwrap();
+    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &SETTINGS, &Tangles::default(), None, HeldBorder::Step).unwrap();
     assert!(stats.contacts > 0, "{stats:?}");
     assert!(end.iter().all(|p| p.is_finite()));
     assert_eq!((count(0, &end), count(1, &end)), (0, 0), "{stats:?}");
@@ -197,7 +197,7 @@ fn the_weights_limit_where_it_applies() {
     let weights: Vec<f32> = (0..mesh.positions.len()).map(|v| if v < half { 1.0 } else { 0.0 }).collect();
     let part = collision.takes_part(Some(&weights)).unwrap();
     let mut free = end.clone();
-    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut free, &SETTINGS, &Tangles::default(), part.as_deref()).unwrap();
+    let stats = collision.resolve_path(&mut None, &mesh.positions, &mut free, &SETTINGS, &Tangles::default(), part.as_deref(), HeldBorder::Step).unwrap();
     assert_eq!((stats.contacts, free == end), (0, true));
     assert!(collision.takes_part(Some(&weights[1..])).is_err());
     let mut bad = weights.clone();
@@ -289,7 +289,7 @@ proptest! {
                 p.y += shear[25 + j];
             }
         }
-        let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &settings, &Tangles::default(), None).unwrap();
+        let stats = collision.resolve_path(&mut None, &mesh.positions, &mut end, &settings, &Tangles::default(), None, HeldBorder::Step).unwrap();
         prop_assert!(end.iter().all(|p| p.is_finite()));
         prop_assert!(audited(&mesh, &end).is_empty(), "{:?}", stats);
         for (p, s) in end.iter().zip(&mesh.positions) {
@@ -414,7 +414,7 @@ fn a_first_pass_gathers_again_only_around_the_vertices_its_corrections_took_beyo
     let tangles = Tangles::default();
     let least = vec![0.0; end.len()];
     let mut candidates = Some(collision.candidates(&mesh.positions, &end, &least, &SETTINGS, &tangles, None).unwrap());
-    let stats = collision.resolve_path(&mut candidates, &mesh.positions, &mut end, &SETTINGS, &tangles, None).unwrap();
+    let stats = collision.resolve_path(&mut candidates, &mesh.positions, &mut end, &SETTINGS, &tangles, None, HeldBorder::Step).unwrap();
     // The corrections moved a few of the 578 vertices past the least margins:
     // gathered around them, never over the whole skin.
     assert!(stats.contacts > 0);
@@ -750,8 +750,8 @@ fn the_first_pass_fail_safe_from_its_candidates_finds_what_a_fresh_gathering_fin
             assert!(missing.is_empty(), "{what} {seed}: {} of {} pairs within reach along start → end not listed: {:?}", missing.len(), fresh.len(), &missing[..missing.len().min(5)]);
             // The fail-safe from the list and from fresh gatherings.
             let (mut from_list, mut from_fresh) = (end.clone(), end.clone());
-            let by_list = collision.hold_back_path_alone(Some(&candidates), start, &mut from_list, &SETTINGS);
-            let by_fresh = collision.hold_back_path_alone(None, start, &mut from_fresh, &SETTINGS);
+            let by_list = collision.hold_back_path_alone(Some(&candidates), start, &mut from_list, &SETTINGS, HeldBorder::Step);
+            let by_fresh = collision.hold_back_path_alone(None, start, &mut from_fresh, &SETTINGS, HeldBorder::Step);
             assert_eq!(by_list.held, by_fresh.held, "{what} {seed}: held back");
             assert_eq!(from_list, from_fresh, "{what} {seed}");
             assert_eq!(by_list.gathers, 0, "{what} {seed}: the first check takes the list: {by_list:?}");
@@ -763,11 +763,65 @@ fn the_first_pass_fail_safe_from_its_candidates_finds_what_a_fresh_gathering_fin
             let v = (seed as usize * 7919) % n;
             beyond[v] = reference[v] + Vec3::new(1.5 * margin[v], 0.0, 0.0);
             let (mut out_list, mut out_fresh) = (beyond.clone(), beyond.clone());
-            let by_list = collision.hold_back_path_alone(Some(&candidates), start, &mut out_list, &SETTINGS);
-            let by_fresh = collision.hold_back_path_alone(None, start, &mut out_fresh, &SETTINGS);
+            let by_list = collision.hold_back_path_alone(Some(&candidates), start, &mut out_list, &SETTINGS, HeldBorder::Step);
+            let by_fresh = collision.hold_back_path_alone(None, start, &mut out_fresh, &SETTINGS, HeldBorder::Step);
             assert_eq!(by_list.gathers, 1, "{what} {seed}: a vertex beyond its margin: gathered afresh: {by_list:?}");
             assert_eq!((by_list.held, out_list), (by_fresh.held, out_fresh), "{what} {seed}");
         }
         assert!(held_somewhere, "{what}: the fold's paths cross: the fail-safe holds some back");
     }
+}
+
+/// The spike measure of the real-character work, on `positions` against
+/// `start`: the most any vertex's offset from the mean of its one-ring grew,
+/// in mean ring edges.
+fn spike(mesh: &PolyMesh, start: &[Vec3], positions: &[Vec3]) -> f32 {
+    let offsets = mesh.input().validate().unwrap();
+    let rings = held::Rings::new(mesh.positions.len(), &mesh.corner_verts, &offsets);
+    (0..positions.len() as u32)
+        .map(|v| {
+            let ring = rings.ring(v);
+            let offset = |p: &[Vec3]| (p[v as usize] - ring.iter().map(|&w| p[w as usize]).sum::<Vec3>() / ring.len() as f32).length();
+            let edge = ring.iter().map(|&w| (start[w as usize] - start[v as usize]).length()).sum::<f32>() / ring.len() as f32;
+            (offset(positions) - offset(start)) / edge
+        })
+        .fold(0.0, f32::max)
+}
+
+/// A sheet dropped through another that covers half of it, with the first
+/// pass's fail-safe alone (as where the rounds cannot clear a fold): it
+/// holds the covered half where it started while the other half drops on.
+/// With the border a step that leaves a spike of several edges (what a few
+/// plain iterations could not smooth away on Blender's tube, issue 30,
+/// twenty-second round (b)); sloped, the border spikes by no more than the
+/// slope, and nothing crosses either way.
+#[test]
+fn a_held_patch_ends_in_a_slope_not_a_step() {
+    let lower = grid(10, 10, 1.0);
+    let mut mesh = lower.clone();
+    let base = mesh.positions.len();
+    mesh.positions.extend(lower.positions.iter().map(|p| *p + Vec3::new(0.5, 0.031, 0.1)));
+    for k in 0..lower.polygon_sizes.len() {
+        let corners: Vec<usize> = lower.corner_verts[4 * k..4 * k + 4].iter().map(|&v| v as usize + base).collect();
+        mesh.push_polygon(&corners);
+    }
+    let collision = bound(&mesh, &SETTINGS);
+    let start = mesh.positions.clone();
+    let mut target = start.clone();
+    for p in &mut target[base..] {
+        p.z -= 0.6;
+    }
+    assert!(!collision.crossings(&start, &target, &SETTINGS, &Tangles::default(), None).unwrap().is_empty(), "the drop must cross");
+    assert!(spike(&mesh, &start, &target) < 1e-4, "a rigid drop has no spike");
+    let mut spikes = Vec::new();
+    for border in [HeldBorder::Step, HeldBorder::Sloped] {
+        let mut end = target.clone();
+        let stats = collision.hold_back_path_alone(None, &start, &mut end, &SETTINGS, border);
+        assert!(!stats.held.is_empty(), "{border:?}: the fail-safe must act");
+        assert!(audited(&mesh, &end).is_empty(), "{border:?}: {stats:?}");
+        assert!(collision.crossings(&start, &end, &SETTINGS, &Tangles::default(), None).unwrap().is_empty(), "{border:?}");
+        spikes.push(spike(&mesh, &start, &end));
+    }
+    assert!(spikes[0] > 1.0, "a step: {spikes:?}");
+    assert!(spikes[1] <= ramp::SLOPE + 0.05, "a slope: {spikes:?}");
 }
