@@ -202,7 +202,7 @@ impl SelfCollision {
                 &fitted
             }
         };
-        Gather { tree: &self.tree, owns: &self.owns, bounds, motion: *motion, reach: reach + self.rounding, cull, hinges: &self.hinges, stars: &self.stars, star_memo: self.stars.memo(), takes_part, accept, focus }.run()
+        Gather { tree: &self.tree, owns: &self.owns, bounds, motion: *motion, reach: reach + self.rounding, cull, hinges: &self.hinges, stars: &self.stars, polygon: &self.polygon, star_memo: self.stars.memo(), takes_part, accept, focus }.run()
     }
 
     /// The patch tree's bounds over `motion`.
@@ -263,7 +263,7 @@ impl SelfCollision {
         let exclusion = &self.exclusion;
         let accept = |a: &[u32], b: &[u32]| !exclusion.excluded(a, b);
         // Touching pairs are found only where the curvature test cannot rule out a contact.
-        let gather = Gather { tree: &self.tree, owns: &self.owns, bounds: &bounds, motion, reach: touching + self.rounding, cull: true, hinges: &self.hinges, stars: &self.stars, star_memo: self.stars.memo(), takes_part, accept: &accept, focus };
+        let gather = Gather { tree: &self.tree, owns: &self.owns, bounds: &bounds, motion, reach: touching + self.rounding, cull: true, hinges: &self.hinges, stars: &self.stars, polygon: &self.polygon, star_memo: self.stars.memo(), takes_part, accept: &accept, focus };
         let mut found: Vec<([u32; 2], bool)> = gather
             .triangle_pairs()
             .into_par_iter()

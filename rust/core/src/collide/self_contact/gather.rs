@@ -125,6 +125,8 @@ pub(super) struct Gather<'a> {
     pub hinges: &'a Hinges,
     /// The polygons round each vertex, for the star rule `cull` applies.
     pub stars: &'a Stars,
+    /// Per tree position, the polygon its triangle comes from (the stars' numbering).
+    pub polygon: &'a [u32],
     /// The stars' answers over this gathering's motion ([`Stars::memo`]).
     pub star_memo: StarMemo,
     /// Per tree position: whether its triangle takes part (None: all do).
@@ -268,6 +270,15 @@ impl Gather<'_> {
     /// The element pairs owned by tree positions `p` and `q`.
     fn element_pairs(&self, p: usize, q: usize, out: &mut Vec<ElementPair>) {
         let (tp, tq) = (self.tree.triangles[p], self.tree.triangles[q]);
+        // Two triangles in two polygons of a star that keeps one side and
+        // winds once: each of their element pairs has its sides in those two
+        // polygons, so the star rule keeps every one of them apart. Asked once
+        // for the triangle pair, before any span or exact gap: most triangle
+        // pairs whose boxes meet are neighbours a polygon apart round a vertex
+        // (issue 30, twenty-third round).
+        if self.cull && self.stars.polygons_apart(&self.motion, &self.star_memo, self.polygon[p], self.polygon[q]) {
+            return;
+        }
         let (op, oq) = (self.owns[p], self.owns[q]);
         // A vertex–triangle pair's triangle is `tp` or `tq`: its span is the bounds'.
         let mut consider = |one: &[u32], other: &[u32], other_span: Option<&Span>, edge_edge: bool| {

@@ -187,6 +187,22 @@ impl Stars {
         false
     }
 
+    /// Whether every side of polygon `p` and every side of polygon `q` are
+    /// kept apart by [`Self::keep_apart`]: the two are not one and share a
+    /// corner whose star keeps one side and winds once over `motion`. Such a
+    /// star's polygons are all triangles or quads, so `p` and `q` hold all
+    /// their corners and each is among the polygons holding any of its
+    /// sides: `keep_apart` finds the same pair and the same corner for each
+    /// pair of their sides. One question for all the element pairs of two
+    /// triangles, where `keep_apart` for each would look up their polygons.
+    pub(super) fn polygons_apart(&self, motion: &Motion<'_>, memo: &StarMemo, p: u32, q: u32) -> bool {
+        if self.star.is_empty() || p == q {
+            return false;
+        }
+        let theirs = self.polygon_corners(q);
+        self.polygon_corners(p).iter().any(|&c| theirs.contains(&c) && self.winds_once_memo(motion, memo, c))
+    }
+
     /// [`Self::winds_once`], from `memo` if it was asked before. Threads
     /// asking at once may both work it out: the same answer either way.
     fn winds_once_memo(&self, motion: &Motion<'_>, memo: &StarMemo, v: u32) -> bool {
