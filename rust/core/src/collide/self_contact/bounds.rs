@@ -168,42 +168,78 @@ pub(super) fn relative_gap(a: &Span, b: &Span) -> f32 {
 /// turning little over an element's size) keep about their distance, where
 /// their boxes would not show it: tilted triangles' axis-aligned boxes
 /// overlap across a ring of neighbours.
+/// Gatherings ask [`element_within`], which answers as this does.
+#[cfg(test)]
 pub(super) fn element_gap(motion: &Motion<'_>, one: &[u32], other: &[u32]) -> f64 {
-    let at = |positions: &[Vec3], corners: &[u32]| -> [DVec3; 3] {
+    let (d0, d1) = (end_distance(motion.start, one, other), end_distance(motion.end, one, other));
+    let (m0, m1) = element_margins(motion, one, other);
+    let k = relative_motion(motion, one, other);
+    // A K-Lipschitz distance that is d0 and d1 at the ends is at least
+    // (d0 + d1 − K) / 2 in between; the ends themselves bound it where
+    // rounding leaves |d0 − d1| a hair above K.
+    let least = (0.5 * (d0 + d1 - k)).min(d0).min(d1);
+    least - m0 as f64 - m1 as f64
+}
+
+/// Whether `element_gap` is not above `reach` (`!(gap > reach)`, a NaN
+/// gap included), worked out with as little as decides it: the gap is at
+/// most either end's distance less the margins, so a pair within the
+/// reach at the start needs neither the end nor `K` (the rounded
+/// subtractions are monotone, so the answer is `element_gap`'s to the bit).
+/// A gathering's near pairs are mostly within the reach at both ends.
+pub(super) fn element_within(motion: &Motion<'_>, one: &[u32], other: &[u32], reach: f64) -> bool {
+    let (m0, m1) = element_margins(motion, one, other);
+    let less_margins = |d: f64| d - m0 as f64 - m1 as f64;
+    let d0 = end_distance(motion.start, one, other);
+    if less_margins(d0) <= reach {
+        return true;
+    }
+    let d1 = end_distance(motion.end, one, other);
+    if less_margins(d1) <= reach {
+        return true;
+    }
+    let k = relative_motion(motion, one, other);
+    let least = (0.5 * (d0 + d1 - k)).min(d0).min(d1);
+    !(less_margins(least) > reach)
+}
+
+/// The distance between two elements (a vertex and a triangle, or two
+/// edges) at `positions`, or a lower bound of it for a sliver
+/// ([`point_triangle_lower_bound`]).
+fn end_distance(positions: &[Vec3], one: &[u32], other: &[u32]) -> f64 {
+    let at = |corners: &[u32]| -> [DVec3; 3] {
         let mut p = [DVec3::ZERO; 3];
         for (k, &v) in corners.iter().enumerate() {
             p[k] = positions[v as usize].as_dvec3();
         }
         p
     };
-    let distance = |positions: &[Vec3]| {
-        let (a, b) = (at(positions, one), at(positions, other));
-        match (one.len(), other.len()) {
-            (1, 3) => point_triangle_lower_bound(a[0], b),
-            (3, 1) => point_triangle_lower_bound(b[0], a),
-            _ => segment_segment_distance_squared(a[0], a[1], b[0], b[1]).sqrt(),
-        }
-    };
-    // In f64 from the f32 ends, so that K is not rounded below the true
-    // relative motion.
+    let (a, b) = (at(one), at(other));
+    match (one.len(), other.len()) {
+        (1, 3) => point_triangle_lower_bound(a[0], b),
+        (3, 1) => point_triangle_lower_bound(b[0], a),
+        _ => segment_segment_distance_squared(a[0], a[1], b[0], b[1]).sqrt(),
+    }
+}
+
+/// `K`: the largest relative displacement of a corner of one element and a
+/// corner of the other, in f64 from the f32 ends, so that it is not
+/// rounded below the true relative motion.
+fn relative_motion(motion: &Motion<'_>, one: &[u32], other: &[u32]) -> f64 {
     let displacement = |v: u32| motion.end[v as usize].as_dvec3() - motion.start[v as usize].as_dvec3();
     let mut k = 0.0f64;
-    let mut margins = (0.0f32, 0.0f32);
     for &i in one {
-        margins.0 = margins.0.max(motion.margin[i as usize]);
         for &j in other {
             k = k.max((displacement(i) - displacement(j)).length());
         }
     }
-    for &j in other {
-        margins.1 = margins.1.max(motion.margin[j as usize]);
-    }
-    let (d0, d1) = (distance(motion.start), distance(motion.end));
-    // A K-Lipschitz distance that is d0 and d1 at the ends is at least
-    // (d0 + d1 − K) / 2 in between; the ends themselves bound it where
-    // rounding leaves |d0 − d1| a hair above K.
-    let least = (0.5 * (d0 + d1 - k)).min(d0).min(d1);
-    least - margins.0 as f64 - margins.1 as f64
+    k
+}
+
+/// The largest margin of each element's corners.
+fn element_margins(motion: &Motion<'_>, one: &[u32], other: &[u32]) -> (f32, f32) {
+    let most = |corners: &[u32]| corners.iter().fold(0.0f32, |m, &v| m.max(motion.margin[v as usize]));
+    (most(one), most(other))
 }
 
 /// A lower bound on the distance from `p` to triangle `t`: the exact
@@ -604,6 +640,28 @@ mod tests {
             }
             proptest::prop_assert!(gap <= least + 1e-5, "bound {gap} above the least distance {least}");
             proptest::prop_assert!(gap <= least - least_margins(one) - least_margins(other) + 1e-5);
+        }
+
+        /// The gatherings' question, answered from as few ends as decide
+        /// it, is the gap's to the bit: reaches around the gap itself, at
+        /// it exactly, and at each end's distance less the margins.
+        #[test]
+        fn element_within_answers_as_the_gap_does(
+            coordinates in proptest::collection::vec(-1.0f32..1.0, 24),
+            margins in proptest::collection::vec(0.0f32..0.05, 4),
+            edge_edge in proptest::bool::ANY,
+            spread in 0.0f64..0.5,
+        ) {
+            let start: Vec<Vec3> = coordinates[..12].chunks(3).map(|c| Vec3::new(c[0], c[1], c[2])).collect();
+            let end: Vec<Vec3> = coordinates[12..].chunks(3).zip(&start).map(|(c, s)| *s + 0.5 * Vec3::new(c[0], c[1], c[2])).collect();
+            let motion = Motion { start: &start, end: &end, margin: &margins };
+            let (one, other): (&[u32], &[u32]) = if edge_edge { (&[0, 1], &[2, 3]) } else { (&[0], &[1, 2, 3]) };
+            let gap = element_gap(&motion, one, other);
+            let (m0, m1) = element_margins(&motion, one, other);
+            let ends = [end_distance(&start, one, other), end_distance(&end, one, other)].map(|d| d - m0 as f64 - m1 as f64);
+            for reach in [gap, gap - spread, gap + spread, gap - 1e-12, gap + 1e-12, ends[0], ends[1], ends[0] - 1e-12, ends[1] - 1e-12, 0.0] {
+                proptest::prop_assert_eq!(element_within(&motion, one, other, reach), !(gap > reach), "reach {} gap {}", reach, gap);
+            }
         }
     }
 

@@ -18,7 +18,7 @@
 //!   ([`separated`]);
 //! * two leaves: their triangles' relative boxes, then each element pair's,
 //!   then its exact distances at both ends of the motion less how much the
-//!   relative motion can change them ([`element_gap`]): at rest most
+//!   relative motion can change them ([`element_within`]): at rest most
 //!   element pairs whose boxes overlap (neighbours a ring or two apart) are
 //!   an edge apart, and none of them is listed.
 //!
@@ -31,7 +31,7 @@
 
 use glam::Vec3;
 
-use super::bounds::{element_gap, relative_gap, Motion, NodeBounds, Span};
+use super::bounds::{element_within, relative_gap, Motion, NodeBounds, Span};
 use super::hinge::Hinges;
 use super::separation::separated;
 use super::star::{StarMemo, Stars};
@@ -291,7 +291,7 @@ impl Gather<'_> {
             }
             // The boxes overlap; the exact distances at both ends decide
             // (the reach already carries the f32 rounding allowance).
-            if element_gap(&self.motion, one, other) > self.reach as f64 {
+            if !element_within(&self.motion, one, other, self.reach as f64) {
                 return;
             }
             if self.cull && (self.hinges.keep_apart(&self.motion, one, other) || self.stars.keep_apart(&self.motion, &self.star_memo, one, other)) {
