@@ -120,6 +120,10 @@ pub(super) struct NodeBounds {
     /// whole gathering on the MakeHuman character visits about 17k leaf
     /// pairs of 8 triangles for 53k triangles, issue 30, eleventh round).
     pub triangle: Vec<Span>,
+    /// Per tree position, its triangle's normal cone, kept for the same
+    /// reason: the star rule unions the cones of a vertex's triangles
+    /// ([`super::star::Stars::memo_over`]).
+    pub triangle_cone: Vec<Cone>,
 }
 
 /// Per-vertex inputs of a motion.
@@ -268,7 +272,12 @@ pub(super) fn keep_one_side(motion: &Motion<'_>, triangles: &[[u32; 3]]) -> bool
 
 /// The direction of [`keep_one_side`], if there is one.
 pub(super) fn one_side_axis<'t>(motion: &Motion<'_>, triangles: impl IntoIterator<Item = &'t [u32; 3]>) -> Option<Vec3> {
-    triangles.into_iter().fold(Cone::EMPTY, |cone, &t| cone.union(triangle_cone(motion, t))).axis()
+    common_axis(triangles.into_iter().map(|&t| triangle_cone(motion, t)))
+}
+
+/// [`one_side_axis`] from the triangles' cones, already made.
+pub(super) fn common_axis(cones: impl IntoIterator<Item = Cone>) -> Option<Vec3> {
+    cones.into_iter().fold(Cone::EMPTY, Cone::union).axis()
 }
 
 /// Bounds of one triangle: normals over the motion and their widening.
@@ -312,7 +321,7 @@ impl NodeBounds {
     /// triangle at tree position `p` is tested at all (None: all are).
     pub(super) fn new(tree: &PatchTree, motion: &Motion<'_>, takes_part: Option<&[bool]>) -> Self {
         let count = tree.nodes.len();
-        let mut bounds = NodeBounds { span: vec![Span::EMPTY; count], cone: vec![Cone::EMPTY; count], active: vec![false; count], triangle: vec![Span::EMPTY; tree.triangles.len()] };
+        let mut bounds = NodeBounds { span: vec![Span::EMPTY; count], cone: vec![Cone::EMPTY; count], active: vec![false; count], triangle: vec![Span::EMPTY; tree.triangles.len()], triangle_cone: vec![Cone::EMPTY; tree.triangles.len()] };
         bounds.fit_leaves(tree, motion, takes_part, &tree.leaves);
         bounds.fit_parents(tree, None);
         bounds
@@ -338,28 +347,32 @@ impl NodeBounds {
 
     /// Fits the bounds of these leaves.
     fn fit_leaves(&mut self, tree: &PatchTree, motion: &Motion<'_>, takes_part: Option<&[bool]>, leaves: &[u32]) {
-        let fitted: Vec<(Span, Cone, bool, Vec<Span>)> = leaves
+        let fitted: Vec<(Span, Cone, bool, Vec<Span>, Vec<Cone>)> = leaves
             .par_iter()
             .with_min_len(64)
             .map(|&leaf| {
                 let node = tree.nodes[leaf as usize];
                 let (mut span, mut cone, mut active) = (Span::EMPTY, Cone::EMPTY, false);
                 let mut triangles = Vec::with_capacity(node.range().len());
+                let mut cones = Vec::with_capacity(node.range().len());
                 for p in node.range() {
                     let t = tree.triangles[p];
                     let triangle = motion.span(&t);
                     triangles.push(triangle);
                     span = span.union(triangle);
-                    cone = cone.union(triangle_cone(motion, t));
+                    let normals = triangle_cone(motion, t);
+                    cones.push(normals);
+                    cone = cone.union(normals);
                     active |= takes_part.is_none_or(|flags| flags[p]);
                 }
-                (span, cone, active, triangles)
+                (span, cone, active, triangles, cones)
             })
             .collect();
-        for (&leaf, (span, cone, active, triangles)) in leaves.iter().zip(fitted) {
+        for (&leaf, (span, cone, active, triangles, cones)) in leaves.iter().zip(fitted) {
             let i = leaf as usize;
             (self.span[i], self.cone[i], self.active[i]) = (span, cone, active);
             self.triangle[tree.nodes[i].range()].copy_from_slice(&triangles);
+            self.triangle_cone[tree.nodes[i].range()].copy_from_slice(&cones);
         }
     }
 

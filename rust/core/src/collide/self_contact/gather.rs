@@ -128,7 +128,7 @@ pub(super) struct Gather<'a> {
     /// Per tree position, the polygon its triangle comes from (the stars' numbering).
     pub polygon: &'a [u32],
     /// The stars' answers over this gathering's motion ([`Stars::memo`]).
-    pub star_memo: StarMemo,
+    pub star_memo: StarMemo<'a>,
     /// Per tree position: whether its triangle takes part (None: all do).
     pub takes_part: Option<&'a [bool]>,
     /// Whether two sides are tested at all (neighbours, tangles).

@@ -51,7 +51,7 @@ use std::sync::atomic::{AtomicU8, Ordering};
 
 use glam::Vec3;
 
-use super::bounds::{one_side_axis, Motion};
+use super::bounds::{common_axis, one_side_axis, Cone, Motion};
 
 /// The polygons around each vertex inside the skin, in order round it.
 #[derive(Debug, Clone, Default)]
@@ -69,6 +69,9 @@ pub(super) struct Stars {
     around: Vec<Around>,
     /// Per vertex, whether its polygons make a star the rule applies to.
     star: Vec<bool>,
+    /// Per triangle of `triangles`, its position in the patch tree (empty
+    /// until [`Self::placed_in`]): where a gathering's bounds keep its cone.
+    position: Vec<u32>,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -83,9 +86,12 @@ struct Around {
 /// for every near pair round it (the star rule's cones were about a tenth
 /// of the MakeHuman character's straight frames, issue 30, sixteenth
 /// round), and the answer depends on the vertex and the motion alone.
-pub(super) struct StarMemo {
+pub(super) struct StarMemo<'c> {
     /// Per vertex: 0 not asked yet, else [`WINDS_ONCE`] or [`WINDS_OTHERWISE`].
     known: Vec<AtomicU8>,
+    /// Per tree position, its triangle's normal cone over the motion, if the
+    /// gathering's bounds made them ([`Stars::memo_over`]).
+    cones: Option<&'c [Cone]>,
 }
 
 const WINDS_ONCE: u8 = 1;
@@ -141,12 +147,35 @@ impl Stars {
             let list = &mut around[offsets[v] as usize..offsets[v + 1] as usize];
             star[v] = list.len() >= 3 && list.iter().all(|a| usable[a.polygon as usize]) && order_round(list);
         }
-        Stars { corners, triangle_offsets, triangles, offsets, around, star }
+        Stars { corners, triangle_offsets, triangles, offsets, around, star, position: Vec::new() }
     }
 
-    /// An empty memo for one motion of this skin ([`Self::keep_apart`]).
-    pub(super) fn memo(&self) -> StarMemo {
-        StarMemo { known: (0..self.star.len()).map(|_| AtomicU8::new(0)).collect() }
+    /// These stars with their triangles' positions in a patch tree whose
+    /// position `k` holds triangle `order[k]` (as given to [`Self::new`]).
+    pub(super) fn placed_in(mut self, order: &[u32]) -> Self {
+        self.position = vec![0; self.triangles.len()];
+        for (k, &t) in order.iter().enumerate() {
+            self.position[t as usize] = k as u32;
+        }
+        self
+    }
+
+    /// An empty memo for one motion of this skin ([`Self::keep_apart`]),
+    /// which makes each star's cones from the motion.
+    #[cfg(test)]
+    pub(super) fn memo(&self) -> StarMemo<'static> {
+        StarMemo { known: (0..self.star.len()).map(|_| AtomicU8::new(0)).collect(), cones: None }
+    }
+
+    /// [`Self::memo`] for a motion whose triangle cones a gathering's bounds
+    /// already made (`cones`, per tree position, [`Self::placed_in`]): a
+    /// star's cone is then the union of its triangles' cones, read, where
+    /// making them again was the most of the star rule once every triangle
+    /// pair asks it (issue 30, twenty-third round). The same cones, in the
+    /// same order: the same answers to the bit.
+    pub(super) fn memo_over<'c>(&self, cones: &'c [Cone]) -> StarMemo<'c> {
+        let cones = (self.position.len() == self.triangles.len()).then_some(cones);
+        StarMemo { known: (0..self.star.len()).map(|_| AtomicU8::new(0)).collect(), cones }
     }
 
     fn polygon_corners(&self, p: u32) -> &[u32] {
@@ -211,7 +240,7 @@ impl Stars {
             WINDS_ONCE => true,
             WINDS_OTHERWISE => false,
             _ => {
-                let once = self.winds_once(motion, v);
+                let once = self.winds_once(motion, memo.cones, v);
                 slot.store(if once { WINDS_ONCE } else { WINDS_OTHERWISE }, Ordering::Relaxed);
                 once
             }
@@ -220,17 +249,22 @@ impl Stars {
 
     /// Whether `v`'s star keeps one side over `motion` and its projected
     /// angles at `v` sum to one turn.
-    fn winds_once(&self, motion: &Motion<'_>, v: u32) -> bool {
+    /// `cones`: per tree position, its triangle's cone over `motion`, if made.
+    fn winds_once(&self, motion: &Motion<'_>, cones: Option<&[Cone]>, v: u32) -> bool {
         let v = v as usize;
         if !self.star[v] {
             return false;
         }
         let around = &self.around[self.offsets[v] as usize..self.offsets[v + 1] as usize];
-        let triangles = around.iter().flat_map(|a| {
+        let triangle_range = |a: &Around| {
             let p = a.polygon as usize;
-            &self.triangles[self.triangle_offsets[p] as usize..self.triangle_offsets[p + 1] as usize]
-        });
-        let Some(axis) = one_side_axis(motion, triangles) else { return false };
+            self.triangle_offsets[p] as usize..self.triangle_offsets[p + 1] as usize
+        };
+        let axis = match cones {
+            Some(cones) => common_axis(around.iter().flat_map(triangle_range).map(|t| cones[self.position[t] as usize])),
+            None => one_side_axis(motion, around.iter().flat_map(|a| &self.triangles[triangle_range(a)])),
+        };
+        let Some(axis) = axis else { return false };
         // Every triangle keeps its orientation over the motion, so the turn
         // count is the same at every moment: count it at the start.
         let x = motion.start;
