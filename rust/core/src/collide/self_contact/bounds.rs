@@ -439,23 +439,35 @@ fn joined(a: &[u32], b: &[u32], b_at: &[(u32, u32)]) -> Option<Vec<u32>> {
         let (x, y) = (a[i], a[(i + 1) % na]);
         on_b(y).is_some_and(|j| b[(j + 1) % nb] == x)
     };
-    let flags: Vec<bool> = (0..na).map(shared).collect();
-    let count = flags.iter().filter(|&&f| f).count();
-    if count == 0 || count == na {
+    // The shared edges' count and the run's first edge (shared, its
+    // predecessor not; exactly one such), in one pass without a list of
+    // flags: a traversal asks this of every pair of adjacent disks it meets
+    // (issue 30, twenty-third round).
+    let (mut count, mut starts, mut first) = (0, 0, 0);
+    let closing = shared(na - 1);
+    let mut previous = closing;
+    for i in 0..na {
+        let here = if i == na - 1 { closing } else { shared(i) };
+        count += here as usize;
+        if here && !previous {
+            starts += 1;
+            first = i;
+        }
+        previous = here;
+    }
+    if count == 0 || count == na || starts != 1 {
         return None;
     }
-    // The run's first edge: shared, its predecessor not; exactly one such.
-    let mut starts = (0..na).filter(|&i| flags[i] && !flags[(i + na - 1) % na]);
-    let (Some(first), None) = (starts.next(), starts.next()) else { return None };
     let last = (first + count) % na; // the vertex where the run ends
     // Touching anywhere else (a vertex of a off the run on b's loop) makes a pinch.
     if (1..na - count).any(|k| on_b(a[(last + k) % na]).is_some()) {
         return None;
     }
     // a from the run's end round to its start, then b from there back to the run's end.
-    let mut ring: Vec<u32> = (0..=na - count).map(|k| a[(last + k) % na]).collect();
     let start_b = on_b(a[first]).expect("a shared edge's end is on b");
     let rest_b = nb - count; // b's edges outside the run
+    let mut ring = Vec::with_capacity(na - count + rest_b);
+    ring.extend((0..=na - count).map(|k| a[(last + k) % na]));
     ring.extend((1..rest_b).map(|k| b[(start_b + k) % nb]));
     Some(ring)
 }
