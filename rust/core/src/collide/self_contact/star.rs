@@ -295,6 +295,8 @@ fn order_round(list: &mut [Around]) -> bool {
 
 #[cfg(test)]
 mod tests {
+    use super::super::bounds::NodeBounds;
+    use super::super::tree::PatchTree;
     use super::*;
 
     /// Four quads round vertex 4 of a 3 × 3 grid of vertices (side 1),
@@ -319,11 +321,7 @@ mod tests {
     /// split into its four triangles as the skin's quads are.
     fn stars_of_quads(quads: &[[u32; 4]]) -> Stars {
         let polygons: Vec<&[u32]> = quads.iter().map(|q| &q[..]).collect();
-        let (triangles, polygon_of): (Vec<[u32; 3]>, Vec<u32>) = quads
-            .iter()
-            .enumerate()
-            .flat_map(|(k, &[a, b, c, d])| [[a, b, c], [a, c, d], [a, b, d], [b, c, d]].map(|t| (t, k as u32)))
-            .unzip();
+        let (triangles, polygon_of) = split_quads(quads);
         Stars::new(9, &polygons, &triangles, &polygon_of)
     }
 
@@ -350,6 +348,74 @@ mod tests {
         assert!(!stars.keep_apart(&Motion { start: &flat, end: &flat, margin: &wide }, &stars.memo(), &[0, 4], &[5, 7]));
     }
 
+    /// The grid's four quads, each split into its four triangles, as
+    /// [`stars_of_quads`] makes them: triangles and their polygons.
+    fn split_quads(quads: &[[u32; 4]]) -> (Vec<[u32; 3]>, Vec<u32>) {
+        quads.iter().enumerate().flat_map(|(k, &[a, b, c, d])| [[a, b, c], [a, c, d], [a, b, d], [b, c, d]].map(|t| (t, k as u32))).unzip()
+    }
+
+    #[test]
+    fn a_stars_cone_read_from_a_gatherings_bounds_answers_as_one_made_from_the_motion() {
+        let quads = [[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 7, 6], [4, 5, 8, 7]];
+        let (triangles, polygon_of) = split_quads(&quads);
+        let polygons: Vec<&[u32]> = quads.iter().map(|q| &q[..]).collect();
+        let (flat, _) = grid_star(0.0);
+        let tree = PatchTree::build(&triangles, &flat);
+        let stars = Stars::new(9, &polygons, &triangles, &polygon_of).placed_in(&tree.order);
+        let mut answers = Vec::new();
+        for angle in [0.0, 0.5, 1.3, -1.0, std::f32::consts::FRAC_PI_2, 1.9] {
+            let (x, _) = grid_star(angle);
+            for (start, margin) in [(&x, 0.0), (&flat, 0.0), (&flat, 0.05), (&x, 0.6)] {
+                let margins = [margin; 9];
+                let motion = Motion { start, end: &x, margin: &margins };
+                let bounds = NodeBounds::new(&tree, &motion, None);
+                let (made, read) = (stars.memo(), stars.memo_over(&bounds.triangle_cone));
+                assert!(read.cones.is_some());
+                for v in 0..9 {
+                    let answer = stars.winds_once_memo(&motion, &read, v);
+                    assert_eq!(answer, stars.winds_once_memo(&motion, &made, v), "vertex {v} at {angle} rad, margin {margin}");
+                    answers.push(answer);
+                }
+            }
+        }
+        assert!(answers.contains(&true) && answers.contains(&false), "both answers asked");
+    }
+
+    #[test]
+    fn two_polygons_kept_apart_keep_every_pair_of_their_sides_apart() {
+        let quads = [[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 7, 6], [4, 5, 8, 7]];
+        let margin = [0.0; 9];
+        let mut apart = 0;
+        for angle in [0.0, 0.5, 1.3, -1.0, std::f32::consts::FRAC_PI_2, 1.9] {
+            let (x, stars) = grid_star(angle);
+            let motion = Motion { start: &x, end: &x, margin: &margin };
+            let memo = stars.memo();
+            for p in 0..4 {
+                for q in 0..4 {
+                    if !stars.polygons_apart(&motion, &memo, p, q) {
+                        continue;
+                    }
+                    apart += 1;
+                    // Every corner and every side or diagonal of the one against the other's.
+                    let sides = |k: usize| {
+                        let c = quads[k];
+                        let mut sides: Vec<Vec<u32>> = c.iter().map(|&v| vec![v]).collect();
+                        sides.extend((0..4).flat_map(|i| (i + 1..4).map(move |j| vec![c[i], c[j]])));
+                        sides.extend([[c[0], c[1], c[2]], [c[0], c[2], c[3]], [c[0], c[1], c[3]], [c[1], c[2], c[3]]].map(|t| t.to_vec()));
+                        sides
+                    };
+                    for one in sides(p as usize) {
+                        for other in sides(q as usize) {
+                            assert!(stars.keep_apart(&motion, &memo, &one, &other), "{one:?} against {other:?} at {angle} rad");
+                        }
+                    }
+                }
+            }
+        }
+        // Every two of the four quads share vertex 4, whose star keeps a side but at the right angle.
+        assert_eq!(apart, 5 * 12);
+    }
+
     #[test]
     fn a_vertex_on_the_skins_boundary_has_no_star() {
         let (x, stars) = grid_star(0.0);
@@ -358,8 +424,8 @@ mod tests {
         // Quads 0 1 4 3 and 1 2 5 4 share 1 (on the boundary) and 4: kept
         // apart through 4's star, never through 1's.
         assert!(stars.keep_apart(&motion, &stars.memo(), &[0], &[2, 5, 4]));
-        assert!(!stars.winds_once(&motion, 1));
-        assert!(stars.winds_once(&motion, 4));
+        assert!(!stars.winds_once(&motion, None, 1));
+        assert!(stars.winds_once(&motion, None, 4));
         // Quads 0 1 4 3 and 1 2 5 4 seen without vertex 4's other quads: no star at all.
         let open = stars_of_quads(&[[0, 1, 4, 3], [1, 2, 5, 4]]);
         assert!(!open.keep_apart(&motion, &open.memo(), &[0], &[2, 5, 4]));
