@@ -120,6 +120,10 @@ pub(super) struct NodeBounds {
     /// whole gathering on the MakeHuman character visits about 17k leaf
     /// pairs of 8 triangles for 53k triangles, issue 30, eleventh round).
     pub triangle: Vec<Span>,
+    /// Per tree position, its triangle's normal cone, kept for the same
+    /// reason: the star rule unions the cones of a vertex's triangles
+    /// ([`super::star::Stars::memo_over`]).
+    pub triangle_cone: Vec<Cone>,
 }
 
 /// Per-vertex inputs of a motion.
@@ -168,42 +172,80 @@ pub(super) fn relative_gap(a: &Span, b: &Span) -> f32 {
 /// turning little over an element's size) keep about their distance, where
 /// their boxes would not show it: tilted triangles' axis-aligned boxes
 /// overlap across a ring of neighbours.
+/// Gatherings ask [`element_within`], which answers as this does.
+#[cfg(test)]
 pub(super) fn element_gap(motion: &Motion<'_>, one: &[u32], other: &[u32]) -> f64 {
-    let at = |positions: &[Vec3], corners: &[u32]| -> [DVec3; 3] {
+    let (d0, d1) = (end_distance(motion.start, one, other), end_distance(motion.end, one, other));
+    let (m0, m1) = element_margins(motion, one, other);
+    let k = relative_motion(motion, one, other);
+    // A K-Lipschitz distance that is d0 and d1 at the ends is at least
+    // (d0 + d1 − K) / 2 in between; the ends themselves bound it where
+    // rounding leaves |d0 − d1| a hair above K.
+    let least = (0.5 * (d0 + d1 - k)).min(d0).min(d1);
+    least - m0 as f64 - m1 as f64
+}
+
+/// Whether `element_gap` is not above `reach` (`!(gap > reach)`, a NaN
+/// gap included), worked out with as little as decides it: the gap is at
+/// most either end's distance less the margins, so a pair within the
+/// reach at the start needs neither the end nor `K` (the rounded
+/// subtractions are monotone, so the answer is `element_gap`'s to the bit).
+/// A gathering's near pairs are mostly within the reach at both ends.
+pub(super) fn element_within(motion: &Motion<'_>, one: &[u32], other: &[u32], reach: f64) -> bool {
+    let (m0, m1) = element_margins(motion, one, other);
+    let less_margins = |d: f64| d - m0 as f64 - m1 as f64;
+    let d0 = end_distance(motion.start, one, other);
+    if less_margins(d0) <= reach {
+        return true;
+    }
+    let d1 = end_distance(motion.end, one, other);
+    if less_margins(d1) <= reach {
+        return true;
+    }
+    let k = relative_motion(motion, one, other);
+    let least = (0.5 * (d0 + d1 - k)).min(d0).min(d1);
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // a NaN gap is within, as `element_gap > reach` lets it through
+    let within = !(less_margins(least) > reach);
+    within
+}
+
+/// The distance between two elements (a vertex and a triangle, or two
+/// edges) at `positions`, or a lower bound of it for a sliver
+/// ([`point_triangle_lower_bound`]).
+fn end_distance(positions: &[Vec3], one: &[u32], other: &[u32]) -> f64 {
+    let at = |corners: &[u32]| -> [DVec3; 3] {
         let mut p = [DVec3::ZERO; 3];
         for (k, &v) in corners.iter().enumerate() {
             p[k] = positions[v as usize].as_dvec3();
         }
         p
     };
-    let distance = |positions: &[Vec3]| {
-        let (a, b) = (at(positions, one), at(positions, other));
-        match (one.len(), other.len()) {
-            (1, 3) => point_triangle_lower_bound(a[0], b),
-            (3, 1) => point_triangle_lower_bound(b[0], a),
-            _ => segment_segment_distance_squared(a[0], a[1], b[0], b[1]).sqrt(),
-        }
-    };
-    // In f64 from the f32 ends, so that K is not rounded below the true
-    // relative motion.
+    let (a, b) = (at(one), at(other));
+    match (one.len(), other.len()) {
+        (1, 3) => point_triangle_lower_bound(a[0], b),
+        (3, 1) => point_triangle_lower_bound(b[0], a),
+        _ => segment_segment_distance_squared(a[0], a[1], b[0], b[1]).sqrt(),
+    }
+}
+
+/// `K`: the largest relative displacement of a corner of one element and a
+/// corner of the other, in f64 from the f32 ends, so that it is not
+/// rounded below the true relative motion.
+fn relative_motion(motion: &Motion<'_>, one: &[u32], other: &[u32]) -> f64 {
     let displacement = |v: u32| motion.end[v as usize].as_dvec3() - motion.start[v as usize].as_dvec3();
     let mut k = 0.0f64;
-    let mut margins = (0.0f32, 0.0f32);
     for &i in one {
-        margins.0 = margins.0.max(motion.margin[i as usize]);
         for &j in other {
             k = k.max((displacement(i) - displacement(j)).length());
         }
     }
-    for &j in other {
-        margins.1 = margins.1.max(motion.margin[j as usize]);
-    }
-    let (d0, d1) = (distance(motion.start), distance(motion.end));
-    // A K-Lipschitz distance that is d0 and d1 at the ends is at least
-    // (d0 + d1 − K) / 2 in between; the ends themselves bound it where
-    // rounding leaves |d0 − d1| a hair above K.
-    let least = (0.5 * (d0 + d1 - k)).min(d0).min(d1);
-    least - margins.0 as f64 - margins.1 as f64
+    k
+}
+
+/// The largest margin of each element's corners.
+fn element_margins(motion: &Motion<'_>, one: &[u32], other: &[u32]) -> (f32, f32) {
+    let most = |corners: &[u32]| corners.iter().fold(0.0f32, |m, &v| m.max(motion.margin[v as usize]));
+    (most(one), most(other))
 }
 
 /// A lower bound on the distance from `p` to triangle `t`: the exact
@@ -232,7 +274,12 @@ pub(super) fn keep_one_side(motion: &Motion<'_>, triangles: &[[u32; 3]]) -> bool
 
 /// The direction of [`keep_one_side`], if there is one.
 pub(super) fn one_side_axis<'t>(motion: &Motion<'_>, triangles: impl IntoIterator<Item = &'t [u32; 3]>) -> Option<Vec3> {
-    triangles.into_iter().fold(Cone::EMPTY, |cone, &t| cone.union(triangle_cone(motion, t))).axis()
+    common_axis(triangles.into_iter().map(|&t| triangle_cone(motion, t)))
+}
+
+/// [`one_side_axis`] from the triangles' cones, already made.
+pub(super) fn common_axis(cones: impl IntoIterator<Item = Cone>) -> Option<Vec3> {
+    cones.into_iter().fold(Cone::EMPTY, Cone::union).axis()
 }
 
 /// Bounds of one triangle: normals over the motion and their widening.
@@ -276,7 +323,7 @@ impl NodeBounds {
     /// triangle at tree position `p` is tested at all (None: all are).
     pub(super) fn new(tree: &PatchTree, motion: &Motion<'_>, takes_part: Option<&[bool]>) -> Self {
         let count = tree.nodes.len();
-        let mut bounds = NodeBounds { span: vec![Span::EMPTY; count], cone: vec![Cone::EMPTY; count], active: vec![false; count], triangle: vec![Span::EMPTY; tree.triangles.len()] };
+        let mut bounds = NodeBounds { span: vec![Span::EMPTY; count], cone: vec![Cone::EMPTY; count], active: vec![false; count], triangle: vec![Span::EMPTY; tree.triangles.len()], triangle_cone: vec![Cone::EMPTY; tree.triangles.len()] };
         bounds.fit_leaves(tree, motion, takes_part, &tree.leaves);
         bounds.fit_parents(tree, None);
         bounds
@@ -302,28 +349,34 @@ impl NodeBounds {
 
     /// Fits the bounds of these leaves.
     fn fit_leaves(&mut self, tree: &PatchTree, motion: &Motion<'_>, takes_part: Option<&[bool]>, leaves: &[u32]) {
-        let fitted: Vec<(Span, Cone, bool, Vec<Span>)> = leaves
+        // Per leaf: its span, cone and whether it takes part, and its triangles' spans and cones.
+        type Fitted = (Span, Cone, bool, Vec<Span>, Vec<Cone>);
+        let fitted: Vec<Fitted> = leaves
             .par_iter()
             .with_min_len(64)
             .map(|&leaf| {
                 let node = tree.nodes[leaf as usize];
                 let (mut span, mut cone, mut active) = (Span::EMPTY, Cone::EMPTY, false);
                 let mut triangles = Vec::with_capacity(node.range().len());
+                let mut cones = Vec::with_capacity(node.range().len());
                 for p in node.range() {
                     let t = tree.triangles[p];
                     let triangle = motion.span(&t);
                     triangles.push(triangle);
                     span = span.union(triangle);
-                    cone = cone.union(triangle_cone(motion, t));
+                    let normals = triangle_cone(motion, t);
+                    cones.push(normals);
+                    cone = cone.union(normals);
                     active |= takes_part.is_none_or(|flags| flags[p]);
                 }
-                (span, cone, active, triangles)
+                (span, cone, active, triangles, cones)
             })
             .collect();
-        for (&leaf, (span, cone, active, triangles)) in leaves.iter().zip(fitted) {
+        for (&leaf, (span, cone, active, triangles, cones)) in leaves.iter().zip(fitted) {
             let i = leaf as usize;
             (self.span[i], self.cone[i], self.active[i]) = (span, cone, active);
             self.triangle[tree.nodes[i].range()].copy_from_slice(&triangles);
+            self.triangle_cone[tree.nodes[i].range()].copy_from_slice(&cones);
         }
     }
 
@@ -390,23 +443,35 @@ fn joined(a: &[u32], b: &[u32], b_at: &[(u32, u32)]) -> Option<Vec<u32>> {
         let (x, y) = (a[i], a[(i + 1) % na]);
         on_b(y).is_some_and(|j| b[(j + 1) % nb] == x)
     };
-    let flags: Vec<bool> = (0..na).map(shared).collect();
-    let count = flags.iter().filter(|&&f| f).count();
-    if count == 0 || count == na {
+    // The shared edges' count and the run's first edge (shared, its
+    // predecessor not; exactly one such), in one pass without a list of
+    // flags: a traversal asks this of every pair of adjacent disks it meets
+    // (issue 30, twenty-third round).
+    let (mut count, mut starts, mut first) = (0, 0, 0);
+    let closing = shared(na - 1);
+    let mut previous = closing;
+    for i in 0..na {
+        let here = if i == na - 1 { closing } else { shared(i) };
+        count += here as usize;
+        if here && !previous {
+            starts += 1;
+            first = i;
+        }
+        previous = here;
+    }
+    if count == 0 || count == na || starts != 1 {
         return None;
     }
-    // The run's first edge: shared, its predecessor not; exactly one such.
-    let mut starts = (0..na).filter(|&i| flags[i] && !flags[(i + na - 1) % na]);
-    let (Some(first), None) = (starts.next(), starts.next()) else { return None };
     let last = (first + count) % na; // the vertex where the run ends
     // Touching anywhere else (a vertex of a off the run on b's loop) makes a pinch.
     if (1..na - count).any(|k| on_b(a[(last + k) % na]).is_some()) {
         return None;
     }
     // a from the run's end round to its start, then b from there back to the run's end.
-    let mut ring: Vec<u32> = (0..=na - count).map(|k| a[(last + k) % na]).collect();
     let start_b = on_b(a[first]).expect("a shared edge's end is on b");
     let rest_b = nb - count; // b's edges outside the run
+    let mut ring = Vec::with_capacity(na - count + rest_b);
+    ring.extend((0..=na - count).map(|k| a[(last + k) % na]));
     ring.extend((1..rest_b).map(|k| b[(start_b + k) % nb]));
     Some(ring)
 }
@@ -604,6 +669,29 @@ mod tests {
             }
             proptest::prop_assert!(gap <= least + 1e-5, "bound {gap} above the least distance {least}");
             proptest::prop_assert!(gap <= least - least_margins(one) - least_margins(other) + 1e-5);
+        }
+
+        /// The gatherings' question, answered from as few ends as decide
+        /// it, is the gap's to the bit: reaches around the gap itself, at
+        /// it exactly, and at each end's distance less the margins.
+        #[test]
+        #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(gap > reach)` is the gatherings' old test, NaN included
+        fn element_within_answers_as_the_gap_does(
+            coordinates in proptest::collection::vec(-1.0f32..1.0, 24),
+            margins in proptest::collection::vec(0.0f32..0.05, 4),
+            edge_edge in proptest::bool::ANY,
+            spread in 0.0f64..0.5,
+        ) {
+            let start: Vec<Vec3> = coordinates[..12].chunks(3).map(|c| Vec3::new(c[0], c[1], c[2])).collect();
+            let end: Vec<Vec3> = coordinates[12..].chunks(3).zip(&start).map(|(c, s)| *s + 0.5 * Vec3::new(c[0], c[1], c[2])).collect();
+            let motion = Motion { start: &start, end: &end, margin: &margins };
+            let (one, other): (&[u32], &[u32]) = if edge_edge { (&[0, 1], &[2, 3]) } else { (&[0], &[1, 2, 3]) };
+            let gap = element_gap(&motion, one, other);
+            let (m0, m1) = element_margins(&motion, one, other);
+            let ends = [end_distance(&start, one, other), end_distance(&end, one, other)].map(|d| d - m0 as f64 - m1 as f64);
+            for reach in [gap, gap - spread, gap + spread, gap - 1e-12, gap + 1e-12, ends[0], ends[1], ends[0] - 1e-12, ends[1] - 1e-12, 0.0] {
+                proptest::prop_assert_eq!(element_within(&motion, one, other, reach), !(gap > reach), "reach {} gap {}", reach, gap);
+            }
         }
     }
 

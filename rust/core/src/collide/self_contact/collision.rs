@@ -78,7 +78,7 @@ impl SelfCollision {
         let hinges = Hinges::new(&triangles);
         let corners: Vec<u32> = mesh.corner_verts.iter().map(|&c| c as u32).collect();
         let polygons: Vec<&[u32]> = offsets.windows(2).map(|w| &corners[w[0] as usize..w[1] as usize]).collect();
-        let stars = Stars::new(rest.len(), &polygons, &triangles, &polygon_of);
+        let stars = Stars::new(rest.len(), &polygons, &triangles, &polygon_of).placed_in(&tree.order);
         let polygon = tree.order.iter().map(|&t| polygon_of[t as usize]).collect();
         let owns = ownership(&tree, rest.len());
         let rings = Rings::new(rest.len(), mesh.corner_verts, &offsets);
@@ -202,7 +202,7 @@ impl SelfCollision {
                 &fitted
             }
         };
-        Gather { tree: &self.tree, owns: &self.owns, bounds, motion: *motion, reach: reach + self.rounding, cull, hinges: &self.hinges, stars: &self.stars, star_memo: self.stars.memo(), takes_part, accept, focus }.run()
+        Gather { tree: &self.tree, owns: &self.owns, bounds, motion: *motion, reach: reach + self.rounding, cull, hinges: &self.hinges, stars: &self.stars, polygon: &self.polygon, star_memo: self.stars.memo_over(&bounds.triangle_cone), takes_part, accept, focus }.run()
     }
 
     /// The patch tree's bounds over `motion`.
@@ -263,7 +263,7 @@ impl SelfCollision {
         let exclusion = &self.exclusion;
         let accept = |a: &[u32], b: &[u32]| !exclusion.excluded(a, b);
         // Touching pairs are found only where the curvature test cannot rule out a contact.
-        let gather = Gather { tree: &self.tree, owns: &self.owns, bounds: &bounds, motion, reach: touching + self.rounding, cull: true, hinges: &self.hinges, stars: &self.stars, star_memo: self.stars.memo(), takes_part, accept: &accept, focus };
+        let gather = Gather { tree: &self.tree, owns: &self.owns, bounds: &bounds, motion, reach: touching + self.rounding, cull: true, hinges: &self.hinges, stars: &self.stars, polygon: &self.polygon, star_memo: self.stars.memo_over(&bounds.triangle_cone), takes_part, accept: &accept, focus };
         let mut found: Vec<([u32; 2], bool)> = gather
             .triangle_pairs()
             .into_par_iter()

@@ -18,7 +18,7 @@
 //!   ([`separated`]);
 //! * two leaves: their triangles' relative boxes, then each element pair's,
 //!   then its exact distances at both ends of the motion less how much the
-//!   relative motion can change them ([`element_gap`]): at rest most
+//!   relative motion can change them ([`element_within`]): at rest most
 //!   element pairs whose boxes overlap (neighbours a ring or two apart) are
 //!   an edge apart, and none of them is listed.
 //!
@@ -31,7 +31,7 @@
 
 use glam::Vec3;
 
-use super::bounds::{element_gap, relative_gap, Motion, NodeBounds, Span};
+use super::bounds::{element_within, relative_gap, Motion, NodeBounds, Span};
 use super::hinge::Hinges;
 use super::separation::separated;
 use super::star::{StarMemo, Stars};
@@ -125,8 +125,10 @@ pub(super) struct Gather<'a> {
     pub hinges: &'a Hinges,
     /// The polygons round each vertex, for the star rule `cull` applies.
     pub stars: &'a Stars,
+    /// Per tree position, the polygon its triangle comes from (the stars' numbering).
+    pub polygon: &'a [u32],
     /// The stars' answers over this gathering's motion ([`Stars::memo`]).
-    pub star_memo: StarMemo,
+    pub star_memo: StarMemo<'a>,
     /// Per tree position: whether its triangle takes part (None: all do).
     pub takes_part: Option<&'a [bool]>,
     /// Whether two sides are tested at all (neighbours, tangles).
@@ -268,6 +270,15 @@ impl Gather<'_> {
     /// The element pairs owned by tree positions `p` and `q`.
     fn element_pairs(&self, p: usize, q: usize, out: &mut Vec<ElementPair>) {
         let (tp, tq) = (self.tree.triangles[p], self.tree.triangles[q]);
+        // Two triangles in two polygons of a star that keeps one side and
+        // winds once: each of their element pairs has its sides in those two
+        // polygons, so the star rule keeps every one of them apart. Asked once
+        // for the triangle pair, before any span or exact gap: most triangle
+        // pairs whose boxes meet are neighbours a polygon apart round a vertex
+        // (issue 30, twenty-third round).
+        if self.cull && self.stars.polygons_apart(&self.motion, &self.star_memo, self.polygon[p], self.polygon[q]) {
+            return;
+        }
         let (op, oq) = (self.owns[p], self.owns[q]);
         // A vertex–triangle pair's triangle is `tp` or `tq`: its span is the bounds'.
         let mut consider = |one: &[u32], other: &[u32], other_span: Option<&Span>, edge_edge: bool| {
@@ -280,7 +291,7 @@ impl Gather<'_> {
             }
             // The boxes overlap; the exact distances at both ends decide
             // (the reach already carries the f32 rounding allowance).
-            if element_gap(&self.motion, one, other) > self.reach as f64 {
+            if !element_within(&self.motion, one, other, self.reach as f64) {
                 return;
             }
             if self.cull && (self.hinges.keep_apart(&self.motion, one, other) || self.stars.keep_apart(&self.motion, &self.star_memo, one, other)) {

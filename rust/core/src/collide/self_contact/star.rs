@@ -51,7 +51,7 @@ use std::sync::atomic::{AtomicU8, Ordering};
 
 use glam::Vec3;
 
-use super::bounds::{one_side_axis, Motion};
+use super::bounds::{common_axis, one_side_axis, Cone, Motion};
 
 /// The polygons around each vertex inside the skin, in order round it.
 #[derive(Debug, Clone, Default)]
@@ -69,6 +69,9 @@ pub(super) struct Stars {
     around: Vec<Around>,
     /// Per vertex, whether its polygons make a star the rule applies to.
     star: Vec<bool>,
+    /// Per triangle of `triangles`, its position in the patch tree (empty
+    /// until [`Self::placed_in`]): where a gathering's bounds keep its cone.
+    position: Vec<u32>,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -83,9 +86,12 @@ struct Around {
 /// for every near pair round it (the star rule's cones were about a tenth
 /// of the MakeHuman character's straight frames, issue 30, sixteenth
 /// round), and the answer depends on the vertex and the motion alone.
-pub(super) struct StarMemo {
+pub(super) struct StarMemo<'c> {
     /// Per vertex: 0 not asked yet, else [`WINDS_ONCE`] or [`WINDS_OTHERWISE`].
     known: Vec<AtomicU8>,
+    /// Per tree position, its triangle's normal cone over the motion, if the
+    /// gathering's bounds made them ([`Stars::memo_over`]).
+    cones: Option<&'c [Cone]>,
 }
 
 const WINDS_ONCE: u8 = 1;
@@ -141,12 +147,35 @@ impl Stars {
             let list = &mut around[offsets[v] as usize..offsets[v + 1] as usize];
             star[v] = list.len() >= 3 && list.iter().all(|a| usable[a.polygon as usize]) && order_round(list);
         }
-        Stars { corners, triangle_offsets, triangles, offsets, around, star }
+        Stars { corners, triangle_offsets, triangles, offsets, around, star, position: Vec::new() }
     }
 
-    /// An empty memo for one motion of this skin ([`Self::keep_apart`]).
-    pub(super) fn memo(&self) -> StarMemo {
-        StarMemo { known: (0..self.star.len()).map(|_| AtomicU8::new(0)).collect() }
+    /// These stars with their triangles' positions in a patch tree whose
+    /// position `k` holds triangle `order[k]` (as given to [`Self::new`]).
+    pub(super) fn placed_in(mut self, order: &[u32]) -> Self {
+        self.position = vec![0; self.triangles.len()];
+        for (k, &t) in order.iter().enumerate() {
+            self.position[t as usize] = k as u32;
+        }
+        self
+    }
+
+    /// An empty memo for one motion of this skin ([`Self::keep_apart`]),
+    /// which makes each star's cones from the motion.
+    #[cfg(test)]
+    pub(super) fn memo(&self) -> StarMemo<'static> {
+        StarMemo { known: (0..self.star.len()).map(|_| AtomicU8::new(0)).collect(), cones: None }
+    }
+
+    /// [`Self::memo`] for a motion whose triangle cones a gathering's bounds
+    /// already made (`cones`, per tree position, [`Self::placed_in`]): a
+    /// star's cone is then the union of its triangles' cones, read, where
+    /// making them again was the most of the star rule once every triangle
+    /// pair asks it (issue 30, twenty-third round). The same cones, in the
+    /// same order: the same answers to the bit.
+    pub(super) fn memo_over<'c>(&self, cones: &'c [Cone]) -> StarMemo<'c> {
+        let cones = (self.position.len() == self.triangles.len()).then_some(cones);
+        StarMemo { known: (0..self.star.len()).map(|_| AtomicU8::new(0)).collect(), cones }
     }
 
     fn polygon_corners(&self, p: u32) -> &[u32] {
@@ -187,6 +216,22 @@ impl Stars {
         false
     }
 
+    /// Whether every side of polygon `p` and every side of polygon `q` are
+    /// kept apart by [`Self::keep_apart`]: the two are not one and share a
+    /// corner whose star keeps one side and winds once over `motion`. Such a
+    /// star's polygons are all triangles or quads, so `p` and `q` hold all
+    /// their corners and each is among the polygons holding any of its
+    /// sides: `keep_apart` finds the same pair and the same corner for each
+    /// pair of their sides. One question for all the element pairs of two
+    /// triangles, where `keep_apart` for each would look up their polygons.
+    pub(super) fn polygons_apart(&self, motion: &Motion<'_>, memo: &StarMemo, p: u32, q: u32) -> bool {
+        if self.star.is_empty() || p == q {
+            return false;
+        }
+        let theirs = self.polygon_corners(q);
+        self.polygon_corners(p).iter().any(|&c| theirs.contains(&c) && self.winds_once_memo(motion, memo, c))
+    }
+
     /// [`Self::winds_once`], from `memo` if it was asked before. Threads
     /// asking at once may both work it out: the same answer either way.
     fn winds_once_memo(&self, motion: &Motion<'_>, memo: &StarMemo, v: u32) -> bool {
@@ -195,7 +240,7 @@ impl Stars {
             WINDS_ONCE => true,
             WINDS_OTHERWISE => false,
             _ => {
-                let once = self.winds_once(motion, v);
+                let once = self.winds_once(motion, memo.cones, v);
                 slot.store(if once { WINDS_ONCE } else { WINDS_OTHERWISE }, Ordering::Relaxed);
                 once
             }
@@ -204,17 +249,22 @@ impl Stars {
 
     /// Whether `v`'s star keeps one side over `motion` and its projected
     /// angles at `v` sum to one turn.
-    fn winds_once(&self, motion: &Motion<'_>, v: u32) -> bool {
+    /// `cones`: per tree position, its triangle's cone over `motion`, if made.
+    fn winds_once(&self, motion: &Motion<'_>, cones: Option<&[Cone]>, v: u32) -> bool {
         let v = v as usize;
         if !self.star[v] {
             return false;
         }
         let around = &self.around[self.offsets[v] as usize..self.offsets[v + 1] as usize];
-        let triangles = around.iter().flat_map(|a| {
+        let triangle_range = |a: &Around| {
             let p = a.polygon as usize;
-            &self.triangles[self.triangle_offsets[p] as usize..self.triangle_offsets[p + 1] as usize]
-        });
-        let Some(axis) = one_side_axis(motion, triangles) else { return false };
+            self.triangle_offsets[p] as usize..self.triangle_offsets[p + 1] as usize
+        };
+        let axis = match cones {
+            Some(cones) => common_axis(around.iter().flat_map(triangle_range).map(|t| cones[self.position[t] as usize])),
+            None => one_side_axis(motion, around.iter().flat_map(|a| &self.triangles[triangle_range(a)])),
+        };
+        let Some(axis) = axis else { return false };
         // Every triangle keeps its orientation over the motion, so the turn
         // count is the same at every moment: count it at the start.
         let x = motion.start;
@@ -245,6 +295,8 @@ fn order_round(list: &mut [Around]) -> bool {
 
 #[cfg(test)]
 mod tests {
+    use super::super::bounds::NodeBounds;
+    use super::super::tree::PatchTree;
     use super::*;
 
     /// Four quads round vertex 4 of a 3 × 3 grid of vertices (side 1),
@@ -269,11 +321,7 @@ mod tests {
     /// split into its four triangles as the skin's quads are.
     fn stars_of_quads(quads: &[[u32; 4]]) -> Stars {
         let polygons: Vec<&[u32]> = quads.iter().map(|q| &q[..]).collect();
-        let (triangles, polygon_of): (Vec<[u32; 3]>, Vec<u32>) = quads
-            .iter()
-            .enumerate()
-            .flat_map(|(k, &[a, b, c, d])| [[a, b, c], [a, c, d], [a, b, d], [b, c, d]].map(|t| (t, k as u32)))
-            .unzip();
+        let (triangles, polygon_of) = split_quads(quads);
         Stars::new(9, &polygons, &triangles, &polygon_of)
     }
 
@@ -300,6 +348,74 @@ mod tests {
         assert!(!stars.keep_apart(&Motion { start: &flat, end: &flat, margin: &wide }, &stars.memo(), &[0, 4], &[5, 7]));
     }
 
+    /// The grid's four quads, each split into its four triangles, as
+    /// [`stars_of_quads`] makes them: triangles and their polygons.
+    fn split_quads(quads: &[[u32; 4]]) -> (Vec<[u32; 3]>, Vec<u32>) {
+        quads.iter().enumerate().flat_map(|(k, &[a, b, c, d])| [[a, b, c], [a, c, d], [a, b, d], [b, c, d]].map(|t| (t, k as u32))).unzip()
+    }
+
+    #[test]
+    fn a_stars_cone_read_from_a_gatherings_bounds_answers_as_one_made_from_the_motion() {
+        let quads = [[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 7, 6], [4, 5, 8, 7]];
+        let (triangles, polygon_of) = split_quads(&quads);
+        let polygons: Vec<&[u32]> = quads.iter().map(|q| &q[..]).collect();
+        let (flat, _) = grid_star(0.0);
+        let tree = PatchTree::build(&triangles, &flat);
+        let stars = Stars::new(9, &polygons, &triangles, &polygon_of).placed_in(&tree.order);
+        let mut answers = Vec::new();
+        for angle in [0.0, 0.5, 1.3, -1.0, std::f32::consts::FRAC_PI_2, 1.9] {
+            let (x, _) = grid_star(angle);
+            for (start, margin) in [(&x, 0.0), (&flat, 0.0), (&flat, 0.05), (&x, 0.6)] {
+                let margins = [margin; 9];
+                let motion = Motion { start, end: &x, margin: &margins };
+                let bounds = NodeBounds::new(&tree, &motion, None);
+                let (made, read) = (stars.memo(), stars.memo_over(&bounds.triangle_cone));
+                assert!(read.cones.is_some());
+                for v in 0..9 {
+                    let answer = stars.winds_once_memo(&motion, &read, v);
+                    assert_eq!(answer, stars.winds_once_memo(&motion, &made, v), "vertex {v} at {angle} rad, margin {margin}");
+                    answers.push(answer);
+                }
+            }
+        }
+        assert!(answers.contains(&true) && answers.contains(&false), "both answers asked");
+    }
+
+    #[test]
+    fn two_polygons_kept_apart_keep_every_pair_of_their_sides_apart() {
+        let quads = [[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 7, 6], [4, 5, 8, 7]];
+        let margin = [0.0; 9];
+        let mut apart = 0;
+        for angle in [0.0, 0.5, 1.3, -1.0, std::f32::consts::FRAC_PI_2, 1.9] {
+            let (x, stars) = grid_star(angle);
+            let motion = Motion { start: &x, end: &x, margin: &margin };
+            let memo = stars.memo();
+            for p in 0..4 {
+                for q in 0..4 {
+                    if !stars.polygons_apart(&motion, &memo, p, q) {
+                        continue;
+                    }
+                    apart += 1;
+                    // Every corner and every side or diagonal of the one against the other's.
+                    let sides = |k: usize| {
+                        let c = quads[k];
+                        let mut sides: Vec<Vec<u32>> = c.iter().map(|&v| vec![v]).collect();
+                        sides.extend((0..4).flat_map(|i| (i + 1..4).map(move |j| vec![c[i], c[j]])));
+                        sides.extend([[c[0], c[1], c[2]], [c[0], c[2], c[3]], [c[0], c[1], c[3]], [c[1], c[2], c[3]]].map(|t| t.to_vec()));
+                        sides
+                    };
+                    for one in sides(p as usize) {
+                        for other in sides(q as usize) {
+                            assert!(stars.keep_apart(&motion, &memo, &one, &other), "{one:?} against {other:?} at {angle} rad");
+                        }
+                    }
+                }
+            }
+        }
+        // Every two of the four quads share vertex 4, whose star keeps a side but at the right angle.
+        assert_eq!(apart, 5 * 12);
+    }
+
     #[test]
     fn a_vertex_on_the_skins_boundary_has_no_star() {
         let (x, stars) = grid_star(0.0);
@@ -308,8 +424,8 @@ mod tests {
         // Quads 0 1 4 3 and 1 2 5 4 share 1 (on the boundary) and 4: kept
         // apart through 4's star, never through 1's.
         assert!(stars.keep_apart(&motion, &stars.memo(), &[0], &[2, 5, 4]));
-        assert!(!stars.winds_once(&motion, 1));
-        assert!(stars.winds_once(&motion, 4));
+        assert!(!stars.winds_once(&motion, None, 1));
+        assert!(stars.winds_once(&motion, None, 4));
         // Quads 0 1 4 3 and 1 2 5 4 seen without vertex 4's other quads: no star at all.
         let open = stars_of_quads(&[[0, 1, 4, 3], [1, 2, 5, 4]]);
         assert!(!open.keep_apart(&motion, &open.memo(), &[0], &[2, 5, 4]));
