@@ -385,6 +385,33 @@ impl Candidates {
         self.pairs[k].corners.iter().any(|&v| open[v as usize])
     }
 
+    /// Drops the pairs `dropped` says so of, keeping the others (and their
+    /// distances) in their order; returns how many are kept. In place: a
+    /// gathering around a few vertices drops a few pairs of a list of up to
+    /// millions, which copying made a pass over the whole list in new
+    /// memory for each such gathering (issue 30, twenty-third round).
+    /// `by_pair`, one value per pair (an [`AtStart`]'s distances), is
+    /// compacted alike.
+    fn drop_pairs(&mut self, dropped: impl Fn(&ElementPair) -> bool, mut by_pair: Option<&mut Vec<f32>>) -> usize {
+        let mut kept = 0;
+        for k in 0..self.pairs.len() {
+            if !dropped(&self.pairs[k]) {
+                self.pairs[kept] = self.pairs[k];
+                self.distance[kept] = self.distance[k];
+                if let Some(values) = by_pair.as_deref_mut() {
+                    values[kept] = values[k];
+                }
+                kept += 1;
+            }
+        }
+        self.pairs.truncate(kept);
+        self.distance.truncate(kept);
+        if let Some(values) = by_pair {
+            values.truncate(kept);
+        }
+        kept
+    }
+
     /// Lowers the clearances of the corners of pairs `from..` to what those
     /// pairs allow ([`Self::open`]).
     fn tighten(&mut self, from: usize, pass: &Pass<'_>) {
@@ -502,6 +529,21 @@ impl AtStart {
     /// Forgets every distance: the list was gathered again.
     fn clear(&mut self) {
         self.distance.clear();
+    }
+
+    /// The distances to compact along with the list a gathering around a
+    /// few vertices keeps ([`Candidates::drop_pairs`]): a kept pair is the
+    /// same pair at the same `before`, so its distance there still holds
+    /// (the new pairs, appended, get theirs when a round asks). None where
+    /// they are not one per listed pair (no round has asked since the list
+    /// was made): then forgotten.
+    fn kept_with(&mut self, c: &Candidates) -> Option<&mut Vec<f32>> {
+        if self.distance.len() == c.pairs.len() {
+            Some(&mut self.distance)
+        } else {
+            self.distance.clear();
+            None
+        }
     }
 
     /// The pairs of `c` a round over `before → after` tests, ascending:
@@ -710,7 +752,7 @@ impl SelfCollision {
             }
             let margin: Vec<f32> = (0..end.len()).map(|v| if left[v] { c.margin[v].max((end[v] - c.reference[v]).length()) } else { c.margin[v] }).collect();
             if count <= end.len() / AROUND_FIRST_PASS {
-                let ((), ms) = timed(|| pass.gather_around(c, &left, start, end, &margin));
+                let ((), ms) = timed(|| pass.gather_around(c, &left, start, end, &margin, None));
                 stats.count(&Gathered::Around(Vec::new()), ms);
                 // The pairs listed again have a corner among `left`: the
                 // next round looks at them, as at every pair of a moved vertex.
@@ -775,7 +817,7 @@ impl SelfCollision {
         let pass = self.pass(settings, tangles, takes_part)?;
         let requested = after.to_vec();
         let mut stats = SelfStats::default();
-        let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
+        let (gathered, ms) = timed(|| pass.ensure(candidates, before, after, None));
         stats.count(&gathered, ms);
         let mut moved: Option<Vec<bool>> = None;
         let mut at_start = AtStart::default();
@@ -795,9 +837,9 @@ impl SelfCollision {
                 after[v as usize] = p;
                 flags[v as usize] = true;
             }
-            let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
+            let (gathered, ms) = timed(|| pass.ensure(candidates, before, after, Some(&mut at_start)));
             stats.count(&gathered, ms);
-            if gathered != Gathered::Nothing {
+            if gathered == Gathered::Whole {
                 // Its pairs are listed anew (in another order).
                 at_start.clear();
             }
@@ -836,7 +878,7 @@ impl SelfCollision {
         stats: &mut SelfStats,
     ) -> Result<Vec<u32>> {
         let pass = self.pass(settings, tangles, takes_part)?;
-        let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
+        let (gathered, ms) = timed(|| pass.ensure(candidates, before, after, None));
         stats.count(&gathered, ms);
         let began = Instant::now();
         let current = candidates.as_ref().expect("ensured");
@@ -936,7 +978,10 @@ impl Pass<'_> {
     /// grow with its corrections, and where a fold closes (its rounds and
     /// fail-safe moving skin far) carrying them into every in-loop gathering
     /// paired up millions of elements of the fold (issue 30, seventh round).
-    fn ensure(&self, candidates: &mut Option<Candidates>, before: &[Vec3], after: &[Vec3]) -> Gathered {
+    ///
+    /// `at_start`, the rounds' distances at `before`, are kept for the
+    /// pairs a gathering around a few vertices keeps.
+    fn ensure(&self, candidates: &mut Option<Candidates>, before: &[Vec3], after: &[Vec3], at_start: Option<&mut AtStart>) -> Gathered {
         let fit = candidates.as_ref().map(|c| c.fitted(before, after));
         if fit.as_ref().is_some_and(|(_, count)| *count == 0) {
             return Gathered::Nothing;
@@ -948,7 +993,8 @@ impl Pass<'_> {
                 // Each a ball about `before` holding `after` and the next
                 // iterations' moves, which shrink as the solve converges.
                 let ball: Vec<f32> = (0..before.len()).into_par_iter().with_min_len(4096).map(|v| (4.0 * moved(v)).max(floor)).collect();
-                self.gather_around(c, &left, before, before, &ball);
+                let by_pair = at_start.and_then(|a| a.kept_with(c));
+                self.gather_around(c, &left, before, before, &ball, by_pair);
                 return Gathered::Around(left);
             }
         }
@@ -981,7 +1027,9 @@ impl Pass<'_> {
     /// still; every pair with a corner among `left` has a triangle around
     /// one of them (the triangle owning that corner or edge, or the
     /// vertex–triangle pair's triangle), which the focus looks at.
-    fn gather_around(&self, c: &mut Candidates, left: &[bool], start: &[Vec3], end: &[Vec3], margin: &[f32]) {
+    /// `by_pair`, one value per listed pair, keeps those of the kept pairs
+    /// ([`Candidates::drop_pairs`]).
+    fn gather_around(&self, c: &mut Candidates, left: &[bool], start: &[Vec3], end: &[Vec3], margin: &[f32], by_pair: Option<&mut Vec<f32>>) {
         for v in (0..left.len()).filter(|&v| left[v]) {
             c.start[v] = start[v];
             c.reference[v] = end[v];
@@ -990,7 +1038,7 @@ impl Pass<'_> {
             c.clearance[v] = f64::INFINITY;
         }
         let touches = |pair: &ElementPair| pair.corners.iter().any(|&v| left[v as usize]);
-        let (pairs, kept_distance): (Vec<ElementPair>, Vec<f32>) = c.pairs.iter().zip(&c.distance).filter(|(pair, _)| !touches(pair)).map(|(p, d)| (*p, *d)).unzip();
+        let kept = c.drop_pairs(touches, by_pair);
         let focus = self.collision.focus_around(left);
         // Only the vertices `left` changed path or margin: the bounds of the
         // leaves without one of them as a corner, and of the nodes above
@@ -1000,9 +1048,6 @@ impl Pass<'_> {
         let found: Vec<ElementPair> = self.gather_with(Some(&c.bounds), &motion, Some(&focus)).into_iter().filter(|p| touches(p)).collect();
         let reference = &c.reference;
         let found_distance: Vec<f32> = found.par_iter().map(|pair| distance(pair, reference)).collect();
-        c.pairs = pairs;
-        c.distance = kept_distance;
-        let kept = c.pairs.len();
         c.pairs.extend(found);
         c.distance.extend(found_distance);
         // The kept pairs' corners keep their clearances (a pair dropped can
