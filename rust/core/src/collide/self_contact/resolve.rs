@@ -211,6 +211,12 @@ pub struct Candidates {
     pairs: Vec<ElementPair>,
     /// Each pair's distance at `reference`.
     distance: Vec<f32>,
+    /// Each pair's separation ([`SelfCollision::pair_separation`], the
+    /// least of its corners'), kept with it: the proofs that a pair stays
+    /// apart (`apart`) ask for it every round, and were a seventh of the
+    /// MakeHuman character's fold frame 11 working it out from the four
+    /// corners each time (issue 30, twenty-third round).
+    separation: Vec<f32>,
     /// Per vertex, how far it may stray from `reference` while every pair
     /// of it listed here is still proven apart ([`Self::proves_apart`]):
     /// the active set of the in-loop passes is the pairs of vertices that
@@ -398,6 +404,7 @@ impl Candidates {
             if !dropped(&self.pairs[k]) {
                 self.pairs[kept] = self.pairs[k];
                 self.distance[kept] = self.distance[k];
+                self.separation[kept] = self.separation[k];
                 if let Some(values) = by_pair.as_deref_mut() {
                     values[kept] = values[k];
                 }
@@ -406,6 +413,7 @@ impl Candidates {
         }
         self.pairs.truncate(kept);
         self.distance.truncate(kept);
+        self.separation.truncate(kept);
         if let Some(values) = by_pair {
             values.truncate(kept);
         }
@@ -415,11 +423,11 @@ impl Candidates {
     /// Lowers the clearances of the corners of pairs `from..` to what those
     /// pairs allow ([`Self::open`]).
     fn tighten(&mut self, from: usize, pass: &Pass<'_>) {
-        for (pair, &d) in self.pairs[from..].iter().zip(&self.distance[from..]) {
-            let threshold = pass.collision.pair_separation(pair) + pass.params.tolerance + pass.collision.rounding as f64;
-            let d = d as f64;
+        for k in from..self.pairs.len() {
+            let threshold = self.threshold(k, pass);
+            let d = self.distance[k] as f64;
             let half_room = 0.5 * (d - threshold) - f32::EPSILON as f64 * d.abs();
-            for &v in &pair.corners {
+            for &v in &self.pairs[k].corners {
                 let c = &mut self.clearance[v as usize];
                 *c = c.min(half_room);
             }
@@ -475,7 +483,13 @@ impl Candidates {
     /// reference by less, together, than its distance there less the
     /// separation.
     fn proves_apart(&self, k: usize, strays: &Strays, pass: &Pass<'_>) -> bool {
-        apart(&self.pairs[k], self.distance[k], &strays.from_reference, pass)
+        apart(&self.pairs[k], self.distance[k], &strays.from_reference, self.threshold(k, pass))
+    }
+
+    /// The distance pair `k` is proven apart beyond: its separation, the
+    /// CCD's tolerance and room for the f32 arithmetic ([`Self::open`]).
+    fn threshold(&self, k: usize, pass: &Pass<'_>) -> f64 {
+        self.separation[k] as f64 + pass.params.tolerance + pass.collision.rounding as f64
     }
 }
 
@@ -491,13 +505,13 @@ struct Strays {
 /// Whether `pair`, `distance` apart at some positions, provably stays
 /// farther apart than its separation while each vertex strays at most
 /// `strayed` from those: its sides strayed less, together, than that
-/// distance less the separation (the threshold has room for the f32
-/// arithmetic, [`Candidates::open`]).
-fn apart(pair: &ElementPair, distance: f32, strayed: &[f32], pass: &Pass<'_>) -> bool {
+/// distance less the separation (the `threshold` has room for the f32
+/// arithmetic, [`Candidates::threshold`]).
+fn apart(pair: &ElementPair, distance: f32, strayed: &[f32], threshold: f64) -> bool {
     let side = |corners: &[u32]| corners.iter().fold(0.0f32, |m, &v| m.max(strayed[v as usize]));
     let (a, b) = pair.sides();
     let room = distance - side(a) - side(b);
-    room as f64 > pass.collision.pair_separation(pair) + pass.params.tolerance + pass.collision.rounding as f64
+    room as f64 > threshold
 }
 
 /// The listed pairs' distances at the start of an in-loop pass (`before`),
@@ -571,7 +585,7 @@ impl AtStart {
                     }
                     *d = distance(pair, before);
                 }
-                (!apart(pair, *d, &strays.from_before, pass)).then_some(k)
+                (!apart(pair, *d, &strays.from_before, c.threshold(k, pass))).then_some(k)
             })
             .collect()
     }
@@ -957,6 +971,11 @@ impl Pass<'_> {
         self.collision.gather(motion, self.settings.thickness, true, self.takes_part, &accept, focus, bounds)
     }
 
+    /// Each pair's separation, as [`Candidates`] keeps it.
+    fn pair_separations(&self, pairs: &[ElementPair]) -> Vec<f32> {
+        pairs.par_iter().with_min_len(4096).map(|pair| self.collision.pair_separation(pair) as f32).collect()
+    }
+
     /// The candidates of `start → end` with these margins; pairs that
     /// cannot come within their separation near the end are dropped.
     fn candidates(&self, start: &[Vec3], end: &[Vec3], margin: Vec<f32>) -> Candidates {
@@ -964,7 +983,8 @@ impl Pass<'_> {
         let bounds = self.collision.bounds(&motion, self.takes_part);
         let pairs = self.gather_with(Some(&bounds), &motion, None);
         let distance: Vec<f32> = pairs.par_iter().map(|pair| distance(pair, end)).collect();
-        let mut c = Candidates { start: start.to_vec(), reference: end.to_vec(), margin, pairs, distance, bounds, clearance: vec![f64::INFINITY; start.len()] };
+        let separation = self.pair_separations(&pairs);
+        let mut c = Candidates { start: start.to_vec(), reference: end.to_vec(), margin, pairs, distance, separation, bounds, clearance: vec![f64::INFINITY; start.len()] };
         c.tighten(0, self);
         c
     }
@@ -1050,6 +1070,7 @@ impl Pass<'_> {
         let found_distance: Vec<f32> = found.par_iter().map(|pair| distance(pair, reference)).collect();
         c.pairs.extend(found);
         c.distance.extend(found_distance);
+        c.separation.extend(self.pair_separations(&c.pairs[kept..]));
         // The kept pairs' corners keep their clearances (a pair dropped can
         // only have lowered them: still a lower bound of what is left), the
         // new pairs lower theirs.
