@@ -391,8 +391,9 @@ impl Candidates {
         self.pairs[k].corners.iter().any(|&v| open[v as usize])
     }
 
-    /// Drops the pairs `dropped` says so of, keeping the others (and their
-    /// distances) in their order; returns how many are kept. In place: a
+    /// Drops the pairs for which `dropped` holds, keeping the others (with
+    /// their distances and separations) in their order; returns how many
+    /// are kept. In place: a
     /// gathering around a few vertices drops a few pairs of a list of up to
     /// millions, which copying made a pass over the whole list in new
     /// memory for each such gathering (issue 30, twenty-third round).
