@@ -115,6 +115,11 @@ const WARM_MARGIN_MOVES: f32 = 4.0;
 /// paths at which positions fit them best (1/n of the paths).
 const FIT_STEPS: usize = 32;
 
+/// The `k`-th of the times [`Candidates::best_fit`] tries.
+fn fit_time(k: usize) -> f32 {
+    k as f32 / FIT_STEPS as f32
+}
+
 /// The vertices of the triangles that intersected (or touched) at the start
 /// of a frame.
 #[derive(Debug, Clone, Default)]
@@ -206,6 +211,12 @@ pub struct Candidates {
     pairs: Vec<ElementPair>,
     /// Each pair's distance at `reference`.
     distance: Vec<f32>,
+    /// Each pair's separation ([`SelfCollision::pair_separation`], the
+    /// least of its corners'), kept with it: the proofs that a pair stays
+    /// apart (`apart`) ask for it every round, and were a seventh of the
+    /// MakeHuman character's fold frame 11 working it out from the four
+    /// corners each time (issue 30, twenty-third round).
+    separation: Vec<f32>,
     /// Per vertex, how far it may stray from `reference` while every pair
     /// of it listed here is still proven apart ([`Self::proves_apart`]):
     /// the active set of the in-loop passes is the pairs of vertices that
@@ -256,9 +267,15 @@ impl Candidates {
         self.start[v] + t * (self.reference[v] - self.start[v])
     }
 
+    /// Whether `x`, a position of vertex `v`, is beyond its margin of its
+    /// path at time `t`.
+    fn outside(&self, x: Vec3, v: usize, t: f32) -> bool {
+        (x - self.path_at(v, t)).length() > self.margin[v]
+    }
+
     /// Per vertex, whether `x` is beyond its margin of its path at time `t`.
     fn outside_at(&self, x: &[Vec3], t: f32) -> Vec<bool> {
-        (0..x.len()).into_par_iter().with_min_len(4096).map(|v| (x[v] - self.path_at(v, t)).length() > self.margin[v]).collect()
+        (0..x.len()).into_par_iter().with_min_len(4096).map(|v| self.outside(x[v], v, t)).collect()
     }
 
     /// The vertices of `x` beyond their margins of the gathered paths at the
@@ -271,14 +288,35 @@ impl Candidates {
         if within(1.0) || within(0.0) {
             return (vec![false; x.len()], 0);
         }
-        (0..=FIT_STEPS)
-            .map(|k| {
-                let out = self.outside_at(x, k as f32 / FIT_STEPS as f32);
-                let count = out.iter().filter(|&&o| o).count();
-                (out, count)
-            })
-            .min_by_key(|(_, count)| *count)
-            .expect("FIT_STEPS + 1 times")
+        // How many vertices each time leaves out, counted in one pass over
+        // the vertices, each vertex's path read once for all the times: a
+        // pass over the skin per time, each making its flags, cost more
+        // than the in-loop gatherings around a few vertices themselves on
+        // the MakeHuman character's frames 1–8 (1.26G instructions against
+        // 0.99G, issue 30, twenty-third round). The same test as
+        // `outside_at`, so the same counts and the same time.
+        let counts = (0..x.len())
+            .into_par_iter()
+            .with_min_len(4096)
+            .fold(
+                || [0usize; FIT_STEPS + 1],
+                |mut counts, v| {
+                    for (k, count) in counts.iter_mut().enumerate() {
+                        *count += usize::from(self.outside(x[v], v, fit_time(k)));
+                    }
+                    counts
+                },
+            )
+            .reduce(
+                || [0usize; FIT_STEPS + 1],
+                |mut a, b| {
+                    a.iter_mut().zip(b).for_each(|(a, b)| *a += b);
+                    a
+                },
+            );
+        // The first of the times that leave out the fewest.
+        let best = (0..=FIT_STEPS).min_by_key(|&k| counts[k]).expect("FIT_STEPS + 1 times");
+        (self.outside_at(x, fit_time(best)), counts[best])
     }
 
     /// Per vertex, whether the in-loop motion `before → after` leaves what
@@ -353,14 +391,44 @@ impl Candidates {
         self.pairs[k].corners.iter().any(|&v| open[v as usize])
     }
 
+    /// Drops the pairs for which `dropped` holds, keeping the others (with
+    /// their distances and separations) in their order; returns how many
+    /// are kept. In place: a
+    /// gathering around a few vertices drops a few pairs of a list of up to
+    /// millions, which copying made a pass over the whole list in new
+    /// memory for each such gathering (issue 30, twenty-third round).
+    /// `by_pair`, one value per pair (an [`AtStart`]'s distances), is
+    /// compacted alike.
+    fn drop_pairs(&mut self, dropped: impl Fn(&ElementPair) -> bool, mut by_pair: Option<&mut Vec<f32>>) -> usize {
+        let mut kept = 0;
+        for k in 0..self.pairs.len() {
+            if !dropped(&self.pairs[k]) {
+                self.pairs[kept] = self.pairs[k];
+                self.distance[kept] = self.distance[k];
+                self.separation[kept] = self.separation[k];
+                if let Some(values) = by_pair.as_deref_mut() {
+                    values[kept] = values[k];
+                }
+                kept += 1;
+            }
+        }
+        self.pairs.truncate(kept);
+        self.distance.truncate(kept);
+        self.separation.truncate(kept);
+        if let Some(values) = by_pair {
+            values.truncate(kept);
+        }
+        kept
+    }
+
     /// Lowers the clearances of the corners of pairs `from..` to what those
     /// pairs allow ([`Self::open`]).
     fn tighten(&mut self, from: usize, pass: &Pass<'_>) {
-        for (pair, &d) in self.pairs[from..].iter().zip(&self.distance[from..]) {
-            let threshold = pass.collision.pair_separation(pair) + pass.params.tolerance + pass.collision.rounding as f64;
-            let d = d as f64;
+        for k in from..self.pairs.len() {
+            let threshold = self.threshold(k, pass);
+            let d = self.distance[k] as f64;
             let half_room = 0.5 * (d - threshold) - f32::EPSILON as f64 * d.abs();
-            for &v in &pair.corners {
+            for &v in &self.pairs[k].corners {
                 let c = &mut self.clearance[v as usize];
                 *c = c.min(half_room);
             }
@@ -416,7 +484,13 @@ impl Candidates {
     /// reference by less, together, than its distance there less the
     /// separation.
     fn proves_apart(&self, k: usize, strays: &Strays, pass: &Pass<'_>) -> bool {
-        apart(&self.pairs[k], self.distance[k], &strays.from_reference, pass)
+        apart(&self.pairs[k], self.distance[k], &strays.from_reference, self.threshold(k, pass))
+    }
+
+    /// The distance pair `k` is proven apart beyond: its separation, the
+    /// CCD's tolerance and room for the f32 arithmetic ([`Self::open`]).
+    fn threshold(&self, k: usize, pass: &Pass<'_>) -> f64 {
+        self.separation[k] as f64 + pass.params.tolerance + pass.collision.rounding as f64
     }
 }
 
@@ -432,13 +506,13 @@ struct Strays {
 /// Whether `pair`, `distance` apart at some positions, provably stays
 /// farther apart than its separation while each vertex strays at most
 /// `strayed` from those: its sides strayed less, together, than that
-/// distance less the separation (the threshold has room for the f32
-/// arithmetic, [`Candidates::open`]).
-fn apart(pair: &ElementPair, distance: f32, strayed: &[f32], pass: &Pass<'_>) -> bool {
+/// distance less the separation (the `threshold` has room for the f32
+/// arithmetic, [`Candidates::threshold`]).
+fn apart(pair: &ElementPair, distance: f32, strayed: &[f32], threshold: f64) -> bool {
     let side = |corners: &[u32]| corners.iter().fold(0.0f32, |m, &v| m.max(strayed[v as usize]));
     let (a, b) = pair.sides();
     let room = distance - side(a) - side(b);
-    room as f64 > pass.collision.pair_separation(pair) + pass.params.tolerance + pass.collision.rounding as f64
+    room as f64 > threshold
 }
 
 /// The listed pairs' distances at the start of an in-loop pass (`before`),
@@ -472,6 +546,21 @@ impl AtStart {
         self.distance.clear();
     }
 
+    /// The distances to compact along with the list a gathering around a
+    /// few vertices keeps ([`Candidates::drop_pairs`]): a kept pair is the
+    /// same pair at the same `before`, so its distance there still holds
+    /// (the new pairs, appended, get theirs when a round asks). None where
+    /// they are not one per listed pair (no round has asked since the list
+    /// was made): then forgotten.
+    fn kept_with(&mut self, c: &Candidates) -> Option<&mut Vec<f32>> {
+        if self.distance.len() == c.pairs.len() {
+            Some(&mut self.distance)
+        } else {
+            self.distance.clear();
+            None
+        }
+    }
+
     /// The pairs of `c` a round over `before → after` tests, ascending:
     /// those with a corner among `moved` (or all) and among the `open`
     /// vertices, that neither proof puts apart. A pair's distance at
@@ -497,7 +586,7 @@ impl AtStart {
                     }
                     *d = distance(pair, before);
                 }
-                (!apart(pair, *d, &strays.from_before, pass)).then_some(k)
+                (!apart(pair, *d, &strays.from_before, c.threshold(k, pass))).then_some(k)
             })
             .collect()
     }
@@ -678,7 +767,7 @@ impl SelfCollision {
             }
             let margin: Vec<f32> = (0..end.len()).map(|v| if left[v] { c.margin[v].max((end[v] - c.reference[v]).length()) } else { c.margin[v] }).collect();
             if count <= end.len() / AROUND_FIRST_PASS {
-                let ((), ms) = timed(|| pass.gather_around(c, &left, start, end, &margin));
+                let ((), ms) = timed(|| pass.gather_around(c, &left, start, end, &margin, None));
                 stats.count(&Gathered::Around(Vec::new()), ms);
                 // The pairs listed again have a corner among `left`: the
                 // next round looks at them, as at every pair of a moved vertex.
@@ -743,7 +832,7 @@ impl SelfCollision {
         let pass = self.pass(settings, tangles, takes_part)?;
         let requested = after.to_vec();
         let mut stats = SelfStats::default();
-        let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
+        let (gathered, ms) = timed(|| pass.ensure(candidates, before, after, None));
         stats.count(&gathered, ms);
         let mut moved: Option<Vec<bool>> = None;
         let mut at_start = AtStart::default();
@@ -763,9 +852,9 @@ impl SelfCollision {
                 after[v as usize] = p;
                 flags[v as usize] = true;
             }
-            let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
+            let (gathered, ms) = timed(|| pass.ensure(candidates, before, after, Some(&mut at_start)));
             stats.count(&gathered, ms);
-            if gathered != Gathered::Nothing {
+            if gathered == Gathered::Whole {
                 // Its pairs are listed anew (in another order).
                 at_start.clear();
             }
@@ -804,7 +893,7 @@ impl SelfCollision {
         stats: &mut SelfStats,
     ) -> Result<Vec<u32>> {
         let pass = self.pass(settings, tangles, takes_part)?;
-        let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
+        let (gathered, ms) = timed(|| pass.ensure(candidates, before, after, None));
         stats.count(&gathered, ms);
         let began = Instant::now();
         let current = candidates.as_ref().expect("ensured");
@@ -883,6 +972,11 @@ impl Pass<'_> {
         self.collision.gather(motion, self.settings.thickness, true, self.takes_part, &accept, focus, bounds)
     }
 
+    /// Each pair's separation, as [`Candidates`] keeps it.
+    fn pair_separations(&self, pairs: &[ElementPair]) -> Vec<f32> {
+        pairs.par_iter().with_min_len(4096).map(|pair| self.collision.pair_separation(pair) as f32).collect()
+    }
+
     /// The candidates of `start → end` with these margins; pairs that
     /// cannot come within their separation near the end are dropped.
     fn candidates(&self, start: &[Vec3], end: &[Vec3], margin: Vec<f32>) -> Candidates {
@@ -890,7 +984,8 @@ impl Pass<'_> {
         let bounds = self.collision.bounds(&motion, self.takes_part);
         let pairs = self.gather_with(Some(&bounds), &motion, None);
         let distance: Vec<f32> = pairs.par_iter().map(|pair| distance(pair, end)).collect();
-        let mut c = Candidates { start: start.to_vec(), reference: end.to_vec(), margin, pairs, distance, bounds, clearance: vec![f64::INFINITY; start.len()] };
+        let separation = self.pair_separations(&pairs);
+        let mut c = Candidates { start: start.to_vec(), reference: end.to_vec(), margin, pairs, distance, separation, bounds, clearance: vec![f64::INFINITY; start.len()] };
         c.tighten(0, self);
         c
     }
@@ -904,7 +999,10 @@ impl Pass<'_> {
     /// grow with its corrections, and where a fold closes (its rounds and
     /// fail-safe moving skin far) carrying them into every in-loop gathering
     /// paired up millions of elements of the fold (issue 30, seventh round).
-    fn ensure(&self, candidates: &mut Option<Candidates>, before: &[Vec3], after: &[Vec3]) -> Gathered {
+    ///
+    /// `at_start`, the rounds' distances at `before`, are kept for the
+    /// pairs a gathering around a few vertices keeps.
+    fn ensure(&self, candidates: &mut Option<Candidates>, before: &[Vec3], after: &[Vec3], at_start: Option<&mut AtStart>) -> Gathered {
         let fit = candidates.as_ref().map(|c| c.fitted(before, after));
         if fit.as_ref().is_some_and(|(_, count)| *count == 0) {
             return Gathered::Nothing;
@@ -916,7 +1014,8 @@ impl Pass<'_> {
                 // Each a ball about `before` holding `after` and the next
                 // iterations' moves, which shrink as the solve converges.
                 let ball: Vec<f32> = (0..before.len()).into_par_iter().with_min_len(4096).map(|v| (4.0 * moved(v)).max(floor)).collect();
-                self.gather_around(c, &left, before, before, &ball);
+                let by_pair = at_start.and_then(|a| a.kept_with(c));
+                self.gather_around(c, &left, before, before, &ball, by_pair);
                 return Gathered::Around(left);
             }
         }
@@ -949,7 +1048,9 @@ impl Pass<'_> {
     /// still; every pair with a corner among `left` has a triangle around
     /// one of them (the triangle owning that corner or edge, or the
     /// vertex–triangle pair's triangle), which the focus looks at.
-    fn gather_around(&self, c: &mut Candidates, left: &[bool], start: &[Vec3], end: &[Vec3], margin: &[f32]) {
+    /// `by_pair`, one value per listed pair, keeps those of the kept pairs
+    /// ([`Candidates::drop_pairs`]).
+    fn gather_around(&self, c: &mut Candidates, left: &[bool], start: &[Vec3], end: &[Vec3], margin: &[f32], by_pair: Option<&mut Vec<f32>>) {
         for v in (0..left.len()).filter(|&v| left[v]) {
             c.start[v] = start[v];
             c.reference[v] = end[v];
@@ -958,7 +1059,7 @@ impl Pass<'_> {
             c.clearance[v] = f64::INFINITY;
         }
         let touches = |pair: &ElementPair| pair.corners.iter().any(|&v| left[v as usize]);
-        let (pairs, kept_distance): (Vec<ElementPair>, Vec<f32>) = c.pairs.iter().zip(&c.distance).filter(|(pair, _)| !touches(pair)).map(|(p, d)| (*p, *d)).unzip();
+        let kept = c.drop_pairs(touches, by_pair);
         let focus = self.collision.focus_around(left);
         // Only the vertices `left` changed path or margin: the bounds of the
         // leaves without one of them as a corner, and of the nodes above
@@ -968,11 +1069,9 @@ impl Pass<'_> {
         let found: Vec<ElementPair> = self.gather_with(Some(&c.bounds), &motion, Some(&focus)).into_iter().filter(|p| touches(p)).collect();
         let reference = &c.reference;
         let found_distance: Vec<f32> = found.par_iter().map(|pair| distance(pair, reference)).collect();
-        c.pairs = pairs;
-        c.distance = kept_distance;
-        let kept = c.pairs.len();
         c.pairs.extend(found);
         c.distance.extend(found_distance);
+        c.separation.extend(self.pair_separations(&c.pairs[kept..]));
         // The kept pairs' corners keep their clearances (a pair dropped can
         // only have lowered them: still a lower bound of what is left), the
         // new pairs lower theirs.
