@@ -3,7 +3,7 @@
 //! a ~100k-vertex skin (a 316² grid) and a ~20k-triangle quad sphere that
 //! rises into it and slides sideways — through the whole
 //! `Sequence::step` (pyramid solve, both collision passes, and the
-//! feature under test), 10 iterations, 2 threads.
+//! feature under test), 10 plain iterations (or Converge, below), 2 threads.
 //!
 //! Every frame is audited (`collide::audit`, which shares no geometry with
 //! the passes) outside the timing; the rows say the worst stretch and the
@@ -14,6 +14,12 @@
 //! their names; collisions only, the baseline, always runs) with
 //! `TEGUMENT_BENCH_DIR=/tmp/somewhere` so the partial run does not replace
 //! `bench/results/flesh.json`.
+//!
+//! `TEGUMENT_BENCH_FLESH_SOLVER=converge` solves as the add-on does by
+//! default (Converge: the accelerated solve to its tolerance, at most
+//! `ACCELERATED_ITERATIONS`) instead of 10 plain iterations (`plain`, the
+//! default): the strain rounds and compliant recessions run in the
+//! iterations that close a solve, so the two measure different steps.
 //!
 //! Under `valgrind --tool=callgrind` every step of the rows is dumped on its
 //! own (`common::callgrind`), labelled `<row> frame <k>`: the instructions of
@@ -32,7 +38,7 @@ use tegument_core::mesh::fan_triangles;
 use tegument_core::collide::{audit, AuditParams, Collider, ColliderSettings};
 use tegument_core::mesh::MeshInput;
 use tegument_core::mesh::shapes::{grid, quad_sphere, PolyMesh};
-use tegument_core::pyramid::{Closeness, DeformerOptions};
+use tegument_core::pyramid::{Closeness, DeformerOptions, ACCELERATED_ITERATIONS, CONVERGE_TOLERANCE};
 use tegument_core::sequence::{Dynamics, Sequence, StepOptions, StrainMode, StrainOptions};
 use tegument_core::strain::MaxStretch;
 
@@ -88,6 +94,26 @@ fn dump_positions(name: &str, k: usize, skin: &[Vec3], collider: &[Vec3]) {
     }
 }
 
+/// Whether the rows solve as the add-on does by default (Converge), or with
+/// 10 plain iterations (the default here; `TEGUMENT_BENCH_FLESH_SOLVER=plain|converge`).
+fn converges() -> bool {
+    match std::env::var("TEGUMENT_BENCH_FLESH_SOLVER").as_deref() {
+        Ok("converge") => true,
+        Ok("plain") | Err(_) => false,
+        Ok(other) => panic!("TEGUMENT_BENCH_FLESH_SOLVER is {other:?}: plain or converge"),
+    }
+}
+
+/// A sequence bound to `skin` that solves as [`converges`] says.
+fn bind(skin: &PolyMesh) -> Sequence {
+    let mut sequence = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
+    if converges() {
+        sequence.deformer_mut().set_accelerated(true);
+        sequence.deformer_mut().set_tolerance(Some(CONVERGE_TOLERANCE)).unwrap();
+    }
+    sequence
+}
+
 /// Threads the rows run on: 2, or `TEGUMENT_BENCH_THREADS`.
 fn threads() -> usize {
     std::env::var("TEGUMENT_BENCH_THREADS").ok().and_then(|t| t.parse().ok()).filter(|&t| t > 0).unwrap_or(2)
@@ -108,7 +134,9 @@ fn main() {
     let case = format!("skin {} v vs collider {} tri, step", skin.positions.len(), tris.len());
     println!("{case}");
     let settings = ColliderSettings { thickness: 0.005, static_friction: 0.4, kinetic_friction: 0.3 };
-    let base = StepOptions::new(10, Closeness::Uniform(0.1));
+    let iterations = if converges() { ACCELERATED_ITERATIONS } else { 10 };
+    println!("solver: {}, at most {iterations} iterations", if converges() { "converge" } else { "plain" });
+    let base = StepOptions::new(iterations, Closeness::Uniform(0.1));
     let configs = [
         Config { name: "collisions only", options: base, compliant: false },
         Config { name: "+ dynamics", options: StepOptions { dynamics: Some(Dynamics::default()), ..base }, compliant: false },
@@ -138,7 +166,7 @@ fn main() {
     };
     let mut baseline = None;
     for config in configs.iter().filter(|c| c.name == "collisions only" || selected(c.name)) {
-        let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
+        let mut deformer = bind(&skin);
         let at = |k: usize| sphere.positions.iter().map(|&p| p + centre(k)).collect::<Vec<_>>();
         let mut collider = Collider::new(&at(0), &tris, settings).unwrap();
         if config.compliant {
@@ -241,7 +269,7 @@ fn contact_region_scaling(report: &mut Report, sphere: &PolyMesh, tris: &[[u32; 
         let mut medians = [0.0f64; 2];
         let mut cpu_medians = [None; 2];
         for (slot, compliant) in [(0, false), (1, true)] {
-            let mut deformer = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
+            let mut deformer = bind(&skin);
             let at = |k: usize| sphere.positions.iter().map(|&p| p + centre(k) + shift).collect::<Vec<_>>();
             let mut collider = Collider::new(&at(0), tris, settings).unwrap();
             if compliant {
