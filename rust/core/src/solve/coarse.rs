@@ -265,6 +265,8 @@ pub(super) struct Coarse {
     /// `M` by vertex (compressed rows, no diagonal), for the coarse problem
     /// with held vertices.
     m: VertexRows,
+    /// `A₁`'s pattern, for the coarse problems with held vertices.
+    pattern: FirstLevelPattern,
     /// The cycle of `A₁` (nothing held).
     free: Hierarchy,
     /// The cycles with held vertices fixed for the last [`HELD_CACHED`]
@@ -401,7 +403,9 @@ impl Coarse {
 
         let m = VertexRows::from_sorted(n, &m);
         let downs: Option<Vec<&[u32]>> = kept.map(|k| k.free.levels.iter().map(|l| &l.down[..]).collect());
-        let Some(free) = Hierarchy::build(first_level(&aggregate, count, &m, None), downs.as_deref()) else {
+        let first = first_level(&aggregate, count, &m, None);
+        let pattern = FirstLevelPattern::new(&aggregate, &m, &first);
+        let Some(free) = Hierarchy::build(first, downs.as_deref()) else {
             return Ok(None);
         };
 
@@ -409,7 +413,7 @@ impl Coarse {
             Some(k) => (k.member_offsets.clone(), k.members.clone()),
             None => group_members(&aggregate, count),
         };
-        Ok(Some(Coarse { aggregate, member_offsets, members, offsets, columns, values, m, free, held: Vec::new(), held_assemblies: 0 }))
+        Ok(Some(Coarse { aggregate, member_offsets, members, offsets, columns, values, m, pattern, free, held: Vec::new(), held_assemblies: 0 }))
     }
 
     /// Builds the coarse problem with the vertices `held` (ascending;
@@ -420,8 +424,7 @@ impl Coarse {
             self.held[..=k].rotate_right(1);
             return;
         }
-        let count = self.member_offsets.len() - 1;
-        let matrix = first_level(&self.aggregate, count, &self.m, Some(mask));
+        let matrix = self.pattern.held(&self.aggregate, &self.m, mask);
         let downs: Vec<&[u32]> = self.free.levels.iter().map(|l| &l.down[..]).collect();
         let hierarchy = Hierarchy::build(matrix, Some(&downs));
         self.held.insert(0, Held { vertices: vertices.to_vec(), hierarchy });
@@ -577,21 +580,97 @@ fn same_pattern(m: &[(u32, u32, f32)], rows: &VertexRows) -> bool {
 /// `held`, `P` without the held vertices' rows (an aggregate of held
 /// vertices only gets an empty row: its correction is 0).
 fn first_level(aggregate: &[u32], count: usize, m: &VertexRows, held: Option<&[bool]>) -> Csr {
-    let free = |v: usize| held.is_none_or(|h| !h[v]);
     let mut entries: Vec<(u32, u32, f64)> = Vec::with_capacity(aggregate.len() + 2 * m.columns.len());
+    first_level_entries(aggregate, m, held, |_, a, b, value| entries.push((a, b, value)));
+    Csr::from_entries(count, entries)
+}
+
+/// Calls `f(index, row, column, value)` for each entry of [`first_level`]'s
+/// matrix before duplicates are summed, in the order they are summed in:
+/// `index` is the entry's place in the sequence with nothing held (one
+/// diagonal entry per vertex, then two per entry of `M`), so that a held set
+/// gives a subsequence of the same indices.
+fn first_level_entries(aggregate: &[u32], m: &VertexRows, held: Option<&[bool]>, mut f: impl FnMut(usize, u32, u32, f64)) {
+    let n = aggregate.len();
+    let free = |v: usize| held.is_none_or(|h| !h[v]);
     for (v, &a) in aggregate.iter().enumerate() {
         if free(v) {
-            entries.push((a, a, 1.0));
+            f(v, a, a, 1.0);
         }
     }
-    for i in (0..aggregate.len()).filter(|&i| free(i)) {
-        for (j, v) in m.row(i).filter(|&(j, _)| free(j)) {
-            let (a, b) = (aggregate[i], aggregate[j]);
-            entries.push((a, b, -0.5 * v as f64));
-            entries.push((b, a, -0.5 * v as f64));
+    for i in (0..n).filter(|&i| free(i)) {
+        for k in m.offsets[i] as usize..m.offsets[i + 1] as usize {
+            let j = m.columns[k] as usize;
+            if !free(j) {
+                continue;
+            }
+            let (a, b, value) = (aggregate[i], aggregate[j], -0.5 * m.values[k] as f64);
+            f(n + 2 * k, a, b, value);
+            f(n + 2 * k + 1, b, a, value);
         }
     }
-    Csr::from_entries(count, entries)
+}
+
+/// The pattern of the first level with nothing held, and the slot (index
+/// into `columns`) each entry [`first_level_entries`] generates lands in.
+/// A held set only leaves entries out, so its matrix's entries fall in a
+/// subset of these slots, and summing each slot's entries in generation
+/// order gives what the stable sort of [`Csr::from_entries`] gives, to the
+/// bit, without sorting: the problems with held vertices are assembled
+/// whenever a contact's held set is new, several times a step (at Converge
+/// on the 100k flesh bench that sort was most of the step, issue 29).
+struct FirstLevelPattern {
+    offsets: Vec<u32>,
+    columns: Vec<u32>,
+    slots: Vec<u32>,
+}
+
+impl FirstLevelPattern {
+    /// For `free`, the first level of `aggregate` and `m` with nothing held.
+    fn new(aggregate: &[u32], m: &VertexRows, free: &Csr) -> Self {
+        let mut slots = vec![0u32; aggregate.len() + 2 * m.columns.len()];
+        first_level_entries(aggregate, m, None, |index, a, b, _| {
+            let (start, end) = (free.offsets[a as usize] as usize, free.offsets[a as usize + 1] as usize);
+            let at = free.columns[start..end].binary_search(&b).expect("every generated entry has a slot");
+            slots[index] = (start + at) as u32;
+        });
+        FirstLevelPattern { offsets: free.offsets.clone(), columns: free.columns.clone(), slots }
+    }
+
+    /// [`first_level`] with `held` fixed, by slot.
+    fn held(&self, aggregate: &[u32], m: &VertexRows, held: &[bool]) -> Csr {
+        let n = self.offsets.len() - 1;
+        // The value `Iterator::sum` starts from, so that each slot's sum is
+        // the same fold as `Csr::from_entries`'.
+        let start: f64 = std::iter::empty::<f64>().sum();
+        let mut sums = vec![start; self.columns.len()];
+        let mut used = vec![false; self.columns.len()];
+        first_level_entries(aggregate, m, Some(held), |index, _, _, value| {
+            let slot = self.slots[index] as usize;
+            sums[slot] += value;
+            used[slot] = true;
+        });
+        let mut offsets = vec![0u32; n + 1];
+        let (mut columns, mut values) = (Vec::new(), Vec::new());
+        let mut inverse_diagonal = vec![0.0f32; n];
+        let mut diagonal = vec![0.0f32; n];
+        for i in 0..n {
+            for slot in self.offsets[i] as usize..self.offsets[i + 1] as usize {
+                if !used[slot] {
+                    continue;
+                }
+                let (j, sum) = (self.columns[slot], sums[slot]);
+                if j as usize == i {
+                    diagonal[i] = sum as f32;
+                    inverse_diagonal[i] = if sum > 0.0 { (1.0 / sum) as f32 } else { 0.0 };
+                }
+                columns.push(j);
+                values.push(sum as f32);
+            }
+            offsets[i + 1] = columns.len() as u32;
+        }
+        Csr { offsets, columns, values, diagonal, inverse_diagonal }
+    }
 }
 
 impl Hierarchy {
@@ -688,6 +767,54 @@ impl Hierarchy {
         }
         for sweep in 0..SWEEPS {
             level.matrix.sweep(&level.rhs, &mut level.error, &mut level.scratch, sweep % 2 == 1);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The assembly by slot must be the sorted assembly to the bit, for any
+    /// held set, since the solver's output depends on every bit of it.
+    #[test]
+    fn held_first_level_by_slot_is_the_sorted_one_bit_for_bit() {
+        let n = 300;
+        // A ring-like coupling with uneven values (so that sums of several
+        // entries round differently in another order) and duplicates of
+        // one aggregate pair from many vertices.
+        let mut seed = 12345u32;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        };
+        let mut entries = Vec::new();
+        for i in 0..n as u32 {
+            let mut columns: Vec<u32> = (0..5).map(|_| next() % n as u32).filter(|&j| j != i).collect();
+            columns.sort_unstable();
+            columns.dedup();
+            for j in columns {
+                entries.push((i, j, (next() % 1000) as f32 / 997.0 + 1e-3));
+            }
+        }
+        let m = VertexRows::from_sorted(n, &entries);
+        let aggregate: Vec<u32> = (0..n as u32).map(|v| (v * 7919 % n as u32) / 7).collect();
+        let count = *aggregate.iter().max().unwrap() as usize + 1;
+        let free = first_level(&aggregate, count, &m, None);
+        let pattern = FirstLevelPattern::new(&aggregate, &m, &free);
+        for round in 0..20 {
+            // From nothing held to most vertices held, whole aggregates included.
+            let held: Vec<bool> = (0..n).map(|v| round > 0 && (next() % 20) < round).collect();
+            let sorted = first_level(&aggregate, count, &m, Some(&held));
+            let by_slot = pattern.held(&aggregate, &m, &held);
+            assert_eq!(sorted.offsets, by_slot.offsets, "round {round}");
+            assert_eq!(sorted.columns, by_slot.columns, "round {round}");
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&sorted.values), bits(&by_slot.values), "round {round}");
+            assert_eq!(bits(&sorted.diagonal), bits(&by_slot.diagonal), "round {round}");
+            assert_eq!(bits(&sorted.inverse_diagonal), bits(&by_slot.inverse_diagonal), "round {round}");
         }
     }
 }
