@@ -38,7 +38,7 @@ use tegument_core::mesh::fan_triangles;
 use tegument_core::collide::{audit, AuditParams, Collider, ColliderSettings};
 use tegument_core::mesh::MeshInput;
 use tegument_core::mesh::shapes::{grid, quad_sphere, PolyMesh};
-use tegument_core::pyramid::{Closeness, DeformerOptions, ACCELERATED_ITERATIONS, CONVERGE_TOLERANCE};
+use tegument_core::pyramid::{Closeness, ACCELERATED_ITERATIONS};
 use tegument_core::sequence::{Dynamics, Sequence, StepOptions, StrainMode, StrainOptions};
 use tegument_core::strain::MaxStretch;
 
@@ -106,12 +106,7 @@ fn converges() -> bool {
 
 /// A sequence bound to `skin` that solves as [`converges`] says.
 fn bind(skin: &PolyMesh) -> Sequence {
-    let mut sequence = Sequence::bind(skin.input(), DeformerOptions::default()).unwrap();
-    if converges() {
-        sequence.deformer_mut().set_accelerated(true);
-        sequence.deformer_mut().set_tolerance(Some(CONVERGE_TOLERANCE)).unwrap();
-    }
-    sequence
+    common::bind_sequence(skin.input(), converges())
 }
 
 /// Threads the rows run on: 2, or `TEGUMENT_BENCH_THREADS`.

@@ -27,7 +27,7 @@ use tegument_core::collide::{self_intersections, SelfSettings};
 use tegument_core::mesh::fixtures::{makehuman_body, makehuman_obj, smooth_bend};
 use tegument_core::mesh::shapes::{cylinder, PolyMesh};
 use tegument_core::mesh::MeshInput;
-use tegument_core::pyramid::{Closeness, DeformerOptions, ACCELERATED_ITERATIONS, CONVERGE_TOLERANCE};
+use tegument_core::pyramid::{Closeness, ACCELERATED_ITERATIONS};
 use tegument_core::sequence::{SelfOptions, Sequence, StepOptions};
 
 const FRAMES: usize = 12;
@@ -63,12 +63,7 @@ fn converges() -> bool {
 }
 
 fn bind(mesh: &PolyMesh) -> Sequence {
-    let mut sequence = Sequence::bind(mesh.input(), DeformerOptions::default()).unwrap();
-    if converges() {
-        sequence.deformer_mut().set_accelerated(true);
-        sequence.deformer_mut().set_tolerance(Some(CONVERGE_TOLERANCE)).unwrap();
-    }
-    sequence
+    common::bind_sequence(mesh.input(), converges())
 }
 
 fn case(report: &mut Report, label: &str, mesh: &PolyMesh, bend: &Bend, thickness: f32) {

@@ -178,3 +178,15 @@ pub fn machine() -> String {
     let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     format!("{cpu}, {cores} cores")
 }
+
+/// A sequence bound to `input` with the default options, solving with the
+/// add-on's default solver (Converge: accelerated, stopped at
+/// `CONVERGE_TOLERANCE`) when `converge`, else with plain iterations.
+pub fn bind_sequence(input: tegument_core::mesh::MeshInput<'_>, converge: bool) -> tegument_core::sequence::Sequence {
+    let mut sequence = tegument_core::sequence::Sequence::bind(input, tegument_core::pyramid::DeformerOptions::default()).unwrap();
+    if converge {
+        sequence.deformer_mut().set_accelerated(true);
+        sequence.deformer_mut().set_tolerance(Some(tegument_core::pyramid::CONVERGE_TOLERANCE)).unwrap();
+    }
+    sequence
+}
