@@ -93,6 +93,9 @@ def main() -> int:
         ("convergence", cargo + ["--bench", "convergence"], results_env),
         ("collide", cargo + ["--bench", "collide"], results_env),
         ("flesh", cargo + ["--bench", "flesh"], results_env),
+        # Issue 29: the same rows at the add-on's default solver (Converge), where the strain rounds
+        # and compliant recessions run in the iterations that close the solve.
+        ("flesh_converge", cargo + ["--bench", "flesh"], {**results_env, "TEGUMENT_BENCH_FLESH_SOLVER": "converge"}),
         ("self_collision", cargo + ["--bench", "self_collision"], results_env),
         ("warp", cargo + ["--bench", "warp"], {**results_env, "TEGUMENT_WARP_SIZES": "1024,2048,4096"}),
         # Issue 28: the old and the new UV warp solver, cold and warm, in one run (long: the

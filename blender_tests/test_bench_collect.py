@@ -60,11 +60,13 @@ def run_rows() -> list[dict]:
                      row("pyramid", case, "targets: iteration / reference", 2.0 / threads, threads, unit="x")]
     rows += [row("collide", CORE_SKIN, "one in-loop pass", 100.0), row("collide", CORE_SKIN, "pass 1 (swept collider)", 400.0),
              row("collide", CORE_SKIN, "bandwidth reference", 0.5), row("collide", CORE_SKIN, "in-loop pass / reference", 200.0, unit="x")]
-    rows.append(row("flesh", FLESH, "collisions only", 800.0))
-    for k, feature in enumerate(("dynamics", "strain limits (unified)", "strain limits (post)", "compliant collider", "all three")):
-        rows += [row("flesh", FLESH, f"+ {feature}", 810.0 + 10 * k), row("flesh", FLESH, f"added by {feature}", 10.0 + 10 * k),
-                 row("flesh", FLESH, f"+ {feature}: worst stretch (all frames)", 1.1 + 0.01 * k, unit="× rest"),
-                 row("flesh", FLESH, f"+ {feature}: penetrations (all frames, audit)", float(k), unit="")]
+    for benchmark, scale in (("flesh", 1.0), ("flesh_converge", 2.0)):  # plain iterations, then Converge
+        rows.append(row(benchmark, FLESH, "collisions only", 800.0 * scale))
+        for k, feature in enumerate(("dynamics", "strain limits (unified)", "strain limits (post)", "compliant collider", "all three")):
+            rows += [row(benchmark, FLESH, f"+ {feature}", (810.0 + 10 * k) * scale),
+                     row(benchmark, FLESH, f"added by {feature}", (10.0 + 10 * k) * scale),
+                     row(benchmark, FLESH, f"+ {feature}: worst stretch (all frames)", 1.1 + 0.01 * k, unit="× rest"),
+                     row(benchmark, FLESH, f"+ {feature}: penetrations (all frames, audit)", float(k), unit="")]
     for n in (1024, 2048, 4096):
         case = f"{n}x{n} cylinder 33k verts, 25% rigid"
         scale = (n // 1024) ** 2
@@ -114,9 +116,11 @@ def test_summary_puts_each_comparison_side_by_side():
     assert [line.peak_mib for line in warps[::2]] == [70.0, 280.0, 1120.0]
     assert [line.times_bandwidth for line in warps[::2]] == [50.0, 50.0, 50.0]  # frame ÷ that size's reference
     flesh = [line for line in lines if line.comparison.startswith("flesh")]
-    assert [line.ms_per_frame for line in flesh] == [800.0, 810.0, 820.0, 830.0, 840.0, 850.0]
-    assert flesh[4].method == "+ compliant collider"
-    assert flesh[4].note == "adds +40 ms; worst edge 1.130× rest, 3 penetrations"
+    assert [line.ms_per_frame for line in flesh] == [800.0, 810.0, 820.0, 830.0, 840.0, 850.0,
+                                                     1600.0, 1620.0, 1640.0, 1660.0, 1680.0, 1700.0]
+    assert flesh[4].method == "+ compliant collider" and "10 it." in flesh[4].comparison
+    assert flesh[4].note == "1.05× collisions only (adds +40 ms); worst edge 1.130× rest, 3 penetrations"
+    assert "Converge" in flesh[10].comparison and flesh[10].note.startswith("1.05× collisions only (adds +80 ms)")
     loops = [line for line in lines if line.comparison.startswith("hot loops")]
     assert len(loops) == 6 + 2 + 6
     assert loops[6].times_bandwidth == 200.0 and loops[7].times_bandwidth == 800.0  # in-loop and pass 1 ÷ 0.5 ms
@@ -171,7 +175,7 @@ def test_a_missing_figure_is_named():
 
 def test_command_writes_the_json_and_the_table_with_the_load_of_each_step(tmp_path):
     rows = run_rows()
-    for name in ("pyramid", "collide", "flesh", "self_collision", "warp", "warp_convergence", "blender", "scaling"):
+    for name in ("pyramid", "collide", "flesh", "flesh_converge", "self_collision", "warp", "warp_convergence", "blender", "scaling"):
         (tmp_path / f"{name}.json").write_text(json.dumps([r for r in rows if r["benchmark"] == name]))
     (tmp_path / "machine.txt").write_text("Test CPU, 2 cores\nBlender 5.0.1\n")
     run = {"started": "2026-11-23T15:00:00+00:00", "seconds": 600.0, "steps": [
