@@ -63,6 +63,8 @@
 //! Jacobi between the blocks) and the other loops write disjoint outputs in a
 //! fixed order: results do not depend on the thread count.
 
+use std::sync::Arc;
+
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -265,8 +267,11 @@ pub(super) struct Coarse {
     /// `M` by vertex (compressed rows, no diagonal), for the coarse problem
     /// with held vertices.
     m: VertexRows,
-    /// `A₁`'s pattern, for the coarse problems with held vertices.
-    pattern: FirstLevelPattern,
+    /// Every level's pattern, for the coarse problems with held vertices
+    /// and for new values of the same pattern.
+    pattern: Arc<HierarchyPattern>,
+    /// How `M` was generated, for new values of the same pattern.
+    sequence: Arc<Sequence>,
     /// The cycle of `A₁` (nothing held).
     free: Hierarchy,
     /// The cycles with held vertices fixed for the last [`HELD_CACHED`]
@@ -345,8 +350,8 @@ impl Coarse {
         inverse: &[f32],
         kept: Option<&Coarse>,
     ) -> Result<Option<Self>> {
-        // M by vertex: (row vertex, column vertex, value).
-        let mut m: Vec<(u32, u32, f32)> = Vec::new();
+        // M by vertex: (row vertex, column vertex, value), in generation order.
+        let mut generated: Vec<(u32, u32, f32)> = Vec::new();
         for (block, coupling) in variable.iter().zip(couplings) {
             let Some(coupling) = coupling else { continue };
             if coupling.len() != block.rows.len() {
@@ -361,15 +366,23 @@ impl Coarse {
                 let (vertices, coefficients) = coupling.row(r);
                 for (&j, &a) in vertices.iter().zip(coefficients) {
                     if (j as usize) < n && j != v {
-                        m.push((v, j, scale * a));
+                        generated.push((v, j, scale * a));
                     }
                 }
             }
         }
-        if m.is_empty() {
+        if generated.is_empty() {
             return Ok(None);
         }
-        m.par_sort_by_key(|&(i, j, _)| (i, j));
+        if let Some(k) = kept.filter(|k| k.aggregate.len() == n && k.sequence.is_of(&generated)) {
+            return Ok(k.revalued(&generated));
+        }
+        // Sorted by (row, column), stably: `order` is the permutation, kept
+        // so that new values of the same sequence need no sort.
+        let mut keyed: Vec<(u32, u32, u32)> = generated.iter().enumerate().map(|(k, &(i, j, _))| (i, j, k as u32)).collect();
+        keyed.par_sort_unstable();
+        let order: Vec<u32> = keyed.into_iter().map(|e| e.2).collect();
+        let m: Vec<(u32, u32, f32)> = order.iter().map(|&k| generated[k as usize]).collect();
         let kept = kept.filter(|k| k.aggregate.len() == n && k.m.offsets.len() == n + 1 && same_pattern(&m, &k.m));
 
         // First level: one round of aggregation of the vertices.
@@ -400,12 +413,22 @@ impl Coarse {
         for a in 0..count {
             offsets[a + 1] += offsets[a];
         }
+        let q_slots = m
+            .iter()
+            .map(|&(i, j, _)| {
+                let a = aggregate[i as usize] as usize;
+                let (start, end) = (offsets[a] as usize, offsets[a + 1] as usize);
+                (start + columns[start..end].binary_search(&j).expect("every entry of M has a slot")) as u32
+            })
+            .collect();
+        let sequence = Arc::new(Sequence { pairs: generated.iter().map(|&(i, j, _)| (i, j)).collect(), order, q_slots });
 
         let m = VertexRows::from_sorted(n, &m);
         let downs: Option<Vec<&[u32]>> = kept.map(|k| k.free.levels.iter().map(|l| &l.down[..]).collect());
         let first = first_level(&aggregate, count, &m, None);
-        let pattern = FirstLevelPattern::new(&aggregate, &m, &first);
-        let Some(free) = Hierarchy::build(first, downs.as_deref()) else {
+        let (matrices, downs) = Hierarchy::chain(first, downs.as_deref());
+        let pattern = Arc::new(HierarchyPattern::new(&aggregate, &m, &matrices, &downs));
+        let Some(free) = Hierarchy::from_chain(matrices, downs) else {
             return Ok(None);
         };
 
@@ -413,7 +436,42 @@ impl Coarse {
             Some(k) => (k.member_offsets.clone(), k.members.clone()),
             None => group_members(&aggregate, count),
         };
-        Ok(Some(Coarse { aggregate, member_offsets, members, offsets, columns, values, m, pattern, free, held: Vec::new(), held_assemblies: 0 }))
+        Ok(Some(Coarse { aggregate, member_offsets, members, offsets, columns, values, m, pattern, sequence, free, held: Vec::new(), held_assemblies: 0 }))
+    }
+
+    /// These coarse levels for `generated`, an `M` generated in the same
+    /// sequence of (row, column) as this one (new weights on the same
+    /// pattern), by slot: what [`Self::assemble`] would build by sorting, to
+    /// the bit (the sorts are stable, so each slot sums its entries in
+    /// generation order either way). `None` where it would give `None`
+    /// (the new free problem cannot be factorised).
+    fn revalued(&self, generated: &[(u32, u32, f32)]) -> Option<Self> {
+        let order = &self.sequence.order;
+        let sorted: Vec<f32> = order.par_iter().map(|&k| generated[k as usize].2).collect();
+        // The value `Iterator::sum` starts from, as in the sorted assembly.
+        let start: f32 = std::iter::empty::<f32>().sum();
+        let mut values = vec![start; self.columns.len()];
+        for (&slot, &v) in self.sequence.q_slots.iter().zip(&sorted) {
+            values[slot as usize] += RELAXATION * v;
+        }
+        let m = VertexRows { offsets: self.m.offsets.clone(), columns: self.m.columns.clone(), values: sorted };
+        let matrices = self.pattern.chain(&self.aggregate, &m, None);
+        let downs = self.free.levels.iter().map(|l| l.down.clone()).collect();
+        let free = Hierarchy::from_chain(matrices, downs)?;
+        Some(Coarse {
+            aggregate: self.aggregate.clone(),
+            member_offsets: self.member_offsets.clone(),
+            members: self.members.clone(),
+            offsets: self.offsets.clone(),
+            columns: self.columns.clone(),
+            values,
+            m,
+            pattern: Arc::clone(&self.pattern),
+            sequence: Arc::clone(&self.sequence),
+            free,
+            held: Vec::new(),
+            held_assemblies: 0,
+        })
     }
 
     /// Builds the coarse problem with the vertices `held` (ascending;
@@ -424,9 +482,9 @@ impl Coarse {
             self.held[..=k].rotate_right(1);
             return;
         }
-        let matrix = self.pattern.held(&self.aggregate, &self.m, mask);
-        let downs: Vec<&[u32]> = self.free.levels.iter().map(|l| &l.down[..]).collect();
-        let hierarchy = Hierarchy::build(matrix, Some(&downs));
+        let matrices = self.pattern.chain(&self.aggregate, &self.m, Some(mask));
+        let downs = self.free.levels.iter().map(|l| l.down.clone()).collect();
+        let hierarchy = Hierarchy::from_chain(matrices, downs);
         self.held.insert(0, Held { vertices: vertices.to_vec(), hierarchy });
         self.held.truncate(HELD_CACHED);
         self.held_assemblies += 1;
@@ -637,76 +695,197 @@ impl FirstLevelPattern {
         FirstLevelPattern { offsets: free.offsets.clone(), columns: free.columns.clone(), slots }
     }
 
-    /// [`first_level`] with `held` fixed, by slot.
-    fn held(&self, aggregate: &[u32], m: &VertexRows, held: &[bool]) -> Csr {
-        let n = self.offsets.len() - 1;
+    /// [`first_level`]'s sums by slot, with `held` fixed (`None`: nothing held).
+    fn sums(&self, aggregate: &[u32], m: &VertexRows, held: Option<&[bool]>) -> SlotSums {
+        let mut sums = SlotSums::new(self.columns.len());
+        first_level_entries(aggregate, m, held, |index, _, _, value| sums.add(self.slots[index] as usize, value));
+        sums
+    }
+}
+
+/// A matrix on a level's pattern with nothing held, slot by slot: each
+/// slot's sum of its entries in the order they were generated, and whether
+/// it got one (a problem with held vertices leaves some out).
+struct SlotSums {
+    sums: Vec<f64>,
+    used: Vec<bool>,
+}
+
+impl SlotSums {
+    fn new(slots: usize) -> Self {
         // The value `Iterator::sum` starts from, so that each slot's sum is
         // the same fold as `Csr::from_entries`'.
         let start: f64 = std::iter::empty::<f64>().sum();
-        let mut sums = vec![start; self.columns.len()];
-        let mut used = vec![false; self.columns.len()];
-        first_level_entries(aggregate, m, Some(held), |index, _, _, value| {
-            let slot = self.slots[index] as usize;
-            sums[slot] += value;
-            used[slot] = true;
-        });
-        let mut offsets = vec![0u32; n + 1];
-        let (mut columns, mut values) = (Vec::new(), Vec::new());
+        SlotSums { sums: vec![start; slots], used: vec![false; slots] }
+    }
+
+    fn add(&mut self, slot: usize, value: f64) {
+        self.sums[slot] += value;
+        self.used[slot] = true;
+    }
+
+    /// The matrix of the used slots of the pattern `offsets`, `columns`,
+    /// as [`Csr::from_entries`] makes it.
+    fn matrix(&self, offsets: &[u32], columns: &[u32]) -> Csr {
+        let n = offsets.len() - 1;
+        let mut compact = vec![0u32; n + 1];
+        let (mut kept_columns, mut values) = (Vec::new(), Vec::new());
         let mut inverse_diagonal = vec![0.0f32; n];
         let mut diagonal = vec![0.0f32; n];
         for i in 0..n {
-            for slot in self.offsets[i] as usize..self.offsets[i + 1] as usize {
-                if !used[slot] {
+            for slot in offsets[i] as usize..offsets[i + 1] as usize {
+                if !self.used[slot] {
                     continue;
                 }
-                let (j, sum) = (self.columns[slot], sums[slot]);
+                let (j, sum) = (columns[slot], self.sums[slot]);
                 if j as usize == i {
                     diagonal[i] = sum as f32;
                     inverse_diagonal[i] = if sum > 0.0 { (1.0 / sum) as f32 } else { 0.0 };
                 }
-                columns.push(j);
+                kept_columns.push(j);
                 values.push(sum as f32);
             }
-            offsets[i + 1] = columns.len() as u32;
+            compact[i + 1] = kept_columns.len() as u32;
         }
-        Csr { offsets, columns, values, diagonal, inverse_diagonal }
+        Csr { offsets: compact, columns: kept_columns, values, diagonal, inverse_diagonal }
+    }
+}
+
+/// A level below the first of the free problem: its pattern and, for each
+/// slot of the level above, the slot [`Csr::restricted`] sums it into.
+struct CoarserPattern {
+    offsets: Vec<u32>,
+    columns: Vec<u32>,
+    from_above: Vec<u32>,
+}
+
+/// The free problem's patterns on every level, first to coarsest, so that
+/// a problem with held vertices, or new values of the same `M`, is
+/// assembled level by level by slot instead of by sorting. A held
+/// problem's level uses a subset of the free level's slots, and
+/// [`Csr::restricted`] generates its entries in slot order, so summing
+/// each coarser slot's entries in that order is what its stable sort
+/// gives, to the bit (at Converge the coarser levels' sorts were what was
+/// left of a held assembly, issue 29).
+struct HierarchyPattern {
+    first: FirstLevelPattern,
+    coarser: Vec<CoarserPattern>,
+}
+
+impl HierarchyPattern {
+    /// For the free problem's `matrices` (first to coarsest, as
+    /// [`Hierarchy::chain`] makes them from `aggregate` and `m`) and the
+    /// aggregations `downs` between them.
+    fn new(aggregate: &[u32], m: &VertexRows, matrices: &[Csr], downs: &[Vec<u32>]) -> Self {
+        let first = FirstLevelPattern::new(aggregate, m, &matrices[0]);
+        let coarser = matrices
+            .windows(2)
+            .zip(downs)
+            .map(|(pair, down)| {
+                let (above, below) = (&pair[0], &pair[1]);
+                let mut from_above = Vec::with_capacity(above.columns.len());
+                for i in 0..above.len() {
+                    let a = down[i] as usize;
+                    let (start, end) = (below.offsets[a] as usize, below.offsets[a + 1] as usize);
+                    for (j, _) in above.row(i) {
+                        let at = below.columns[start..end].binary_search(&down[j]).expect("every restricted entry has a slot");
+                        from_above.push((start + at) as u32);
+                    }
+                }
+                CoarserPattern { offsets: below.offsets.clone(), columns: below.columns.clone(), from_above }
+            })
+            .collect();
+        HierarchyPattern { first, coarser }
+    }
+
+    /// The matrices of every level, first to coarsest, with `held` fixed
+    /// (`None`: nothing held): [`first_level`] and then [`Csr::restricted`]
+    /// level by level, to the bit.
+    fn chain(&self, aggregate: &[u32], m: &VertexRows, held: Option<&[bool]>) -> Vec<Csr> {
+        let mut sums = self.first.sums(aggregate, m, held);
+        let mut matrices = vec![sums.matrix(&self.first.offsets, &self.first.columns)];
+        for level in &self.coarser {
+            let mut next = SlotSums::new(level.columns.len());
+            for (slot, &to) in level.from_above.iter().enumerate() {
+                if sums.used[slot] {
+                    // `restricted` sums the level's f32 values.
+                    next.add(to as usize, sums.sums[slot] as f32 as f64);
+                }
+            }
+            matrices.push(next.matrix(&level.offsets, &level.columns));
+            sums = next;
+        }
+        matrices
+    }
+}
+
+/// How an `M` was generated: new weights on the same constraints usually
+/// generate the same sequence of (row, column), and then the sorts that
+/// assembled the coarse levels are known in advance ([`Coarse::revalued`]).
+struct Sequence {
+    /// Each generated entry's (row, column), in generation order.
+    pairs: Vec<(u32, u32)>,
+    /// The generated entries in (row, column) order, stably: `order[k]` is
+    /// the generated index of `M`'s `k`-th entry.
+    order: Vec<u32>,
+    /// The slot of `ω Pᵀ M` (`Coarse::columns`) that `M`'s `k`-th entry is summed into.
+    q_slots: Vec<u32>,
+}
+
+impl Sequence {
+    /// Whether `generated` has this sequence of (row, column).
+    fn is_of(&self, generated: &[(u32, u32, f32)]) -> bool {
+        self.pairs.len() == generated.len() && self.pairs.par_iter().zip(generated).all(|(p, g)| *p == (g.0, g.1))
     }
 }
 
 impl Hierarchy {
-    /// The levels below `first`: by further rounds of aggregation until the
-    /// coarsest is small enough to factorise, or by the aggregations `downs`
-    /// of another hierarchy (the same levels for a modified first matrix).
-    /// `None` if the coarsest level is not positive definite.
-    fn build(first: Csr, downs: Option<&[&[u32]]>) -> Option<Self> {
-        let mut matrix = first;
-        let mut levels = Vec::new();
-        let push = |matrix: Csr, down: Vec<u32>, next: usize, levels: &mut Vec<Level>| {
-            let coarser = matrix.restricted(&down, next);
-            let len = matrix.len();
-            levels.push(Level { matrix, down, rhs: vec![Vec3::ZERO; len], error: vec![Vec3::ZERO; len], scratch: vec![Vec3::ZERO; len] });
-            coarser
-        };
-        match downs {
-            None => {
-                for _ in 1..MAX_ROUNDS {
-                    if matrix.len() <= MAX_AGGREGATES {
+    /// The matrices below `first`, first to coarsest, each the one above
+    /// restricted, with the aggregations between them: by further rounds of
+    /// aggregation until the coarsest is small enough to factorise, or by
+    /// the aggregations `downs` of another hierarchy (the same levels for a
+    /// modified first matrix).
+    fn chain(first: Csr, downs: Option<&[&[u32]]>) -> (Vec<Csr>, Vec<Vec<u32>>) {
+        let mut matrices = vec![first];
+        let mut taken: Vec<Vec<u32>> = Vec::new();
+        loop {
+            let matrix = matrices.last().expect("the first level");
+            let (down, next) = match downs {
+                Some(downs) => match downs.get(taken.len()) {
+                    Some(down) => (down.to_vec(), down.iter().max().map_or(0, |&a| a as usize + 1)),
+                    None => break,
+                },
+                None => {
+                    if taken.len() + 1 >= MAX_ROUNDS || matrix.len() <= MAX_AGGREGATES {
                         break;
                     }
                     let (down, next) = aggregate_once(matrix.len(), &matrix.edges());
                     if next * 2 > matrix.len() {
                         break;
                     }
-                    matrix = push(matrix, down, next, &mut levels);
+                    (down, next)
                 }
-            }
-            Some(downs) => {
-                for down in downs {
-                    let next = down.iter().max().map_or(0, |&a| a as usize + 1);
-                    matrix = push(matrix, down.to_vec(), next, &mut levels);
-                }
-            }
+            };
+            let coarser = matrix.restricted(&down, next);
+            matrices.push(coarser);
+            taken.push(down);
         }
+        (matrices, taken)
+    }
+
+    /// The cycle of `matrices` (first to coarsest) with the aggregations
+    /// `downs` between them; `None` if the coarsest level is not positive
+    /// definite.
+    fn from_chain(mut matrices: Vec<Csr>, downs: Vec<Vec<u32>>) -> Option<Self> {
+        let matrix = matrices.pop().expect("the first level");
+        let levels = matrices
+            .into_iter()
+            .zip(downs)
+            .map(|(matrix, down)| {
+                let len = matrix.len();
+                Level { matrix, down, rhs: vec![Vec3::ZERO; len], error: vec![Vec3::ZERO; len], scratch: vec![Vec3::ZERO; len] }
+            })
+            .collect();
         // A node without a free vertex below it has an empty row: 1 on its
         // diagonal makes its correction 0 (its right-hand side is 0).
         let lower: Vec<(u32, u32, f64)> = (0..matrix.len())
@@ -774,22 +953,39 @@ impl Hierarchy {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use super::super::Rows;
 
-    /// The assembly by slot must be the sorted assembly to the bit, for any
-    /// held set, since the solver's output depends on every bit of it.
-    #[test]
-    fn held_first_level_by_slot_is_the_sorted_one_bit_for_bit() {
-        let n = 300;
-        // A ring-like coupling with uneven values (so that sums of several
-        // entries round differently in another order) and duplicates of
-        // one aggregate pair from many vertices.
-        let mut seed = 12345u32;
-        let mut next = || {
+    fn xorshift(mut seed: u32) -> impl FnMut() -> u32 {
+        move || {
             seed ^= seed << 13;
             seed ^= seed >> 17;
             seed ^= seed << 5;
             seed
-        };
+        }
+    }
+
+    fn bits(v: &[f32]) -> Vec<u32> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    fn assert_same(sorted: &Csr, by_slot: &Csr, what: &str) {
+        assert_eq!(sorted.offsets, by_slot.offsets, "{what}");
+        assert_eq!(sorted.columns, by_slot.columns, "{what}");
+        assert_eq!(bits(&sorted.values), bits(&by_slot.values), "{what}");
+        assert_eq!(bits(&sorted.diagonal), bits(&by_slot.diagonal), "{what}");
+        assert_eq!(bits(&sorted.inverse_diagonal), bits(&by_slot.inverse_diagonal), "{what}");
+    }
+
+    /// The assembly by slot must be the sorted assembly to the bit on every
+    /// level, for any held set, since the solver's output depends on every
+    /// bit of it.
+    #[test]
+    fn held_levels_by_slot_are_the_sorted_ones_bit_for_bit() {
+        let n = 300;
+        // A ring-like coupling with uneven values (so that sums of several
+        // entries round differently in another order) and duplicates of
+        // one aggregate pair from many vertices.
+        let mut next = xorshift(12345);
         let mut entries = Vec::new();
         for i in 0..n as u32 {
             let mut columns: Vec<u32> = (0..5).map(|_| next() % n as u32).filter(|&j| j != i).collect();
@@ -802,19 +998,78 @@ mod tests {
         let m = VertexRows::from_sorted(n, &entries);
         let aggregate: Vec<u32> = (0..n as u32).map(|v| (v * 7919 % n as u32) / 7).collect();
         let count = *aggregate.iter().max().unwrap() as usize + 1;
+        // Two coarser levels by the same aggregation as the solver's.
         let free = first_level(&aggregate, count, &m, None);
-        let pattern = FirstLevelPattern::new(&aggregate, &m, &free);
+        let (down1, count1) = aggregate_once(free.len(), &free.edges());
+        let second = free.restricted(&down1, count1);
+        let (down2, _) = aggregate_once(second.len(), &second.edges());
+        let downs: Vec<&[u32]> = vec![&down1, &down2];
+        let (matrices, taken) = Hierarchy::chain(free, Some(&downs));
+        assert_eq!(matrices.len(), 3, "two levels below the first");
+        let pattern = HierarchyPattern::new(&aggregate, &m, &matrices, &taken);
+        for (l, (sorted, by_slot)) in matrices.iter().zip(pattern.chain(&aggregate, &m, None)).enumerate() {
+            assert_same(sorted, &by_slot, &format!("nothing held, level {l}"));
+        }
         for round in 0..20 {
             // From nothing held to most vertices held, whole aggregates included.
-            let held: Vec<bool> = (0..n).map(|v| round > 0 && (next() % 20) < round).collect();
-            let sorted = first_level(&aggregate, count, &m, Some(&held));
-            let by_slot = pattern.held(&aggregate, &m, &held);
-            assert_eq!(sorted.offsets, by_slot.offsets, "round {round}");
-            assert_eq!(sorted.columns, by_slot.columns, "round {round}");
-            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-            assert_eq!(bits(&sorted.values), bits(&by_slot.values), "round {round}");
-            assert_eq!(bits(&sorted.diagonal), bits(&by_slot.diagonal), "round {round}");
-            assert_eq!(bits(&sorted.inverse_diagonal), bits(&by_slot.inverse_diagonal), "round {round}");
+            let held: Vec<bool> = (0..n).map(|_| round > 0 && (next() % 20) < round).collect();
+            let (sorted, _) = Hierarchy::chain(first_level(&aggregate, count, &m, Some(&held)), Some(&downs));
+            let by_slot = pattern.chain(&aggregate, &m, Some(&held));
+            assert_eq!(sorted.len(), by_slot.len());
+            for (l, (sorted, by_slot)) in sorted.iter().zip(&by_slot).enumerate() {
+                assert_same(sorted, by_slot, &format!("round {round}, level {l}"));
+            }
+        }
+    }
+
+    /// New weights on the same constraints (`with_values`, by slot) must
+    /// give what a fresh build gives, to the bit; and a changed sequence
+    /// (a row whose weight became 0 generates nothing) falls back to the sort.
+    #[test]
+    fn new_values_by_slot_are_a_fresh_build_bit_for_bit() {
+        let side = 24u32;
+        let n = (side * side) as usize;
+        let mut next = xorshift(777);
+        let mut random = move |low: f32, high: f32| low + (high - low) * (next() % 10_000) as f32 / 10_000.0;
+        let rows = Rows::identity(&(0..n as u32).collect::<Vec<_>>());
+        let mut coupling = Rows::new();
+        for v in 0..n as u32 {
+            let (x, y) = (v % side, v / side);
+            let mut neighbours = Vec::new();
+            if x > 0 { neighbours.push(v - 1); }
+            if x + 1 < side { neighbours.push(v + 1); }
+            if y > 0 { neighbours.push(v - side); }
+            if y + 1 < side { neighbours.push(v + side); }
+            let share = 1.0 / neighbours.len() as f32;
+            coupling.push(neighbours.into_iter().map(|j| (j, share * random(0.8, 1.2))).collect::<Vec<_>>());
+        }
+        let weights: Vec<f32> = (0..n).map(|_| random(0.5, 1.5)).collect();
+        let block = |weights| RowBlock { rows: &rows, weights, offset: 0 };
+        let inverse: Vec<f32> = (0..n).map(|_| random(0.2, 0.5)).collect();
+        let coarse = Coarse::build(n, &[block(&weights)], &[Some(&coupling)], &inverse).unwrap().expect("a coarse level");
+        let mut zeroed = weights.clone();
+        zeroed[17] = 0.0;
+        for (case, weights) in [("same sequence", &weights), ("a row left out", &zeroed)] {
+            let inverse: Vec<f32> = (0..n).map(|_| random(0.2, 0.5)).collect();
+            let mut kept = coarse.with_values(n, &[block(weights)], &[Some(&coupling)], &inverse).unwrap().expect("a coarse level");
+            let mut fresh = Coarse::build(n, &[block(weights)], &[Some(&coupling)], &inverse).unwrap().expect("a coarse level");
+            assert_eq!(Arc::ptr_eq(&kept.sequence, &coarse.sequence), case == "same sequence", "{case}: by slot only for the same sequence");
+            assert_eq!(kept.aggregate, fresh.aggregate, "{case}");
+            assert_eq!((&kept.offsets, &kept.columns), (&fresh.offsets, &fresh.columns), "{case}");
+            assert_eq!(bits(&kept.values), bits(&fresh.values), "{case}: ω Pᵀ M");
+            assert_eq!((&kept.m.offsets, &kept.m.columns), (&fresh.m.offsets, &fresh.m.columns), "{case}");
+            assert_eq!(bits(&kept.m.values), bits(&fresh.m.values), "{case}: M");
+            assert_eq!(kept.free.levels.len(), fresh.free.levels.len(), "{case}");
+            for (a, b) in kept.free.levels.iter().zip(&fresh.free.levels) {
+                assert_same(&b.matrix, &a.matrix, case);
+            }
+            // The coarsest factors, through a solve.
+            let rhs: Vec<Vec3> = (0..kept.free.first_rhs().len()).map(|a| Vec3::new(a as f32, 1.0, -(a as f32).sqrt())).collect();
+            kept.free.first_rhs().copy_from_slice(&rhs);
+            fresh.free.first_rhs().copy_from_slice(&rhs);
+            let (a, b) = (kept.free.solve().to_vec(), fresh.free.solve().to_vec());
+            let flat = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).map(f32::to_bits).collect::<Vec<_>>();
+            assert_eq!(flat(&a), flat(&b), "{case}: the cycle's solve");
         }
     }
 }
