@@ -501,10 +501,14 @@ fn winds_once(v: Vec3, ring: &[u32], motion: &Motion<'_>) -> bool {
         let (s, e) = (motion.start[v], motion.end[v]);
         (Vec2::new(s.dot(b1), s.dot(b2)), Vec2::new(e.dot(b1), e.dot(b2)), motion.margin[v])
     };
-    // The projected edge from one corner to the next at the start, its change, and its margin.
+    // The projected edge from one corner to the next at the start, its
+    // change, its margin, and its longer length of the two ends (each edge
+    // is the next one of one angle and the previous one of the next: its
+    // lengths made once).
     let edge = |(a0, a1, ma): (Vec2, Vec2, f32), (b0, b1, mb): (Vec2, Vec2, f32)| {
         let (e0, e1) = (b0 - a0, b1 - a1);
-        (e0, e1 - e0, ma + mb)
+        let de = e1 - e0;
+        (e0, de, ma + mb, e0.length().max((e0 + de).length()))
     };
     let limit = 4.0 * std::f32::consts::PI - 1e-3;
     let mut turning = 0.0f32;
@@ -515,10 +519,9 @@ fn winds_once(v: Vec3, ring: &[u32], motion: &Motion<'_>) -> bool {
         let there = if j + 1 == k { first } else { corner(j + 1) };
         let next = edge(here, there);
         here = there;
-        let ((u0, du, mu), (w0, dw, mw)) = (previous, next);
+        let ((u0, du, mu, lu), (w0, dw, mw, lw)) = (previous, next);
         let cross = quadratic_range(u0.perp_dot(w0), u0.perp_dot(dw) + du.perp_dot(w0), du.perp_dot(dw));
         let dot = quadratic_range(u0.dot(w0), u0.dot(dw) + du.dot(w0), du.dot(dw));
-        let (lu, lw) = (u0.length().max((u0 + du).length()), w0.length().max((w0 + dw).length()));
         let spread = lu * mw + lw * mu + mu * mw;
         turning += largest_angle((cross.0 - spread, cross.1 + spread), dot.0 - spread) + ANGLE_SLACK;
         if turning >= limit {
