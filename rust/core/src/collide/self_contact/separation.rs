@@ -72,6 +72,7 @@ fn centre(span: &Span) -> DVec3 {
 }
 
 /// `sign · height − margin` of vertex `v` along `n` at the motion's start and end.
+#[inline(always)]
 fn height(motion: &Motion<'_>, v: u32, n: DVec3, sign: f64) -> [f64; 2] {
     let m = motion.margin[v as usize] as f64;
     let (s, e) = (motion.start[v as usize].as_dvec3(), motion.end[v as usize].as_dvec3());
