@@ -234,7 +234,7 @@ impl PatchTree {
 
     /// The joined loop of disks `a` and `b` if a traversal may pair them
     /// (`a` from the left of their lowest common ancestor) and their loops
-    /// join along one run of shared edges: [`joined`]'s loop, found at bind.
+    /// join along one run of shared edges ([`join_of`]), found at bind.
     pub(super) fn joined(&self, a: usize, b: usize) -> Option<JoinedLoop<'_>> {
         let list = &self.joins.1[self.joins.0[a] as usize..self.joins.0[a + 1] as usize];
         let k = list.binary_search_by_key(&(b as u32), |&(partner, _)| partner).ok()?;
@@ -425,10 +425,7 @@ fn node_vertices(nodes: &[Node], triangles: &[[u32; 3]], vertex_count: usize) ->
     [all, exposed]
 }
 
-/// The boundary loop of two disks with loops `a` and `b` (vertex cycles in
-/// the triangles' winding) joined along the boundary they share, if that is
-/// one run of edges and they touch nowhere else: then their union is a disk.
-/// `b_at` is `b`'s loop index ([`PatchTree::boundary_index`]).
+/// The loop [`join_of`] joins, as a list.
 #[cfg(test)]
 pub(super) fn joined(a: &[u32], b: &[u32], b_at: &[(u32, u32)]) -> Option<Vec<u32>> {
     let join = join_of(a, b, b_at)?;
@@ -436,7 +433,11 @@ pub(super) fn joined(a: &[u32], b: &[u32], b_at: &[(u32, u32)]) -> Option<Vec<u3
     Some((0..ring.len()).map(|j| ring.vertex(j)).collect())
 }
 
-/// Where [`joined`] joins the loops, if it does.
+/// Where the boundary loops `a` and `b` of two disks (vertex cycles in the
+/// triangles' winding) join along the boundary they share, if that is one
+/// run of edges and they touch nowhere else: then their union is a disk,
+/// its loop [`JoinedLoop`]. `b_at` is `b`'s loop index
+/// ([`PatchTree::boundary_index`]).
 fn join_of(a: &[u32], b: &[u32], b_at: &[(u32, u32)]) -> Option<Join> {
     let (na, nb) = (a.len(), b.len());
     if na < 3 || nb < 3 {
