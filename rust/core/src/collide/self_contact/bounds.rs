@@ -410,70 +410,21 @@ impl NodeBounds {
             return false;
         }
         let Some(v) = self.cone[i].axis() else { return false };
-        winds_once(v, tree.boundary(i), motion)
+        let ring = tree.boundary(i);
+        winds_once(v, ring.len(), |j| ring[j], motion)
     }
 
     /// Whether nodes `a` and `b` provably cannot touch each other: two
     /// disks sharing one run of boundary edges (Tang et al.'s adjacent
     /// patches) make a disk, which cannot touch itself if its normal cone
-    /// has an axis and its boundary winds once.
+    /// has an axis and its boundary winds once. Which pairs join, and
+    /// where, is topology: the tree keeps it from the bind
+    /// ([`PatchTree::joined`]).
     pub(super) fn cannot_touch_each_other(&self, tree: &PatchTree, motion: &Motion<'_>, a: usize, b: usize) -> bool {
-        if !(tree.disk[a] && tree.disk[b]) {
-            return false;
-        }
+        let Some(ring) = tree.joined(a, b) else { return false };
         let Some(v) = self.cone[a].union(self.cone[b]).axis() else { return false };
-        let Some(ring) = joined(tree.boundary(a), tree.boundary(b), tree.boundary_index(b)) else { return false };
-        winds_once(v, &ring, motion)
+        winds_once(v, ring.len(), |j| ring.vertex(j), motion)
     }
-}
-
-/// The boundary loop of two disks with loops `a` and `b` (vertex cycles in
-/// the triangles' winding) joined along the boundary they share, if that is
-/// one run of edges and they touch nowhere else: then their union is a disk.
-/// `b_at` is `b`'s loop index ([`PatchTree::boundary_index`]) (kept per node by the tree, so that the
-/// many adjacent pairs a traversal meets cost binary searches, not a map).
-fn joined(a: &[u32], b: &[u32], b_at: &[(u32, u32)]) -> Option<Vec<u32>> {
-    let (na, nb) = (a.len(), b.len());
-    if na < 3 || nb < 3 {
-        return None;
-    }
-    // Where a vertex sits on b's loop; a shared edge x → y of a is y → x on b.
-    let on_b = |v: u32| b_at.binary_search_by_key(&v, |&(w, _)| w).ok().map(|k| b_at[k].1 as usize);
-    let shared = |i: usize| {
-        let (x, y) = (a[i], a[(i + 1) % na]);
-        on_b(y).is_some_and(|j| b[(j + 1) % nb] == x)
-    };
-    // The shared edges' count and the run's first edge (shared, its
-    // predecessor not; exactly one such), in one pass without a list of
-    // flags: a traversal asks this of every pair of adjacent disks it meets
-    // (issue 30, twenty-third round).
-    let (mut count, mut starts, mut first) = (0, 0, 0);
-    let closing = shared(na - 1);
-    let mut previous = closing;
-    for i in 0..na {
-        let here = if i == na - 1 { closing } else { shared(i) };
-        count += here as usize;
-        if here && !previous {
-            starts += 1;
-            first = i;
-        }
-        previous = here;
-    }
-    if count == 0 || count == na || starts != 1 {
-        return None;
-    }
-    let last = (first + count) % na; // the vertex where the run ends
-    // Touching anywhere else (a vertex of a off the run on b's loop) makes a pinch.
-    if (1..na - count).any(|k| on_b(a[(last + k) % na]).is_some()) {
-        return None;
-    }
-    // a from the run's end round to its start, then b from there back to the run's end.
-    let start_b = on_b(a[first]).expect("a shared edge's end is on b");
-    let rest_b = nb - count; // b's edges outside the run
-    let mut ring = Vec::with_capacity(na - count + rest_b);
-    ring.extend((0..=na - count).map(|k| a[(last + k) % na]));
-    ring.extend((1..rest_b).map(|k| b[(start_b + k) % nb]));
-    Some(ring)
 }
 
 /// Whether a closed boundary `ring`, projected along `v` over the motion,
@@ -486,8 +437,8 @@ fn joined(a: &[u32], b: &[u32], b_at: &[(u32, u32)]) -> Option<Vec<u32>> {
 /// angle, `|angle| ≤ atan2(max |u × w|, min u · w)` while the dot product
 /// stays positive (π otherwise), widened for the margins. A ring that only
 /// moves rigidly keeps every bound at its exact angle.
-fn winds_once(v: Vec3, ring: &[u32], motion: &Motion<'_>) -> bool {
-    let k = ring.len();
+/// The ring has `k` vertices, `ring(j)` the `j`-th.
+fn winds_once(v: Vec3, k: usize, ring: impl Fn(usize) -> u32, motion: &Motion<'_>) -> bool {
     if k < 3 {
         return false;
     }
@@ -497,14 +448,18 @@ fn winds_once(v: Vec3, ring: &[u32], motion: &Motion<'_>) -> bool {
     // a twentieth of the MakeHuman character's straight frames, half of it
     // projecting every vertex twice; issue 30, sixteenth round).
     let corner = |j: usize| {
-        let v = ring[j] as usize;
+        let v = ring(j) as usize;
         let (s, e) = (motion.start[v], motion.end[v]);
         (Vec2::new(s.dot(b1), s.dot(b2)), Vec2::new(e.dot(b1), e.dot(b2)), motion.margin[v])
     };
-    // The projected edge from one corner to the next at the start, its change, and its margin.
+    // The projected edge from one corner to the next at the start, its
+    // change, its margin, and its longer length of the two ends (each edge
+    // is the next one of one angle and the previous one of the next: its
+    // lengths made once).
     let edge = |(a0, a1, ma): (Vec2, Vec2, f32), (b0, b1, mb): (Vec2, Vec2, f32)| {
         let (e0, e1) = (b0 - a0, b1 - a1);
-        (e0, e1 - e0, ma + mb)
+        let de = e1 - e0;
+        (e0, de, ma + mb, e0.length().max((e0 + de).length()))
     };
     let limit = 4.0 * std::f32::consts::PI - 1e-3;
     let mut turning = 0.0f32;
@@ -515,10 +470,9 @@ fn winds_once(v: Vec3, ring: &[u32], motion: &Motion<'_>) -> bool {
         let there = if j + 1 == k { first } else { corner(j + 1) };
         let next = edge(here, there);
         here = there;
-        let ((u0, du, mu), (w0, dw, mw)) = (previous, next);
+        let ((u0, du, mu, lu), (w0, dw, mw, lw)) = (previous, next);
         let cross = quadratic_range(u0.perp_dot(w0), u0.perp_dot(dw) + du.perp_dot(w0), du.perp_dot(dw));
         let dot = quadratic_range(u0.dot(w0), u0.dot(dw) + du.dot(w0), du.dot(dw));
-        let (lu, lw) = (u0.length().max((u0 + du).length()), w0.length().max((w0 + dw).length()));
         let spread = lu * mw + lw * mu + mu * mw;
         turning += largest_angle((cross.0 - spread, cross.1 + spread), dot.0 - spread) + ANGLE_SLACK;
         if turning >= limit {
@@ -560,7 +514,7 @@ fn quadratic_range(a: f32, b: f32, c: f32) -> (f32, f32) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::collide::self_contact::tree::loop_index;
+    use crate::collide::self_contact::tree::{joined, loop_index};
     use crate::mesh::shapes::grid;
     use crate::mesh::MeshInput;
 

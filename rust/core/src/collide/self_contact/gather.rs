@@ -106,6 +106,36 @@ impl Focus {
     pub(super) fn is_empty(&self) -> bool {
         self.nodes.first().is_none_or(|&n| !n)
     }
+
+    /// Per node, the union of its triangles in focus' spans (`bounds`' per
+    /// tree position), [`Span::EMPTY`] where it holds none.
+    fn spans(&self, tree: &PatchTree, bounds: &NodeBounds) -> Vec<Span> {
+        let mut spans = vec![Span::EMPTY; tree.nodes.len()];
+        for i in (0..tree.nodes.len()).rev() {
+            if !self.nodes[i] {
+                continue;
+            }
+            let node = tree.nodes[i];
+            spans[i] = if node.is_leaf() {
+                node.range().filter(|&p| self.triangles[p]).fold(Span::EMPTY, |s, p| s.union(bounds.triangle[p]))
+            } else {
+                spans[node.left as usize].union(spans[node.left as usize + 1])
+            };
+        }
+        spans
+    }
+}
+
+/// A focus over one gathering: where it is, and the spans of its triangles
+/// per node ([`Focus::spans`]). A pair of nodes holds a listed pair only if
+/// a focus triangle of one comes within the reach of the other, so the
+/// focus triangles' own box prunes where the nodes' boxes, holding the
+/// skin around the focus, overlap (a gathering around a few vertices
+/// otherwise walked every node pair near the focus's ancestors, issue 30,
+/// twenty-fourth round).
+struct InFocus<'f> {
+    focus: &'f Focus,
+    span: Vec<Span>,
 }
 
 /// One gathering: what it traverses and what it keeps.
@@ -176,17 +206,18 @@ impl Gather<'_> {
         if self.tree.nodes.is_empty() {
             return Vec::new();
         }
-        self.self_test(0)
+        let focus = self.focus.map(|focus| InFocus { focus, span: focus.spans(self.tree, self.bounds) });
+        self.self_test(0, focus.as_ref())
     }
 
-    fn self_test<O: Found>(&self, i: usize) -> Vec<O> {
+    fn self_test<O: Found>(&self, i: usize, focus: Option<&InFocus<'_>>) -> Vec<O> {
         let node = self.tree.nodes[i];
-        if !self.bounds.active[i] || node.count < 2 || self.focus.is_some_and(|f| !f.nodes[i]) {
+        if !self.bounds.active[i] || node.count < 2 || focus.is_some_and(|f| !f.focus.nodes[i]) {
             return Vec::new();
         }
         if node.is_leaf() {
             let mut out = Vec::new();
-            self.leaf_pair(i, i, &mut out);
+            self.leaf_pair(i, i, focus, &mut out);
             return out;
         }
         if self.cull && self.bounds.cannot_touch_itself(self.tree, &self.motion, i) {
@@ -194,16 +225,16 @@ impl Gather<'_> {
         }
         let (l, r) = (node.left as usize, node.left as usize + 1);
         if node.count < PARALLEL_BELOW {
-            let mut out = self.self_test(l);
-            out.extend(self.self_test(r));
-            self.pair_test(l, r, true, &mut out);
+            let mut out = self.self_test(l, focus);
+            out.extend(self.self_test(r, focus));
+            self.pair_test(l, r, true, focus, &mut out);
             return out;
         }
         let ((mut out, right), between) = rayon::join(
-            || rayon::join(|| self.self_test(l), || self.self_test(r)),
+            || rayon::join(|| self.self_test(l, focus), || self.self_test(r, focus)),
             || {
                 let mut between = Vec::new();
-                self.pair_test(l, r, true, &mut between);
+                self.pair_test(l, r, true, focus, &mut between);
                 between
             },
         );
@@ -214,13 +245,23 @@ impl Gather<'_> {
 
     /// The pairs between nodes `a` and `b`; `siblings` when their union is
     /// their parent, which already failed the curvature test.
-    fn pair_test<O: Found>(&self, a: usize, b: usize, siblings: bool, out: &mut Vec<O>) {
+    fn pair_test<O: Found>(&self, a: usize, b: usize, siblings: bool, focus: Option<&InFocus<'_>>, out: &mut Vec<O>) {
         let bounds = self.bounds;
-        if !(bounds.active[a] && bounds.active[b]) || self.focus.is_some_and(|f| !(f.nodes[a] || f.nodes[b])) {
+        if !(bounds.active[a] && bounds.active[b]) || focus.is_some_and(|f| !(f.focus.nodes[a] || f.focus.nodes[b])) {
             return;
         }
         if relative_gap(&bounds.span[a], &bounds.span[b]) > self.reach {
             return;
+        }
+        // Only a triangle pair with one in focus is listed, and only if
+        // their own spans come within the reach, which the spans holding
+        // them bound: boxes within boxes and margins within margins give a
+        // gap at least as large, in f32 too (every step of `relative_gap`
+        // is monotone), so nothing listed is pruned here.
+        if let Some(f) = focus {
+            if relative_gap(&f.span[a], &bounds.span[b]) > self.reach && relative_gap(&bounds.span[a], &f.span[b]) > self.reach {
+                return;
+            }
         }
         // The plane first: it settles corners and near neighbours, and
         // fails in a few steps on patches sharing an edge, which the
@@ -233,24 +274,24 @@ impl Gather<'_> {
         }
         let (na, nb) = (self.tree.nodes[a], self.tree.nodes[b]);
         match (na.is_leaf(), nb.is_leaf()) {
-            (true, true) => self.leaf_pair(a, b, out),
+            (true, true) => self.leaf_pair(a, b, focus, out),
             (false, leaf_b) if leaf_b || na.count >= nb.count => {
-                self.pair_test(na.left as usize, b, false, out);
-                self.pair_test(na.left as usize + 1, b, false, out);
+                self.pair_test(na.left as usize, b, false, focus, out);
+                self.pair_test(na.left as usize + 1, b, false, focus, out);
             }
             _ => {
-                self.pair_test(a, nb.left as usize, false, out);
-                self.pair_test(a, nb.left as usize + 1, false, out);
+                self.pair_test(a, nb.left as usize, false, focus, out);
+                self.pair_test(a, nb.left as usize + 1, false, focus, out);
             }
         }
     }
 
     /// The element pairs between two leaves (or within one, `a == b`).
-    fn leaf_pair<O: Found>(&self, a: usize, b: usize, out: &mut Vec<O>) {
+    fn leaf_pair<O: Found>(&self, a: usize, b: usize, focus: Option<&InFocus<'_>>, out: &mut Vec<O>) {
         let (ra, rb) = (self.tree.nodes[a].range(), self.tree.nodes[b].range());
         let span = &self.bounds.triangle;
         let part = |p: usize| self.takes_part.is_none_or(|flags| flags[p]);
-        let focused = |p: usize, q: usize| self.focus.is_none_or(|f| f.triangles[p] || f.triangles[q]);
+        let focused = |p: usize, q: usize| focus.is_none_or(|f| f.focus.triangles[p] || f.focus.triangles[q]);
         for p in ra {
             if !part(p) {
                 continue;

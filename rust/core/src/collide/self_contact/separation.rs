@@ -71,21 +71,37 @@ fn centre(span: &Span) -> DVec3 {
     (start + 0.5 * moved).as_dvec3()
 }
 
+/// `sign · height − margin` of vertex `v` along `n` at the motion's start and end.
+#[inline(always)]
+fn height(motion: &Motion<'_>, v: u32, n: DVec3, sign: f64) -> [f64; 2] {
+    let m = motion.margin[v as usize] as f64;
+    let (s, e) = (motion.start[v as usize].as_dvec3(), motion.end[v as usize].as_dvec3());
+    [sign * s.dot(n) - m, sign * e.dot(n) - m]
+}
+
 /// Heights along `n` of `vertices` (all but `skip`) at the motion's start
 /// and end, less (`sign` < 0: plus) their margins: the least of `sign ·
-/// height − margin` at each end.
-fn least_heights(motion: &Motion<'_>, vertices: &[u32], skip: Option<u32>, n: DVec3, sign: f64) -> [f64; 2] {
+/// height − margin` at each end; `None` as soon as the least so far
+/// already `fails` at either end. The least only falls (NaN heights are
+/// passed over by `min`), and rounded sums and differences are monotone, so
+/// a test `≤ reach` that fails on the least so far fails on the whole
+/// list: the answer is the full scan's. Most planes tried fail, on a vertex
+/// near the other patch, and the rest of the list is not worth its heights
+/// (issue 30, twenty-fourth round).
+fn least_heights(motion: &Motion<'_>, vertices: &[u32], skip: Option<u32>, n: DVec3, sign: f64, fails: impl Fn(usize, f64) -> bool) -> Option<[f64; 2]> {
     let mut least = [f64::INFINITY; 2];
     for &v in vertices {
         if Some(v) == skip {
             continue;
         }
-        let m = motion.margin[v as usize] as f64;
-        let (s, e) = (motion.start[v as usize].as_dvec3(), motion.end[v as usize].as_dvec3());
-        least[0] = least[0].min(sign * s.dot(n) - m);
-        least[1] = least[1].min(sign * e.dot(n) - m);
+        let h = height(motion, v, n, sign);
+        least[0] = least[0].min(h[0]);
+        least[1] = least[1].min(h[1]);
+        if fails(0, least[0]) || fails(1, least[1]) {
+            return None;
+        }
     }
-    least
+    Some(least)
 }
 
 /// Whether nodes `a` and `b` (their spans `span_a`, `span_b`) provably stay
@@ -103,9 +119,12 @@ pub(super) fn separated(tree: &PatchTree, motion: &Motion<'_>, (a, span_a): (usi
     match shared {
         Shared::Disjoint => {
             let Some(n) = (ca - cb).try_normalize() else { return false };
-            let above = least_heights(motion, va, None, n, 1.0);
-            let below = least_heights(motion, vb, None, n, -1.0);
             // above = min(h − m) over a, below = min(−h − m) over b: the gap is their sum.
+            // Any one vertex of b bounds `below` from above, so `above` may
+            // fail early against it (a NaN height bounds nothing and fails nothing).
+            let Some(some_below) = vb.first().map(|&w| height(motion, w, n, -1.0)) else { return false };
+            let Some(above) = least_heights(motion, va, None, n, 1.0, |k, least| least + some_below[k] <= reach) else { return false };
+            let Some(below) = least_heights(motion, vb, None, n, -1.0, |k, least| above[k] + least <= reach) else { return false };
             above[0] + below[0] > reach && above[1] + below[1] > reach
         }
         Shared::Corner(v) => {
@@ -115,8 +134,9 @@ pub(super) fn separated(tree: &PatchTree, motion: &Motion<'_>, (a, span_a): (usi
             let Some(n) = (da - db).try_normalize() else { return false };
             let m = motion.margin[v as usize] as f64;
             let at = [s.as_dvec3().dot(n), e.as_dvec3().dot(n)];
-            let above = least_heights(motion, va, Some(v), n, 1.0);
-            let below = least_heights(motion, vb, Some(v), n, -1.0);
+            // Each side on its own: both ends of each must clear the shared vertex.
+            let Some(above) = least_heights(motion, va, Some(v), n, 1.0, |k, least| least - at[k] - m <= reach) else { return false };
+            let Some(below) = least_heights(motion, vb, Some(v), n, -1.0, |k, least| least + at[k] - m <= reach) else { return false };
             (0..2).all(|k| above[k] - at[k] - m > reach && below[k] + at[k] - m > reach)
         }
     }

@@ -65,6 +65,45 @@ pub(super) struct PatchTree {
     vertices: (Vec<u32>, Vec<u32>),
     /// The same nodes' exposed vertices: those another node can share.
     exposed: (Vec<u32>, Vec<u32>),
+    /// Per node `a` (offsets, then `(b, join)` sorted by `b`), the disks `b`
+    /// a traversal may pair it with whose loop joins `a`'s ([`Self::joined`]).
+    joins: (Vec<u32>, Vec<(u32, Join)>),
+}
+
+/// Where two disks' loops join along the one run of edges they share: on
+/// `a`'s loop the place where the run ends and the run's edge count, on
+/// `b`'s the place where it starts ([`join_of`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct Join {
+    last: u32,
+    count: u32,
+    start_b: u32,
+}
+
+/// The loop of two joined disks, read in place from theirs: `a`'s from the
+/// run's end round to its start, then `b`'s from there back to the run's end.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct JoinedLoop<'t> {
+    a: &'t [u32],
+    b: &'t [u32],
+    join: Join,
+}
+
+impl JoinedLoop<'_> {
+    pub(super) fn len(&self) -> usize {
+        self.a.len() + self.b.len() - 2 * self.join.count as usize
+    }
+
+    /// The loop's `j`-th vertex (`j < len`).
+    pub(super) fn vertex(&self, j: usize) -> u32 {
+        let (na, nb) = (self.a.len(), self.b.len());
+        let on_a = na - self.join.count as usize; // a's edges off the run
+        if j <= on_a {
+            self.a[(self.join.last as usize + j) % na]
+        } else {
+            self.b[(self.join.start_b as usize + j - on_a) % nb]
+        }
+    }
 }
 
 /// Nodes up to this many triangles keep their vertex lists for the
@@ -188,7 +227,135 @@ impl PatchTree {
         }
         let vertex_count = rest.len().max(tree_triangles.iter().flatten().map(|&v| v as usize + 1).max().unwrap_or(0));
         let [vertices, exposed] = node_vertices(&nodes, &tree_triangles, vertex_count);
-        PatchTree { nodes, triangles: tree_triangles, order, leaves, disk, loop_offsets, loop_vertices, loop_index: loop_index_all, vertices, exposed }
+        let mut tree = PatchTree { nodes, triangles: tree_triangles, order, leaves, disk, loop_offsets, loop_vertices, loop_index: loop_index_all, vertices, exposed, joins: (Vec::new(), Vec::new()) };
+        tree.joins = tree.adjacent_joins();
+        tree
+    }
+
+    /// The joined loop of disks `a` and `b` if a traversal may pair them
+    /// (`a` from the left of their lowest common ancestor) and their loops
+    /// join along one run of shared edges ([`join_of`]), found at bind.
+    pub(super) fn joined(&self, a: usize, b: usize) -> Option<JoinedLoop<'_>> {
+        let list = &self.joins.1[self.joins.0[a] as usize..self.joins.0[a + 1] as usize];
+        let k = list.binary_search_by_key(&(b as u32), |&(partner, _)| partner).ok()?;
+        Some(JoinedLoop { a: self.boundary(a), b: self.boundary(b), join: list[k].1 })
+    }
+
+    /// Every pair of nodes a traversal's node pairs may reach whose loops
+    /// join ([`join_of`]), per first node. A traversal pairs two siblings,
+    /// then splits one node of a pair at a time (the larger, the first on
+    /// a tie, [`super::gather`]), so the pairs holding two given leaves form
+    /// one chain from their lowest common ancestor's children down. Two
+    /// loops that join share an edge of the skin, held by a triangle of
+    /// each, so the pair lies on the chain of two leaves sharing an edge:
+    /// walking the pairs that hold such two leaves, as a traversal would,
+    /// finds every pair that can join. Asked of every
+    /// adjacent pair of disks of every gathering, the join cost binary
+    /// searches over both loops each time (a tenth of a quiet frame of the
+    /// MakeHuman character, issue 30, twenty-fourth round).
+    fn adjacent_joins(&self) -> (Vec<u32>, Vec<(u32, Join)>) {
+        // The leaves holding each edge of the skin, the edges bucketed by
+        // their lower vertex, each bucket holding (higher vertex, leaf's first position).
+        let mut leaf_first = vec![0u32; self.triangles.len()];
+        for &leaf in &self.leaves {
+            let node = self.nodes[leaf as usize];
+            leaf_first[node.range()].fill(node.first);
+        }
+        let edge = |t: &[u32; 3], k: usize| (t[k].min(t[(k + 1) % 3]), t[k].max(t[(k + 1) % 3]));
+        let vertex_count = self.triangles.iter().flatten().map(|&v| v as usize + 1).max().unwrap_or(0);
+        let mut offsets = vec![0u32; vertex_count + 1];
+        for t in &self.triangles {
+            for k in 0..3 {
+                offsets[edge(t, k).0 as usize + 1] += 1;
+            }
+        }
+        for v in 0..vertex_count {
+            offsets[v + 1] += offsets[v];
+        }
+        let mut fill = offsets.clone();
+        let mut buckets = vec![(0u32, 0u32); offsets[vertex_count] as usize];
+        for (p, t) in self.triangles.iter().enumerate() {
+            for k in 0..3 {
+                let (low, high) = edge(t, k);
+                buckets[fill[low as usize] as usize] = (high, leaf_first[p]);
+                fill[low as usize] += 1;
+            }
+        }
+        // Pairs of leaves sharing an edge, by their first positions, lower first.
+        let mut leaf_pairs: Vec<(u32, u32)> = Vec::new();
+        for v in 0..vertex_count {
+            let bucket = &mut buckets[offsets[v] as usize..offsets[v + 1] as usize];
+            bucket.sort_unstable();
+            for group in bucket.chunk_by(|e, f| e.0 == f.0) {
+                for (i, e) in group.iter().enumerate() {
+                    leaf_pairs.extend(group[i + 1..].iter().filter(|f| f.1 != e.1).map(|f| (e.1.min(f.1), e.1.max(f.1))));
+                }
+            }
+        }
+        let mut joins: Vec<(u32, u32, Join)> = Vec::new();
+        if !self.nodes.is_empty() {
+            self.joins_within(0, &mut leaf_pairs, &mut joins);
+        }
+        joins.sort_unstable_by_key(|&(a, b, _)| (a, b));
+        let mut offsets = vec![0u32; self.nodes.len() + 1];
+        for &(a, _, _) in &joins {
+            offsets[a as usize + 1] += 1;
+        }
+        for i in 0..self.nodes.len() {
+            offsets[i + 1] += offsets[i];
+        }
+        (offsets, joins.into_iter().map(|(_, b, join)| (b, join)).collect())
+    }
+
+    /// [`Self::adjacent_joins`] under node `i`: `leaf_pairs` (first
+    /// positions, lower first) are the pairs of its leaves sharing an edge.
+    fn joins_within(&self, i: usize, leaf_pairs: &mut [(u32, u32)], joins: &mut Vec<(u32, u32, Join)>) {
+        let node = self.nodes[i];
+        if node.is_leaf() || leaf_pairs.is_empty() {
+            return;
+        }
+        let (l, r) = (node.left as usize, node.left as usize + 1);
+        let mid = self.nodes[r].first;
+        // Both in the left child, both in the right, then across.
+        let left = partition(leaf_pairs, |&(_, y)| y < mid);
+        let (in_left, rest) = leaf_pairs.split_at_mut(left);
+        let right = partition(rest, |&(x, _)| x >= mid);
+        let (in_right, across) = rest.split_at_mut(right);
+        self.joins_within(l, in_left, joins);
+        self.joins_within(r, in_right, joins);
+        self.joins_between(l, r, across, joins);
+    }
+
+    /// [`Self::adjacent_joins`] of the pair `(a, b)` and the pairs a
+    /// traversal splits it into that hold one of `leaf_pairs` (first
+    /// positions, one under `a`, the other under `b`).
+    fn joins_between(&self, a: usize, b: usize, leaf_pairs: &mut [(u32, u32)], joins: &mut Vec<(u32, u32, Join)>) {
+        if leaf_pairs.is_empty() {
+            return;
+        }
+        if self.disk[a] && self.disk[b] {
+            if let Some(join) = join_of(self.boundary(a), self.boundary(b), self.boundary_index(b)) {
+                joins.push((a as u32, b as u32, join));
+            }
+        }
+        let (na, nb) = (self.nodes[a], self.nodes[b]);
+        match (na.is_leaf(), nb.is_leaf()) {
+            (true, true) => {}
+            (false, leaf_b) if leaf_b || na.count >= nb.count => {
+                let mid = self.nodes[na.left as usize + 1].first;
+                let k = partition(leaf_pairs, |&(x, _)| x < mid);
+                let (first, second) = leaf_pairs.split_at_mut(k);
+                self.joins_between(na.left as usize, b, first, joins);
+                self.joins_between(na.left as usize + 1, b, second, joins);
+            }
+            _ => {
+                let mid = self.nodes[nb.left as usize + 1].first;
+                let k = partition(leaf_pairs, |&(_, y)| y < mid);
+                let (first, second) = leaf_pairs.split_at_mut(k);
+                self.joins_between(a, nb.left as usize, first, joins);
+                self.joins_between(a, nb.left as usize + 1, second, joins);
+            }
+        }
     }
 
     /// The vertices of node `i`, sorted, if it has at most [`SEPARABLE`]
@@ -256,6 +423,71 @@ fn node_vertices(nodes: &[Node], triangles: &[[u32; 3]], vertex_count: usize) ->
         exposed.0.push(exposed.1.len() as u32);
     }
     [all, exposed]
+}
+
+/// The loop [`join_of`] joins, as a list.
+#[cfg(test)]
+pub(super) fn joined(a: &[u32], b: &[u32], b_at: &[(u32, u32)]) -> Option<Vec<u32>> {
+    let join = join_of(a, b, b_at)?;
+    let ring = JoinedLoop { a, b, join };
+    Some((0..ring.len()).map(|j| ring.vertex(j)).collect())
+}
+
+/// Where the boundary loops `a` and `b` of two disks (vertex cycles in the
+/// triangles' winding) join along the boundary they share, if that is one
+/// run of edges and they touch nowhere else: then their union is a disk,
+/// its loop [`JoinedLoop`]. `b_at` is `b`'s loop index
+/// ([`PatchTree::boundary_index`]).
+fn join_of(a: &[u32], b: &[u32], b_at: &[(u32, u32)]) -> Option<Join> {
+    let (na, nb) = (a.len(), b.len());
+    if na < 3 || nb < 3 {
+        return None;
+    }
+    // Where a vertex sits on b's loop; a shared edge x → y of a is y → x on b.
+    let on_b = |v: u32| b_at.binary_search_by_key(&v, |&(w, _)| w).ok().map(|k| b_at[k].1 as usize);
+    let shared = |i: usize| {
+        let (x, y) = (a[i], a[(i + 1) % na]);
+        on_b(y).is_some_and(|j| b[(j + 1) % nb] == x)
+    };
+    // The shared edges' count and the run's first edge (shared, its
+    // predecessor not; exactly one such), in one pass without a list of
+    // flags: a traversal asks this of every pair of adjacent disks it meets
+    // (issue 30, twenty-third round).
+    let (mut count, mut starts, mut first) = (0, 0, 0);
+    let closing = shared(na - 1);
+    let mut previous = closing;
+    for i in 0..na {
+        let here = if i == na - 1 { closing } else { shared(i) };
+        count += here as usize;
+        if here && !previous {
+            starts += 1;
+            first = i;
+        }
+        previous = here;
+    }
+    if count == 0 || count == na || starts != 1 {
+        return None;
+    }
+    let last = (first + count) % na; // the vertex where the run ends
+    // Touching anywhere else (a vertex of a off the run on b's loop) makes a pinch.
+    if (1..na - count).any(|k| on_b(a[(last + k) % na]).is_some()) {
+        return None;
+    }
+    // a from the run's end round to its start, then b from there back to the run's end.
+    let start_b = on_b(a[first]).expect("a shared edge's end is on b");
+    Some(Join { last: last as u32, count: count as u32, start_b: start_b as u32 })
+}
+
+/// Moves the items for which `first` holds to the front, returning how many.
+fn partition<T>(items: &mut [T], first: impl Fn(&T) -> bool) -> usize {
+    let mut k = 0;
+    for i in 0..items.len() {
+        if first(&items[i]) {
+            items.swap(i, k);
+            k += 1;
+        }
+    }
+    k
 }
 
 /// A boundary loop's vertices with their places on it, sorted by vertex.
@@ -392,6 +624,41 @@ mod tests {
         for &leaf in &tree.leaves {
             let node = tree.nodes[leaf as usize];
             assert_eq!((node.first % 4, node.count % 4), (0, 0), "a quad's four triangles share a leaf");
+        }
+    }
+
+    /// Every pair of nodes a traversal can reach (siblings, then the larger
+    /// split, as [`super::super::gather`] does), without any culling.
+    fn every_traversal_pair(tree: &PatchTree) -> Vec<(usize, usize)> {
+        let mut pairs = Vec::new();
+        let mut stack: Vec<(usize, usize)> = tree.nodes.iter().filter(|n| !n.is_leaf()).map(|n| (n.left as usize, n.left as usize + 1)).collect();
+        while let Some((a, b)) = stack.pop() {
+            pairs.push((a, b));
+            let (na, nb) = (tree.nodes[a], tree.nodes[b]);
+            match (na.is_leaf(), nb.is_leaf()) {
+                (true, true) => {}
+                (false, leaf_b) if leaf_b || na.count >= nb.count => stack.extend([(na.left as usize, b), (na.left as usize + 1, b)]),
+                _ => stack.extend([(a, nb.left as usize), (a, nb.left as usize + 1)]),
+            }
+        }
+        pairs
+    }
+
+    #[test]
+    fn the_joins_kept_from_the_bind_are_those_worked_out_for_every_pair_a_traversal_reaches() {
+        let g = grid(12, 12, 1.0);
+        let s = quad_sphere(6, 1.0);
+        for mesh in [g.input(), s.input()] {
+            let tree = PatchTree::build(&triangles(mesh), mesh.positions);
+            let (mut joins, mut checked) = (0, 0);
+            for (a, b) in every_traversal_pair(&tree) {
+                let kept = tree.joined(a, b).map(|ring| (0..ring.len()).map(|j| ring.vertex(j)).collect::<Vec<u32>>());
+                let afresh = if tree.disk[a] && tree.disk[b] { joined(tree.boundary(a), tree.boundary(b), tree.boundary_index(b)) } else { None };
+                assert_eq!(kept, afresh, "nodes {a} and {b}");
+                joins += afresh.is_some() as usize;
+                checked += 1;
+            }
+            assert!(joins > 10 && checked > 10 * joins, "{joins} joins of {checked} pairs: the test must see both kinds");
         }
     }
 
