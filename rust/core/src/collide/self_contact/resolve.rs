@@ -484,6 +484,46 @@ impl Candidates {
         (left_out.len(), in_contact, chosen.len())
     }
 
+    /// The pairs the fail-safe's check over `before → after` tests: those
+    /// with a corner among the open vertices ([`Self::open`]) that neither
+    /// the reference's proof nor the rounds' from `before` ([`AtStart`],
+    /// where this check's `before` is theirs) puts apart. Both prove a pair
+    /// stays farther apart than its separation, so farther than the
+    /// crossing the check looks for.
+    fn unsettled(&self, before: &[Vec3], after: &[Vec3], pass: &Pass<'_>) -> Vec<ElementPair> {
+        let strays = self.strays(before, after);
+        let open = self.open(&strays);
+        let at_start = self.at_start.at(before);
+        let settled = |k: usize| {
+            self.proves_apart(k, &strays, pass) || at_start.and_then(|d| d.get(k)).is_some_and(|&d| apart(&self.pairs[k], d, &strays.from_before, self.threshold(k, pass)))
+        };
+        (0..self.pairs.len()).into_par_iter().with_min_len(256).filter(|&k| self.opens(k, &open) && !settled(k)).map(|k| self.pairs[k]).collect()
+    }
+
+    /// For the tests, over the motion `before → after`, after a first
+    /// in-loop round from `before` ([`AtStart::chosen`]): how many listed
+    /// pairs the fail-safe's check leaves out ([`Self::unsettled`]), how
+    /// many of those come within their separation by the rounds' CCD test
+    /// (none, if leaving them out changes no decision: the check's test,
+    /// with no separation, finds a subset), and how many more it would
+    /// test without the round's proof from `before`.
+    #[cfg(test)]
+    pub(super) fn check_choice_counts(&mut self, collision: &SelfCollision, settings: &SelfSettings, before: &[Vec3], after: &[Vec3]) -> (usize, usize, usize) {
+        let tangles = Tangles::default();
+        let pass = collision.pass(settings, &tangles, None).expect("prepared");
+        let strays = self.strays(before, after);
+        let mut at_start = AtStart::default();
+        at_start.begin(before);
+        at_start.chosen(self, before, &strays, &self.open(&strays), None, &pass);
+        self.at_start = AtStart::default();
+        let by_reference = self.unsettled(before, after, &pass).len();
+        self.at_start = at_start;
+        let tested = self.unsettled(before, after, &pass);
+        let left_out: Vec<&ElementPair> = self.pairs.iter().filter(|pair| !tested.contains(pair)).collect();
+        let in_contact = left_out.iter().filter(|pair| first_contact(pair, before, after, collision.pair_separation(pair), pass.params.tolerance).is_some()).count();
+        (left_out.len(), in_contact, by_reference - tested.len())
+    }
+
     /// Whether pair `k` provably stays farther apart than its separation
     /// over the motion of `strays`: its sides have strayed from the
     /// reference by less, together, than its distance there less the
@@ -918,22 +958,7 @@ impl SelfCollision {
         stats.count(&gathered, ms);
         let began = Instant::now();
         let current = candidates.as_ref().expect("ensured");
-        let strays = current.strays(before, after);
-        let strayed = current.open(&strays);
-        // The rounds' proof from where the iteration started settles pairs
-        // as the reference's does: a crossing is closer than the
-        // separation both prove a pair stays beyond.
-        let at_start = current.at_start.at(before);
-        let settled = |k: usize| {
-            current.proves_apart(k, &strays, &pass)
-                || at_start.and_then(|d| d.get(k)).is_some_and(|&d| apart(&current.pairs[k], d, &strays.from_before, current.threshold(k, &pass)))
-        };
-        let open: Vec<ElementPair> = (0..current.pairs.len())
-            .into_par_iter()
-            .with_min_len(256)
-            .filter(|&k| current.opens(k, &strayed) && !settled(k))
-            .map(|k| current.pairs[k])
-            .collect();
+        let open = current.unsettled(before, after, &pass);
         let (bad, tested) = pass.crossing_corners(&open, before, after, touching);
         stats.pairs_scanned += current.pairs.len();
         stats.pairs_tested += tested;
