@@ -231,6 +231,10 @@ pub struct Candidates {
     /// whole tree for each such gathering made up about a tenth of the
     /// character's straight frames (issue 30, tenth round).
     bounds: NodeBounds,
+    /// The in-loop rounds' distances at the start of their iteration, kept
+    /// in step with the list, for the fail-safe's check of the same
+    /// iteration ([`SelfCollision::in_loop_crossings`]).
+    at_start: AtStart,
 }
 
 impl Candidates {
@@ -397,9 +401,10 @@ impl Candidates {
     /// gathering around a few vertices drops a few pairs of a list of up to
     /// millions, which copying made a pass over the whole list in new
     /// memory for each such gathering (issue 30, twenty-third round).
-    /// `by_pair`, one value per pair (an [`AtStart`]'s distances), is
+    /// The rounds' distances at `before` ([`AtStart::kept_with`]) are
     /// compacted alike.
-    fn drop_pairs(&mut self, dropped: impl Fn(&ElementPair) -> bool, mut by_pair: Option<&mut Vec<f32>>) -> usize {
+    fn drop_pairs(&mut self, dropped: impl Fn(&ElementPair) -> bool) -> usize {
+        let mut by_pair = self.at_start.kept_with(self.pairs.len());
         let mut kept = 0;
         for k in 0..self.pairs.len() {
             if !dropped(&self.pairs[k]) {
@@ -479,6 +484,46 @@ impl Candidates {
         (left_out.len(), in_contact, chosen.len())
     }
 
+    /// The pairs the fail-safe's check over `before → after` tests: those
+    /// with a corner among the open vertices ([`Self::open`]) that neither
+    /// the reference's proof nor the rounds' from `before` ([`AtStart`],
+    /// where this check's `before` is theirs) puts apart. Both prove a pair
+    /// stays farther apart than its separation, so farther than the
+    /// crossing the check looks for.
+    fn unsettled(&self, before: &[Vec3], after: &[Vec3], pass: &Pass<'_>) -> Vec<ElementPair> {
+        let strays = self.strays(before, after);
+        let open = self.open(&strays);
+        let at_start = self.at_start.at(before);
+        let settled = |k: usize| {
+            self.proves_apart(k, &strays, pass) || at_start.and_then(|d| d.get(k)).is_some_and(|&d| apart(&self.pairs[k], d, &strays.from_before, self.threshold(k, pass)))
+        };
+        (0..self.pairs.len()).into_par_iter().with_min_len(256).filter(|&k| self.opens(k, &open) && !settled(k)).map(|k| self.pairs[k]).collect()
+    }
+
+    /// For the tests, over the motion `before → after`, after a first
+    /// in-loop round from `before` ([`AtStart::chosen`]): how many listed
+    /// pairs the fail-safe's check leaves out ([`Self::unsettled`]), how
+    /// many of those come within their separation by the rounds' CCD test
+    /// (none, if leaving them out changes no decision: the check's test,
+    /// with no separation, finds a subset), and how many more it would
+    /// test without the round's proof from `before`.
+    #[cfg(test)]
+    pub(super) fn check_choice_counts(&mut self, collision: &SelfCollision, settings: &SelfSettings, before: &[Vec3], after: &[Vec3]) -> (usize, usize, usize) {
+        let tangles = Tangles::default();
+        let pass = collision.pass(settings, &tangles, None).expect("prepared");
+        let strays = self.strays(before, after);
+        let mut at_start = AtStart::default();
+        at_start.begin(before);
+        at_start.chosen(self, before, &strays, &self.open(&strays), None, &pass);
+        self.at_start = AtStart::default();
+        let by_reference = self.unsettled(before, after, &pass).len();
+        self.at_start = at_start;
+        let tested = self.unsettled(before, after, &pass);
+        let left_out: Vec<&ElementPair> = self.pairs.iter().filter(|pair| !tested.contains(pair)).collect();
+        let in_contact = left_out.iter().filter(|pair| first_contact(pair, before, after, collision.pair_separation(pair), pass.params.tolerance).is_some()).count();
+        (left_out.len(), in_contact, by_reference - tested.len())
+    }
+
     /// Whether pair `k` provably stays farther apart than its separation
     /// over the motion of `strays`: its sides have strayed from the
     /// reference by less, together, than its distance there less the
@@ -508,10 +553,17 @@ struct Strays {
 /// `strayed` from those: its sides strayed less, together, than that
 /// distance less the separation (the `threshold` has room for the f32
 /// arithmetic, [`Candidates::threshold`]).
+///
+/// The sides' corners are read at fixed places, not folded over
+/// [`ElementPair::sides`]' slices: the rounds and checks ask the
+/// reference's proof of every open pair, 20.5M times on the MakeHuman
+/// character's frames 1–11, at 85 instructions a time with the slices'
+/// loops, 70 without (issue 30, twenty-fourth round). The same maxima in
+/// the same order, so the same room.
 fn apart(pair: &ElementPair, distance: f32, strayed: &[f32], threshold: f64) -> bool {
-    let side = |corners: &[u32]| corners.iter().fold(0.0f32, |m, &v| m.max(strayed[v as usize]));
-    let (a, b) = pair.sides();
-    let room = distance - side(a) - side(b);
+    let [s0, s1, s2, s3] = pair.corners.map(|v| strayed[v as usize]);
+    let (a, b) = if pair.edge_edge { (0.0f32.max(s0).max(s1), 0.0f32.max(s2).max(s3)) } else { (0.0f32.max(s0), 0.0f32.max(s1).max(s2).max(s3)) };
+    let room = distance - a - b;
     room as f64 > threshold
 }
 
@@ -533,27 +585,41 @@ fn apart(pair: &ElementPair, distance: f32, strayed: &[f32], threshold: f64) -> 
 /// after` stays within `|after − before|` of `before`; the test is the
 /// reference proof's, with `before` as the reference, and the same room for
 /// the f32 arithmetic (`SelfCollision::rounding` in the threshold).
-#[derive(Debug, Default)]
+///
+/// Kept with the list ([`Candidates`]), so that the fail-safe's check of
+/// the same iteration settles pairs by it too
+/// ([`SelfCollision::in_loop_crossings`]).
+#[derive(Debug, Clone, Default)]
 struct AtStart {
+    /// Where the iteration started.
+    before: Vec<Vec3>,
     /// Per listed pair, its distance at `before`; NaN where not computed
     /// (never proves anything).
     distance: Vec<f32>,
 }
 
 impl AtStart {
-    /// Forgets every distance: the list was gathered again.
-    fn clear(&mut self) {
+    /// Starts over at `before`, with no distance known.
+    fn begin(&mut self, before: &[Vec3]) {
+        self.before.clear();
+        self.before.extend_from_slice(before);
         self.distance.clear();
+    }
+
+    /// The distances at `before`, if these were taken there (NaN, or none
+    /// past the end, where not computed).
+    fn at(&self, before: &[Vec3]) -> Option<&[f32]> {
+        (self.before.as_slice() == before).then_some(self.distance.as_slice())
     }
 
     /// The distances to compact along with the list a gathering around a
     /// few vertices keeps ([`Candidates::drop_pairs`]): a kept pair is the
     /// same pair at the same `before`, so its distance there still holds
     /// (the new pairs, appended, get theirs when a round asks). None where
-    /// they are not one per listed pair (no round has asked since the list
-    /// was made): then forgotten.
-    fn kept_with(&mut self, c: &Candidates) -> Option<&mut Vec<f32>> {
-        if self.distance.len() == c.pairs.len() {
+    /// they are not one per pair of the `listed` (no round has asked since
+    /// the list was made or pairs were appended): then forgotten.
+    fn kept_with(&mut self, listed: usize) -> Option<&mut Vec<f32>> {
+        if self.distance.len() == listed {
             Some(&mut self.distance)
         } else {
             self.distance.clear();
@@ -767,7 +833,7 @@ impl SelfCollision {
             }
             let margin: Vec<f32> = (0..end.len()).map(|v| if left[v] { c.margin[v].max((end[v] - c.reference[v]).length()) } else { c.margin[v] }).collect();
             if count <= end.len() / AROUND_FIRST_PASS {
-                let ((), ms) = timed(|| pass.gather_around(c, &left, start, end, &margin, None));
+                let ((), ms) = timed(|| pass.gather_around(c, &left, start, end, &margin));
                 stats.count(&Gathered::Around(Vec::new()), ms);
                 // The pairs listed again have a corner among `left`: the
                 // next round looks at them, as at every pair of a moved vertex.
@@ -832,16 +898,18 @@ impl SelfCollision {
         let pass = self.pass(settings, tangles, takes_part)?;
         let requested = after.to_vec();
         let mut stats = SelfStats::default();
-        let (gathered, ms) = timed(|| pass.ensure(candidates, before, after, None));
+        let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
         stats.count(&gathered, ms);
+        candidates.as_mut().expect("ensured").at_start.begin(before);
         let mut moved: Option<Vec<bool>> = None;
-        let mut at_start = AtStart::default();
         for _ in 0..SELF_ROUNDS {
             stats.rounds += 1;
-            let current = candidates.as_ref().expect("ensured");
+            let current = candidates.as_mut().expect("ensured");
             let strays = current.strays(before, after);
             let open = current.open(&strays);
+            let mut at_start = std::mem::take(&mut current.at_start);
             let chosen = at_start.chosen(current, before, &strays, &open, moved.as_deref(), &pass);
+            current.at_start = at_start;
             let (contacts, changes) = pass.round(&current.pairs, before, after, &chosen, &mut stats);
             stats.contacts += contacts;
             if changes.is_empty() {
@@ -852,11 +920,11 @@ impl SelfCollision {
                 after[v as usize] = p;
                 flags[v as usize] = true;
             }
-            let (gathered, ms) = timed(|| pass.ensure(candidates, before, after, Some(&mut at_start)));
+            let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
             stats.count(&gathered, ms);
             if gathered == Gathered::Whole {
                 // Its pairs are listed anew (in another order).
-                at_start.clear();
+                candidates.as_mut().expect("ensured").at_start.begin(before);
             }
             moved = match gathered {
                 Gathered::Nothing => Some(flags),
@@ -893,18 +961,11 @@ impl SelfCollision {
         stats: &mut SelfStats,
     ) -> Result<Vec<u32>> {
         let pass = self.pass(settings, tangles, takes_part)?;
-        let (gathered, ms) = timed(|| pass.ensure(candidates, before, after, None));
+        let (gathered, ms) = timed(|| pass.ensure(candidates, before, after));
         stats.count(&gathered, ms);
         let began = Instant::now();
         let current = candidates.as_ref().expect("ensured");
-        let strays = current.strays(before, after);
-        let strayed = current.open(&strays);
-        let open: Vec<ElementPair> = (0..current.pairs.len())
-            .into_par_iter()
-            .with_min_len(256)
-            .filter(|&k| current.opens(k, &strayed) && !current.proves_apart(k, &strays, &pass))
-            .map(|k| current.pairs[k])
-            .collect();
+        let open = current.unsettled(before, after, &pass);
         let (bad, tested) = pass.crossing_corners(&open, before, after, touching);
         stats.pairs_scanned += current.pairs.len();
         stats.pairs_tested += tested;
@@ -985,7 +1046,17 @@ impl Pass<'_> {
         let pairs = self.gather_with(Some(&bounds), &motion, None);
         let distance: Vec<f32> = pairs.par_iter().map(|pair| distance(pair, end)).collect();
         let separation = self.pair_separations(&pairs);
-        let mut c = Candidates { start: start.to_vec(), reference: end.to_vec(), margin, pairs, distance, separation, bounds, clearance: vec![f64::INFINITY; start.len()] };
+        let mut c = Candidates {
+            start: start.to_vec(),
+            reference: end.to_vec(),
+            margin,
+            pairs,
+            distance,
+            separation,
+            bounds,
+            clearance: vec![f64::INFINITY; start.len()],
+            at_start: AtStart::default(),
+        };
         c.tighten(0, self);
         c
     }
@@ -999,10 +1070,7 @@ impl Pass<'_> {
     /// grow with its corrections, and where a fold closes (its rounds and
     /// fail-safe moving skin far) carrying them into every in-loop gathering
     /// paired up millions of elements of the fold (issue 30, seventh round).
-    ///
-    /// `at_start`, the rounds' distances at `before`, are kept for the
-    /// pairs a gathering around a few vertices keeps.
-    fn ensure(&self, candidates: &mut Option<Candidates>, before: &[Vec3], after: &[Vec3], at_start: Option<&mut AtStart>) -> Gathered {
+    fn ensure(&self, candidates: &mut Option<Candidates>, before: &[Vec3], after: &[Vec3]) -> Gathered {
         let fit = candidates.as_ref().map(|c| c.fitted(before, after));
         if fit.as_ref().is_some_and(|(_, count)| *count == 0) {
             return Gathered::Nothing;
@@ -1014,8 +1082,7 @@ impl Pass<'_> {
                 // Each a ball about `before` holding `after` and the next
                 // iterations' moves, which shrink as the solve converges.
                 let ball: Vec<f32> = (0..before.len()).into_par_iter().with_min_len(4096).map(|v| (4.0 * moved(v)).max(floor)).collect();
-                let by_pair = at_start.and_then(|a| a.kept_with(c));
-                self.gather_around(c, &left, before, before, &ball, by_pair);
+                self.gather_around(c, &left, before, before, &ball);
                 return Gathered::Around(left);
             }
         }
@@ -1048,9 +1115,7 @@ impl Pass<'_> {
     /// still; every pair with a corner among `left` has a triangle around
     /// one of them (the triangle owning that corner or edge, or the
     /// vertex–triangle pair's triangle), which the focus looks at.
-    /// `by_pair`, one value per listed pair, keeps those of the kept pairs
-    /// ([`Candidates::drop_pairs`]).
-    fn gather_around(&self, c: &mut Candidates, left: &[bool], start: &[Vec3], end: &[Vec3], margin: &[f32], by_pair: Option<&mut Vec<f32>>) {
+    fn gather_around(&self, c: &mut Candidates, left: &[bool], start: &[Vec3], end: &[Vec3], margin: &[f32]) {
         for v in (0..left.len()).filter(|&v| left[v]) {
             c.start[v] = start[v];
             c.reference[v] = end[v];
@@ -1059,7 +1124,7 @@ impl Pass<'_> {
             c.clearance[v] = f64::INFINITY;
         }
         let touches = |pair: &ElementPair| pair.corners.iter().any(|&v| left[v as usize]);
-        let kept = c.drop_pairs(touches, by_pair);
+        let kept = c.drop_pairs(touches);
         let focus = self.collision.focus_around(left);
         // Only the vertices `left` changed path or margin: the bounds of the
         // leaves without one of them as a corner, and of the nodes above

@@ -569,6 +569,28 @@ fn the_in_loop_rounds_leave_out_only_pairs_not_in_contact() {
     assert!(left_out > 40 * pairs.len() / 2 && tested > 0, "{left_out} pairs left out, {tested} tested over 40 trials of {} pairs", pairs.len());
 }
 
+#[test]
+fn the_in_loop_fail_safe_check_leaves_out_only_pairs_not_in_contact() {
+    // The motions of the test above, checked after a first round from
+    // `before`, whose proof from there settles pairs for the check too.
+    let (collision, still, candidates) = sheets_listed(0.013, 0.004);
+    let mut c = candidates.unwrap();
+    let offset = |v: usize, trial: usize, scale: f32| {
+        let h = |k: usize| (((v * 7919 + trial * 104_729 + k * 15_485_863) % 2_000_003) as f32 / 1_000_001.5 - 1.0) * scale;
+        Vec3::new(h(0), h(1), h(2))
+    };
+    let (mut left_out, mut by_start) = (0, 0);
+    for trial in 0..40 {
+        let before: Vec<Vec3> = still.iter().enumerate().map(|(v, p)| *p + offset(v, trial, 0.0002 * trial as f32)).collect();
+        let after: Vec<Vec3> = before.iter().enumerate().map(|(v, p)| *p + offset(v, trial + 1000, 0.0001 * (40 - trial) as f32)).collect();
+        let (out, in_contact, settled_from_start) = c.check_choice_counts(&collision, &SETTINGS, &before, &after);
+        assert_eq!(in_contact, 0, "trial {trial}: {in_contact} of the {out} pairs left out are in contact");
+        left_out += out;
+        by_start += settled_from_start;
+    }
+    assert!(by_start > 0 && left_out > 0, "{left_out} pairs left out over 40 trials, {by_start} of them settled by the proof from before alone");
+}
+
 /// A 16 × 16 grid of side 1 rolled three quarters round a cylinder (its
 /// normals fit no cone: the tree cannot accept it whole), at rest and with
 /// its quads squeezed along one diagonal to a quarter (in the unrolled
