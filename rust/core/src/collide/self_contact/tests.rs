@@ -505,11 +505,6 @@ fn a_motion_matched_along_the_gathered_paths_finds_every_pair_within_reach() {
 fn the_in_loop_active_set_leaves_out_only_pairs_proven_apart() {
     let (collision, still, mut candidates) = sheets_listed(0.013, 0.004);
     assert!(!candidates.as_ref().unwrap().is_empty(), "the sheets are within reach");
-    // A deterministic pseudo-random offset per vertex and trial.
-    let offset = |v: usize, trial: usize, scale: f32| {
-        let h = |k: usize| (((v * 7919 + trial * 104_729 + k * 15_485_863) % 2_000_003) as f32 / 1_000_001.5 - 1.0) * scale;
-        Vec3::new(h(0), h(1), h(2))
-    };
     let check = |c: &Candidates, reference: &[Vec3], label: &str| {
         let (mut outside, mut inside_unproven) = (0, 0);
         for trial in 0..40 {
@@ -544,22 +539,33 @@ fn the_in_loop_active_set_leaves_out_only_pairs_proven_apart() {
     assert!(unproven > 0, "the gathered-around vertex's pairs are never tested");
 }
 
+/// A deterministic pseudo-random offset of vertex `v` in trial `trial`, each
+/// coordinate within ±`scale`.
+fn offset(v: usize, trial: usize, scale: f32) -> Vec3 {
+    let h = |k: usize| (((v * 7919 + trial * 104_729 + k * 15_485_863) % 2_000_003) as f32 / 1_000_001.5 - 1.0) * scale;
+    Vec3::new(h(0), h(1), h(2))
+}
+
+/// Trial `trial` of 40 of an iteration over `sheets_listed`'s sheets: it
+/// starts up to twice the room between them from `still` and moves from
+/// there by up to the room.
+fn trial_motion(still: &[Vec3], trial: usize) -> (Vec<Vec3>, Vec<Vec3>) {
+    let before: Vec<Vec3> = still.iter().enumerate().map(|(v, p)| *p + offset(v, trial, 0.0002 * trial as f32)).collect();
+    let after = before.iter().enumerate().map(|(v, p)| *p + offset(v, trial + 1000, 0.0001 * (40 - trial) as f32)).collect();
+    (before, after)
+}
+
 #[test]
 fn the_in_loop_rounds_leave_out_only_pairs_not_in_contact() {
     let (collision, still, candidates) = sheets_listed(0.013, 0.004);
     let c = candidates.unwrap();
-    let offset = |v: usize, trial: usize, scale: f32| {
-        let h = |k: usize| (((v * 7919 + trial * 104_729 + k * 15_485_863) % 2_000_003) as f32 / 1_000_001.5 - 1.0) * scale;
-        Vec3::new(h(0), h(1), h(2))
-    };
     let (mut left_out, mut tested) = (0, 0);
     for trial in 0..40 {
         // The iteration starts up to twice the room between the sheets from
         // the reference and moves from there by up to the room: the
         // reference's proof fails where the one from the iteration's start
         // holds, and the larger moves bring pairs into contact.
-        let before: Vec<Vec3> = still.iter().enumerate().map(|(v, p)| *p + offset(v, trial, 0.0002 * trial as f32)).collect();
-        let after: Vec<Vec3> = before.iter().enumerate().map(|(v, p)| *p + offset(v, trial + 1000, 0.0001 * (40 - trial) as f32)).collect();
+        let (before, after) = trial_motion(&still, trial);
         let (out, in_contact, chosen) = c.round_choice_counts(&collision, &SETTINGS, &before, &after);
         assert_eq!(in_contact, 0, "trial {trial}: {in_contact} of the {out} pairs left out are in contact");
         left_out += out;
@@ -575,14 +581,9 @@ fn the_in_loop_fail_safe_check_leaves_out_only_pairs_not_in_contact() {
     // `before`, whose proof from there settles pairs for the check too.
     let (collision, still, candidates) = sheets_listed(0.013, 0.004);
     let mut c = candidates.unwrap();
-    let offset = |v: usize, trial: usize, scale: f32| {
-        let h = |k: usize| (((v * 7919 + trial * 104_729 + k * 15_485_863) % 2_000_003) as f32 / 1_000_001.5 - 1.0) * scale;
-        Vec3::new(h(0), h(1), h(2))
-    };
     let (mut left_out, mut by_start) = (0, 0);
     for trial in 0..40 {
-        let before: Vec<Vec3> = still.iter().enumerate().map(|(v, p)| *p + offset(v, trial, 0.0002 * trial as f32)).collect();
-        let after: Vec<Vec3> = before.iter().enumerate().map(|(v, p)| *p + offset(v, trial + 1000, 0.0001 * (40 - trial) as f32)).collect();
+        let (before, after) = trial_motion(&still, trial);
         let (out, in_contact, settled_from_start) = c.check_choice_counts(&collision, &SETTINGS, &before, &after);
         assert_eq!(in_contact, 0, "trial {trial}: {in_contact} of the {out} pairs left out are in contact");
         left_out += out;
