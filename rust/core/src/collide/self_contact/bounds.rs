@@ -325,26 +325,25 @@ impl NodeBounds {
         let count = tree.nodes.len();
         let mut bounds = NodeBounds { span: vec![Span::EMPTY; count], cone: vec![Cone::EMPTY; count], active: vec![false; count], triangle: vec![Span::EMPTY; tree.triangles.len()], triangle_cone: vec![Cone::EMPTY; tree.triangles.len()] };
         bounds.fit_leaves(tree, motion, takes_part, &tree.leaves);
-        bounds.fit_parents(tree, None);
+        bounds.fit_parents(tree);
         bounds
     }
 
     /// The bounds [`Self::new`] gives for `motion`, from those of a motion
     /// that differed from it only at the vertices flagged in `changed`: only
-    /// the leaves with such a corner and their ancestors are fitted again.
+    /// the leaves with such a corner and their ancestors are fitted again,
+    /// found from those vertices ([`PatchTree::around`]).
     /// Every node is the same function of its leaves' triangles as in
-    /// `new`, evaluated in the same order, and a leaf with no changed corner
-    /// has the same triangles' paths and margins: the result is `new`'s, bit
-    /// for bit.
+    /// `new`, evaluated in the same order (a parent after both its
+    /// children), and a leaf with no changed corner has the same triangles'
+    /// paths and margins: the result is `new`'s, bit for bit.
     pub(super) fn refit_around(&mut self, tree: &PatchTree, motion: &Motion<'_>, takes_part: Option<&[bool]>, changed: &[bool]) {
-        let touched = |p: usize| tree.triangles[p].iter().any(|&v| changed[v as usize]);
-        let leaves: Vec<u32> = tree.leaves.par_iter().with_min_len(256).filter(|&&leaf| tree.nodes[leaf as usize].range().any(touched)).copied().collect();
+        let around = tree.around(changed);
+        let (leaves, parents): (Vec<u32>, Vec<u32>) = around.nodes.iter().partition(|&&i| tree.nodes[i as usize].is_leaf());
         self.fit_leaves(tree, motion, takes_part, &leaves);
-        let mut dirty = vec![false; tree.nodes.len()];
-        for &leaf in &leaves {
-            dirty[leaf as usize] = true;
+        for i in parents {
+            self.fit_parent(tree, i as usize);
         }
-        self.fit_parents(tree, Some(&mut dirty));
     }
 
     /// Fits the bounds of these leaves.
@@ -381,25 +380,21 @@ impl NodeBounds {
     }
 
     /// Fits every inner node from its children (children come after their
-    /// parent in the tree's order), or only those above a `dirty` node,
-    /// flagging them dirty in turn.
-    fn fit_parents(&mut self, tree: &PatchTree, mut dirty: Option<&mut [bool]>) {
+    /// parent in the tree's order).
+    fn fit_parents(&mut self, tree: &PatchTree) {
         for i in (0..tree.nodes.len()).rev() {
-            let node = tree.nodes[i];
-            if node.is_leaf() {
-                continue;
+            if !tree.nodes[i].is_leaf() {
+                self.fit_parent(tree, i);
             }
-            let (l, r) = (node.left as usize, node.left as usize + 1);
-            if let Some(d) = dirty.as_deref_mut() {
-                if !(d[l] || d[r]) {
-                    continue;
-                }
-                d[i] = true;
-            }
-            self.span[i] = self.span[l].union(self.span[r]);
-            self.cone[i] = self.cone[l].union(self.cone[r]);
-            self.active[i] = self.active[l] || self.active[r];
         }
+    }
+
+    /// Fits inner node `i` from its children.
+    fn fit_parent(&mut self, tree: &PatchTree, i: usize) {
+        let (l, r) = (tree.nodes[i].left as usize, tree.nodes[i].left as usize + 1);
+        self.span[i] = self.span[l].union(self.span[r]);
+        self.cone[i] = self.cone[l].union(self.cone[r]);
+        self.active[i] = self.active[l] || self.active[r];
     }
 
     /// Whether node `i` provably cannot touch itself anywhere over the
