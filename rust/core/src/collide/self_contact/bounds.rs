@@ -325,26 +325,25 @@ impl NodeBounds {
         let count = tree.nodes.len();
         let mut bounds = NodeBounds { span: vec![Span::EMPTY; count], cone: vec![Cone::EMPTY; count], active: vec![false; count], triangle: vec![Span::EMPTY; tree.triangles.len()], triangle_cone: vec![Cone::EMPTY; tree.triangles.len()] };
         bounds.fit_leaves(tree, motion, takes_part, &tree.leaves);
-        bounds.fit_parents(tree, None);
+        bounds.fit_parents(tree);
         bounds
     }
 
     /// The bounds [`Self::new`] gives for `motion`, from those of a motion
     /// that differed from it only at the vertices flagged in `changed`: only
-    /// the leaves with such a corner and their ancestors are fitted again.
+    /// the leaves with such a corner and their ancestors are fitted again,
+    /// found from those vertices ([`PatchTree::around`]).
     /// Every node is the same function of its leaves' triangles as in
-    /// `new`, evaluated in the same order, and a leaf with no changed corner
-    /// has the same triangles' paths and margins: the result is `new`'s, bit
-    /// for bit.
+    /// `new`, evaluated in the same order (a parent after both its
+    /// children), and a leaf with no changed corner has the same triangles'
+    /// paths and margins: the result is `new`'s, bit for bit.
     pub(super) fn refit_around(&mut self, tree: &PatchTree, motion: &Motion<'_>, takes_part: Option<&[bool]>, changed: &[bool]) {
-        let touched = |p: usize| tree.triangles[p].iter().any(|&v| changed[v as usize]);
-        let leaves: Vec<u32> = tree.leaves.par_iter().with_min_len(256).filter(|&&leaf| tree.nodes[leaf as usize].range().any(touched)).copied().collect();
+        let around = tree.around(changed);
+        let (leaves, parents): (Vec<u32>, Vec<u32>) = around.nodes.iter().partition(|&&i| tree.nodes[i as usize].is_leaf());
         self.fit_leaves(tree, motion, takes_part, &leaves);
-        let mut dirty = vec![false; tree.nodes.len()];
-        for &leaf in &leaves {
-            dirty[leaf as usize] = true;
+        for i in parents {
+            self.fit_parent(tree, i as usize);
         }
-        self.fit_parents(tree, Some(&mut dirty));
     }
 
     /// Fits the bounds of these leaves.
@@ -381,25 +380,21 @@ impl NodeBounds {
     }
 
     /// Fits every inner node from its children (children come after their
-    /// parent in the tree's order), or only those above a `dirty` node,
-    /// flagging them dirty in turn.
-    fn fit_parents(&mut self, tree: &PatchTree, mut dirty: Option<&mut [bool]>) {
+    /// parent in the tree's order).
+    fn fit_parents(&mut self, tree: &PatchTree) {
         for i in (0..tree.nodes.len()).rev() {
-            let node = tree.nodes[i];
-            if node.is_leaf() {
-                continue;
+            if !tree.nodes[i].is_leaf() {
+                self.fit_parent(tree, i);
             }
-            let (l, r) = (node.left as usize, node.left as usize + 1);
-            if let Some(d) = dirty.as_deref_mut() {
-                if !(d[l] || d[r]) {
-                    continue;
-                }
-                d[i] = true;
-            }
-            self.span[i] = self.span[l].union(self.span[r]);
-            self.cone[i] = self.cone[l].union(self.cone[r]);
-            self.active[i] = self.active[l] || self.active[r];
         }
+    }
+
+    /// Fits inner node `i` from its children.
+    fn fit_parent(&mut self, tree: &PatchTree, i: usize) {
+        let (l, r) = (tree.nodes[i].left as usize, tree.nodes[i].left as usize + 1);
+        self.span[i] = self.span[l].union(self.span[r]);
+        self.cone[i] = self.cone[l].union(self.cone[r]);
+        self.active[i] = self.active[l] || self.active[r];
     }
 
     /// Whether node `i` provably cannot touch itself anywhere over the
@@ -462,25 +457,107 @@ fn winds_once(v: Vec3, k: usize, ring: impl Fn(usize) -> u32, motion: &Motion<'_
         (e0, de, ma + mb, e0.length().max((e0 + de).length()))
     };
     let limit = 4.0 * std::f32::consts::PI - 1e-3;
-    let mut turning = 0.0f32;
-    let first = corner(0);
-    let mut previous = edge(corner(k - 1), first);
-    let mut here = first;
-    for j in 0..k {
-        let there = if j + 1 == k { first } else { corner(j + 1) };
-        let next = edge(here, there);
-        here = there;
-        let ((u0, du, mu, lu), (w0, dw, mw, lw)) = (previous, next);
-        let cross = quadratic_range(u0.perp_dot(w0), u0.perp_dot(dw) + du.perp_dot(w0), du.perp_dot(dw));
-        let dot = quadratic_range(u0.dot(w0), u0.dot(dw) + du.dot(w0), du.dot(dw));
-        let spread = lu * mw + lw * mu + mu * mw;
-        turning += largest_angle((cross.0 - spread, cross.1 + spread), dot.0 - spread) + ANGLE_SLACK;
-        if turning >= limit {
-            return false;
+    // Each exterior angle's (range of u × w, least u · w), widened for the margins, to `add` until it stops.
+    let walk = |add: &mut dyn FnMut((f32, f32), f32) -> bool| {
+        let first = corner(0);
+        let mut previous = edge(corner(k - 1), first);
+        let mut here = first;
+        for j in 0..k {
+            let there = if j + 1 == k { first } else { corner(j + 1) };
+            let next = edge(here, there);
+            here = there;
+            let ((u0, du, mu, lu), (w0, dw, mw, lw)) = (previous, next);
+            let cross = quadratic_range(u0.perp_dot(w0), u0.perp_dot(dw) + du.perp_dot(w0), du.perp_dot(dw));
+            let dot = quadratic_range(u0.dot(w0), u0.dot(dw) + du.dot(w0), du.dot(dw));
+            let spread = lu * mw + lw * mu + mu * mw;
+            if add((cross.0 - spread, cross.1 + spread), dot.0 - spread) {
+                return;
+            }
+            previous = next;
         }
-        previous = next;
+    };
+    // First from bounds of each angle, without `atan2f` (its calls were
+    // 209M instructions of the MakeHuman character's frames 1–3 in the
+    // joined-disk test alone, issue 30, twenty-fourth round (b)); the exact
+    // loop runs only where they do not decide. Why they decide as it does:
+    // each term `angle + ANGLE_SLACK` is non-negative, and the sums are
+    // made in the same order with the same association, so with `lo ≤
+    // angle` for every term and `angle ≤ up` wherever `up` is a number
+    // ([`angle_bounds`]) and rounding monotone (`x ≤ y` ⇒ `fl(x) ≤
+    // fl(y)`), every partial `lower ≤ turning ≤ upper`.
+    // A `lower` at the limit puts the exact sum there too (it would stop
+    // there or earlier: `false`); an `upper` below it at the end keeps the
+    // exact sum below (`true`). A NaN angle makes its `up` NaN, so `upper`
+    // stays NaN and never proves `true`, as the exact loop's NaN turning
+    // never does; only a straddle or a NaN falls through to it.
+    let (mut lower, mut upper) = (0.0f32, 0.0f32);
+    let mut over = false;
+    walk(&mut |cross, dot_min| {
+        let (lo, up) = angle_bounds(cross, dot_min);
+        lower += lo + ANGLE_SLACK;
+        upper += up + ANGLE_SLACK;
+        over = lower >= limit;
+        over
+    });
+    if over {
+        return false;
     }
-    turning < limit
+    if upper < limit {
+        return true;
+    }
+    let mut turning = 0.0f32;
+    walk(&mut |cross, dot_min| {
+        turning += largest_angle(cross, dot_min) + ANGLE_SLACK;
+        over = turning >= limit;
+        over
+    });
+    !over && turning < limit
+}
+
+/// Bounds `(lo, up)` of [`largest_angle`]'s f32 value, without `atan2`,
+/// branch for branch: each of its values is `atan z` or `π − atan z` of a
+/// ratio `z ≥ 0` of its inputs, and for `z ≥ 0` the alternating series
+/// gives `z − z³/3 ≤ atan z ≤ z` (the derivative `1/(1 + z²)` lies between
+/// `1 − z²` and 1), used for `z ≤ 1`, and `atan z = π/2 − atan(1/z)` above
+/// (where `1/z < 1` keeps the cube small). The ratio and the series are
+/// worked in f64 from the exact f32 inputs, their rounding ~1e-16; glibc's
+/// `atan2f` is within a few ulps of the true angle (an ulp is 2.4e-7 rad
+/// at π), so the bounds widened by 2e-6 rad hold its value, and their own
+/// rounding to f32 (half an ulp). The width left is the series' remainder,
+/// `min(z, 1/z)³/3`: at most a third at 45°, and for a small angle `a`
+/// about `a³/3`, which is what a nearly straight contour's angles are.
+/// `lo` is never NaN (0 where `largest_angle` is NaN) and `up` is NaN
+/// where `largest_angle` is (and where a ratio is ∞/∞).
+fn angle_bounds((y_lo, y_hi): (f32, f32), dot_min: f32) -> (f32, f32) {
+    use std::f64::consts::{FRAC_PI_2, PI};
+    // Bounds of atan(y / x) for y ≥ 0, x ≥ 0.
+    let atan = |y: f32, x: f32| -> (f64, f64) {
+        let z = y as f64 / x as f64;
+        if z.is_nan() {
+            (f64::NAN, f64::NAN)
+        } else if z.is_infinite() {
+            (FRAC_PI_2, FRAC_PI_2)
+        } else if z <= 1.0 {
+            (z - z * z * z / 3.0, z)
+        } else {
+            let w = 1.0 / z;
+            (FRAC_PI_2 - w, FRAC_PI_2 - (w - w * w * w / 3.0))
+        }
+    };
+    let (lo, up) = if y_lo > 0.0 || y_hi < 0.0 {
+        let (near, far) = if y_lo > 0.0 { (y_lo, y_hi) } else { (-y_hi, -y_lo) };
+        if dot_min >= 0.0 {
+            atan(far, dot_min)
+        } else {
+            let (lo, up) = atan(near, -dot_min);
+            (PI - up, PI - lo)
+        }
+    } else if dot_min > 0.0 {
+        atan(y_lo.abs().max(y_hi.abs()), dot_min)
+    } else {
+        return (std::f32::consts::PI, std::f32::consts::PI);
+    };
+    (((lo - 2e-6).max(0.0)) as f32, (up + 2e-6) as f32)
 }
 
 /// The largest `|atan2(y, x)|` for `y` in `cross` and `x ≥ dot_min`.
@@ -647,6 +724,68 @@ mod tests {
                 proptest::prop_assert_eq!(element_within(&motion, one, other, reach), !(gap > reach), "reach {} gap {}", reach, gap);
             }
         }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig { cases: 4096, ..Default::default() })]
+
+        /// The contour's angle bounds hold `atan2f`'s own value between
+        /// them, over every scale of cross and dot products, both signs,
+        /// and are as tight as their argument says: the series' remainder
+        /// `min(z, 1/z)³/3` is at most a third (at 45°), and for an angle
+        /// `a ≤ 0.5` rad, `z = tan a ≤ 1.093 a`, so at most `0.44 a³`
+        /// (1.093³/3 = 0.435), besides the 4e-6 rad of widening.
+        #[test]
+        fn an_angles_bounds_hold_its_value(y in -1e3f32..1e3, dy in 0.0f32..1e3, x in -1e3f32..1e3, scale in -30i32..30) {
+            let k = 2f32.powi(scale);
+            let (cross, dot) = ((y * k, (y + dy) * k), x * k);
+            let exact = largest_angle(cross, dot);
+            let (lo, up) = angle_bounds(cross, dot);
+            proptest::prop_assert!(lo <= exact && exact <= up, "{lo} ≤ {exact} ≤ {up} for {cross:?}, {dot}");
+            proptest::prop_assert!(up - lo <= 1.0 / 3.0 + 5e-6, "bounds {lo}, {up} wider than the series' remainder at 45°");
+            proptest::prop_assert!(exact > 0.5 || up - lo <= 0.44 * exact.powi(3) + 5e-6, "bounds {lo}, {up} too loose for a small angle {exact}");
+        }
+    }
+
+    /// Where `largest_angle` meets an infinity, a zero or a NaN, the bounds
+    /// still hold it wherever `up` is a number, and a NaN angle leaves `up`
+    /// NaN: a contour with one is never proven to wind once by the bounds
+    /// alone (`winds_once`'s argument needs no more).
+    #[test]
+    fn an_angles_bounds_hold_at_infinities_and_nan() {
+        let (inf, nan) = (f32::INFINITY, f32::NAN);
+        let cases = [
+            ((1.0, 2.0), 0.0),
+            ((0.0, 0.0), 1.0),
+            ((-1.0, 1.0), 0.0),
+            ((-1.0, 1.0), -1.0),
+            ((1.0, inf), 1.0),
+            ((-inf, inf), 1.0),
+            ((1.0, 2.0), inf),
+            ((1.0, 2.0), -inf),
+            ((-2.0, -1.0), -inf),
+            ((1.0, f32::MAX), f32::MIN_POSITIVE),
+            ((1e-30, 1e-30), 1e30),
+            ((inf, inf), inf),
+            ((nan, 1.0), 1.0),
+            ((1.0, nan), 1.0),
+            ((nan, -1.0), -1.0),
+            ((1.0, 2.0), nan),
+            ((nan, nan), 1.0),
+        ];
+        let mut nan_angles = 0;
+        for (cross, dot) in cases {
+            let exact = largest_angle(cross, dot);
+            let (lo, up) = angle_bounds(cross, dot);
+            assert!(!lo.is_nan() && !(lo > exact), "{lo} above {exact} for {cross:?}, {dot}");
+            if exact.is_nan() {
+                assert!(up.is_nan(), "the NaN angle of {cross:?}, {dot} has an upper bound {up}");
+                nan_angles += 1;
+            } else if !up.is_nan() {
+                assert!(exact <= up, "{exact} above {up} for {cross:?}, {dot}");
+            }
+        }
+        assert!(nan_angles >= 3, "the cases must hold NaN angles");
     }
 
     /// A sliver (a quad's diagonal split of nearly collinear corners) keeps

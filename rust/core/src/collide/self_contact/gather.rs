@@ -83,23 +83,16 @@ pub(super) fn ownership(tree: &PatchTree, vertex_count: usize) -> Vec<u8> {
 pub(super) struct Focus {
     triangles: Vec<bool>,
     nodes: Vec<bool>,
+    /// The nodes in focus, children before their parents.
+    listed: Vec<u32>,
 }
 
 impl Focus {
-    /// The triangles with a corner among `vertices` (flags per vertex).
+    /// The triangles with a corner among `vertices` (flags per vertex),
+    /// found from those vertices ([`PatchTree::around`]).
     pub(super) fn around(tree: &PatchTree, vertices: &[bool]) -> Self {
-        let triangles: Vec<bool> = tree.triangles.iter().map(|t| t.iter().any(|&v| vertices[v as usize])).collect();
-        let mut nodes = vec![false; tree.nodes.len()];
-        // Index order is a preorder: children after their parent.
-        for i in (0..tree.nodes.len()).rev() {
-            let node = tree.nodes[i];
-            nodes[i] = if node.is_leaf() {
-                node.range().any(|p| triangles[p])
-            } else {
-                nodes[node.left as usize] || nodes[node.left as usize + 1]
-            };
-        }
-        Focus { triangles, nodes }
+        let around = tree.around(vertices);
+        Focus { triangles: around.triangles, nodes: around.holds, listed: around.nodes }
     }
 
     /// Whether nothing is in focus.
@@ -111,10 +104,8 @@ impl Focus {
     /// tree position), [`Span::EMPTY`] where it holds none.
     fn spans(&self, tree: &PatchTree, bounds: &NodeBounds) -> Vec<Span> {
         let mut spans = vec![Span::EMPTY; tree.nodes.len()];
-        for i in (0..tree.nodes.len()).rev() {
-            if !self.nodes[i] {
-                continue;
-            }
+        for &i in &self.listed {
+            let i = i as usize;
             let node = tree.nodes[i];
             spans[i] = if node.is_leaf() {
                 node.range().filter(|&p| self.triangles[p]).fold(Span::EMPTY, |s, p| s.union(bounds.triangle[p]))

@@ -68,6 +68,25 @@ pub(super) struct PatchTree {
     /// Per node `a` (offsets, then `(b, join)` sorted by `b`), the disks `b`
     /// a traversal may pair it with whose loop joins `a`'s ([`Self::joined`]).
     joins: (Vec<u32>, Vec<(u32, Join)>),
+    /// Per vertex (offsets, then tree positions ascending), the triangles
+    /// with it as a corner; per tree position, its leaf; per node, its
+    /// parent ([`NONE`] at the root): what [`Self::around`] walks, so that
+    /// a gathering around a few vertices pays for those vertices, not for
+    /// a pass over every triangle and node (issue 30, twenty-fifth round).
+    at_vertex: (Vec<u32>, Vec<u32>),
+    leaf_of: Vec<u32>,
+    parent: Vec<u32>,
+}
+
+/// The part of the tree around a few vertices ([`PatchTree::around`]).
+pub(super) struct Around {
+    /// Per tree position: whether its triangle has a corner among them.
+    pub triangles: Vec<bool>,
+    /// Per node: whether it holds such a triangle.
+    pub holds: Vec<bool>,
+    /// The nodes that do, in descending index order: children before their
+    /// parents (index order is a preorder).
+    pub nodes: Vec<u32>,
 }
 
 /// Where two disks' loops join along the one run of edges they share: on
@@ -227,9 +246,56 @@ impl PatchTree {
         }
         let vertex_count = rest.len().max(tree_triangles.iter().flatten().map(|&v| v as usize + 1).max().unwrap_or(0));
         let [vertices, exposed] = node_vertices(&nodes, &tree_triangles, vertex_count);
-        let mut tree = PatchTree { nodes, triangles: tree_triangles, order, leaves, disk, loop_offsets, loop_vertices, loop_index: loop_index_all, vertices, exposed, joins: (Vec::new(), Vec::new()) };
+        let at_vertex = positions_at_vertices(&tree_triangles, vertex_count);
+        let mut leaf_of = vec![NONE; tree_triangles.len()];
+        for &leaf in &leaves {
+            leaf_of[nodes[leaf as usize].range()].fill(leaf);
+        }
+        let mut parent = vec![NONE; nodes.len()];
+        for (i, node) in nodes.iter().enumerate().filter(|(_, n)| !n.is_leaf()) {
+            parent[node.left as usize] = i as u32;
+            parent[node.left as usize + 1] = i as u32;
+        }
+        let mut tree = PatchTree {
+            nodes,
+            triangles: tree_triangles,
+            order,
+            leaves,
+            disk,
+            loop_offsets,
+            loop_vertices,
+            loop_index: loop_index_all,
+            vertices,
+            exposed,
+            joins: (Vec::new(), Vec::new()),
+            at_vertex,
+            leaf_of,
+            parent,
+        };
         tree.joins = tree.adjacent_joins();
         tree
+    }
+
+    /// The triangles with a corner among `vertices` (flags per vertex) and
+    /// the nodes holding one, found from those vertices' triangles up their
+    /// leaves' parent links (each node once: a walk stops at a node already
+    /// found, whose ancestors are), so it costs what lies around them.
+    pub(super) fn around(&self, vertices: &[bool]) -> Around {
+        let mut triangles = vec![false; self.triangles.len()];
+        let mut holds = vec![false; self.nodes.len()];
+        let mut nodes = Vec::new();
+        for v in (0..vertices.len()).filter(|&v| vertices[v]) {
+            for &p in &self.at_vertex.1[self.at_vertex.0[v] as usize..self.at_vertex.0[v + 1] as usize] {
+                triangles[p as usize] = true;
+                let mut i = self.leaf_of[p as usize];
+                while i != NONE && !std::mem::replace(&mut holds[i as usize], true) {
+                    nodes.push(i);
+                    i = self.parent[i as usize];
+                }
+            }
+        }
+        nodes.sort_unstable_by(|a, b| b.cmp(a));
+        Around { triangles, holds, nodes }
     }
 
     /// The joined loop of disks `a` and `b` if a traversal may pair them
@@ -423,6 +489,27 @@ fn node_vertices(nodes: &[Node], triangles: &[[u32; 3]], vertex_count: usize) ->
         exposed.0.push(exposed.1.len() as u32);
     }
     [all, exposed]
+}
+
+/// Per vertex (offsets, then tree positions ascending), the triangles with
+/// it as a corner.
+fn positions_at_vertices(triangles: &[[u32; 3]], vertex_count: usize) -> (Vec<u32>, Vec<u32>) {
+    let mut offsets = vec![0u32; vertex_count + 1];
+    for &v in triangles.iter().flatten() {
+        offsets[v as usize + 1] += 1;
+    }
+    for v in 0..vertex_count {
+        offsets[v + 1] += offsets[v];
+    }
+    let mut fill = offsets.clone();
+    let mut positions = vec![0u32; offsets[vertex_count] as usize];
+    for (p, t) in triangles.iter().enumerate() {
+        for &v in t {
+            positions[fill[v as usize] as usize] = p as u32;
+            fill[v as usize] += 1;
+        }
+    }
+    (offsets, positions)
 }
 
 /// The loop [`join_of`] joins, as a list.
@@ -659,6 +746,32 @@ mod tests {
                 checked += 1;
             }
             assert!(joins > 10 && checked > 10 * joins, "{joins} joins of {checked} pairs: the test must see both kinds");
+        }
+    }
+
+    #[test]
+    fn the_part_around_a_few_vertices_is_what_a_pass_over_every_triangle_and_node_finds() {
+        let s = quad_sphere(6, 1.0);
+        let tree = PatchTree::build(&triangles(s.input()), &s.positions);
+        let n = s.positions.len();
+        for picked in [vec![], vec![0], vec![3, 4, n / 2], (0..n).filter(|v| v % 5 == 1).collect()] {
+            let mut flags = vec![false; n];
+            for &v in &picked {
+                flags[v] = true;
+            }
+            let around = tree.around(&flags);
+            // Every triangle, then every node from its children, as a pass over the tree finds them.
+            let triangles: Vec<bool> = tree.triangles.iter().map(|t| t.iter().any(|&v| flags[v as usize])).collect();
+            let mut holds = vec![false; tree.nodes.len()];
+            for i in (0..tree.nodes.len()).rev() {
+                let node = tree.nodes[i];
+                holds[i] = if node.is_leaf() { node.range().any(|p| triangles[p]) } else { holds[node.left as usize] || holds[node.left as usize + 1] };
+            }
+            let listed: Vec<u32> = (0..tree.nodes.len() as u32).rev().filter(|&i| holds[i as usize]).collect();
+            assert_eq!(around.triangles, triangles, "around {picked:?}");
+            assert_eq!(around.holds, holds, "around {picked:?}");
+            assert_eq!(around.nodes, listed, "around {picked:?}: each node once, children first");
+            assert_eq!(picked.is_empty(), listed.is_empty());
         }
     }
 
