@@ -68,7 +68,7 @@ use std::sync::Arc;
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::coarsest::Coarsest;
+use super::coarsest::{Analysis, Coarsest};
 use super::contacts::MovedVertices;
 use super::system::RowBlock;
 use crate::mesh::{aggregate_once, group_members};
@@ -428,7 +428,8 @@ impl Coarse {
         let first = first_level(&aggregate, count, &m, None);
         let (matrices, downs) = Hierarchy::chain(first, downs.as_deref());
         let pattern = Arc::new(HierarchyPattern::new(&aggregate, &m, &matrices, &downs));
-        let Some(free) = Hierarchy::from_chain(matrices, downs) else {
+        // New weights often keep the coarsest pattern: then its analysis too.
+        let Some(free) = Hierarchy::from_chain(matrices, downs, kept.map(|k| k.free.coarsest.analysis())) else {
             return Ok(None);
         };
 
@@ -457,7 +458,7 @@ impl Coarse {
         let m = VertexRows { offsets: self.m.offsets.clone(), columns: self.m.columns.clone(), values: sorted };
         let matrices = self.pattern.chain(&self.aggregate, &m, None);
         let downs = self.free.levels.iter().map(|l| l.down.clone()).collect();
-        let free = Hierarchy::from_chain(matrices, downs)?;
+        let free = Hierarchy::from_chain(matrices, downs, [self.free.coarsest.analysis()])?;
         Some(Coarse {
             aggregate: self.aggregate.clone(),
             member_offsets: self.member_offsets.clone(),
@@ -484,7 +485,11 @@ impl Coarse {
         }
         let matrices = self.pattern.chain(&self.aggregate, &self.m, Some(mask));
         let downs = self.free.levels.iter().map(|l| l.down.clone()).collect();
-        let hierarchy = Hierarchy::from_chain(matrices, downs);
+        // The coarsest pattern changes only where a held set empties a
+        // coarsest node or all the links between two: mostly it is one of
+        // the cached sets' or the free problem's.
+        let known = self.held.iter().filter_map(|h| h.hierarchy.as_ref()).chain([&self.free]).map(|h| h.coarsest.analysis());
+        let hierarchy = Hierarchy::from_chain(matrices, downs, known);
         self.held.insert(0, Held { vertices: vertices.to_vec(), hierarchy });
         self.held.truncate(HELD_CACHED);
         self.held_assemblies += 1;
@@ -874,9 +879,10 @@ impl Hierarchy {
     }
 
     /// The cycle of `matrices` (first to coarsest) with the aggregations
-    /// `downs` between them; `None` if the coarsest level is not positive
-    /// definite.
-    fn from_chain(mut matrices: Vec<Csr>, downs: Vec<Vec<u32>>) -> Option<Self> {
+    /// `downs` between them, the coarsest factorised on the first of `known`
+    /// analyses that fits its pattern ([`Coarsest::new`]); `None` if the
+    /// coarsest level is not positive definite.
+    fn from_chain<'a>(mut matrices: Vec<Csr>, downs: Vec<Vec<u32>>, known: impl IntoIterator<Item = &'a Arc<Analysis>>) -> Option<Self> {
         let matrix = matrices.pop().expect("the first level");
         let levels = matrices
             .into_iter()
@@ -895,7 +901,7 @@ impl Hierarchy {
                 matrix.row(i).filter(move |&(j, _)| j <= i).map(move |(j, v)| (j as u32, i as u32, v as f64)).chain(identity)
             })
             .collect();
-        let coarsest = Coarsest::new(matrix.len(), lower)?;
+        let coarsest = Coarsest::new(matrix.len(), lower, known)?;
         let last = coarsest.len();
         Some(Hierarchy { levels, coarsest, coarsest_rhs: vec![Vec3::ZERO; last], coarsest_error: vec![Vec3::ZERO; last] })
     }
@@ -1070,6 +1076,78 @@ mod tests {
             let (a, b) = (kept.free.solve().to_vec(), fresh.free.solve().to_vec());
             let flat = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).map(f32::to_bits).collect::<Vec<_>>();
             assert_eq!(flat(&a), flat(&b), "{case}: the cycle's solve");
+            if case == "same sequence" {
+                assert!(Arc::ptr_eq(kept.free.coarsest.analysis(), coarse.free.coarsest.analysis()), "new values of the same pattern keep its analysis");
+            }
         }
+    }
+
+    /// A held problem whose coarsest pattern is one already analysed (the
+    /// free problem's, or a cached held set's) is factorised on that
+    /// analysis, and must solve as one analysed afresh, to the bit; another
+    /// pattern gets its own analysis.
+    #[test]
+    fn held_coarsest_on_a_known_analysis_is_a_fresh_one_bit_for_bit() {
+        let side = 24u32;
+        let n = (side * side) as usize;
+        let mut next = xorshift(4242);
+        let mut random = move |low: f32, high: f32| low + (high - low) * (next() % 10_000) as f32 / 10_000.0;
+        let rows = Rows::identity(&(0..n as u32).collect::<Vec<_>>());
+        let mut coupling = Rows::new();
+        let mut neighbours_of = Vec::new();
+        for v in 0..n as u32 {
+            let (x, y) = (v % side, v / side);
+            let mut neighbours = Vec::new();
+            if x > 0 { neighbours.push(v - 1); }
+            if x + 1 < side { neighbours.push(v + 1); }
+            if y > 0 { neighbours.push(v - side); }
+            if y + 1 < side { neighbours.push(v + side); }
+            let share = 1.0 / neighbours.len() as f32;
+            coupling.push(neighbours.iter().map(|&j| (j, share * random(0.8, 1.2))).collect::<Vec<_>>());
+            neighbours_of.push(neighbours);
+        }
+        let weights: Vec<f32> = (0..n).map(|_| random(0.5, 1.5)).collect();
+        let inverse: Vec<f32> = (0..n).map(|_| random(0.2, 0.5)).collect();
+        let block = RowBlock { rows: &rows, weights: &weights, offset: 0 };
+        let mut coarse = Coarse::build(n, &[block], &[Some(&coupling)], &inverse).unwrap().expect("a coarse level");
+        // A vertex whose neighbours all share its aggregate: holding it
+        // leaves every link between aggregates, so the pattern stays.
+        let aggregate = coarse.aggregate.clone();
+        let interior = |v: usize| aggregate[v] != aggregate[0] && neighbours_of[v].iter().all(|&j| aggregate[j as usize] == aggregate[v]);
+        let inside = (0..n).find(|&v| interior(v)).expect("an aggregate with a vertex inside it");
+        // Every vertex of one aggregate: its node's row empties, so the pattern changes.
+        let whole: Vec<u32> = (0..n as u32).filter(|&v| aggregate[v as usize] == aggregate[0]).collect();
+        let mut whole_and_inside = whole.clone();
+        whole_and_inside.push(inside as u32);
+        whole_and_inside.sort_unstable();
+        let free_analysis = Arc::clone(coarse.free.coarsest.analysis());
+        let mut whole_analysis = None;
+        for (case, held) in [("one inside vertex", vec![inside as u32]), ("a whole aggregate", whole), ("the same and one inside vertex", whole_and_inside)] {
+            let mut mask = vec![false; n];
+            for &v in &held {
+                mask[v as usize] = true;
+            }
+            coarse.prepare_held(&held, &mask);
+            let matrices = coarse.pattern.chain(&coarse.aggregate, &coarse.m, Some(&mask));
+            let downs = coarse.free.levels.iter().map(|l| l.down.clone()).collect();
+            let mut fresh = Hierarchy::from_chain(matrices, downs, []).expect("positive definite");
+            let kept = coarse.held[0].hierarchy.as_mut().expect("positive definite");
+            let analysis = Arc::clone(kept.coarsest.analysis());
+            match case {
+                "one inside vertex" => assert!(Arc::ptr_eq(&analysis, &free_analysis), "{case}: the free problem's analysis"),
+                "a whole aggregate" => {
+                    assert!(!Arc::ptr_eq(&analysis, &free_analysis), "{case}: an analysis of its own");
+                    whole_analysis = Some(analysis);
+                }
+                _ => assert!(Arc::ptr_eq(&analysis, whole_analysis.as_ref().unwrap()), "{case}: the cached held set's analysis"),
+            }
+            let rhs: Vec<Vec3> = (0..kept.first_rhs().len()).map(|a| Vec3::new(a as f32, 1.0, -(a as f32).sqrt())).collect();
+            kept.first_rhs().copy_from_slice(&rhs);
+            fresh.first_rhs().copy_from_slice(&rhs);
+            let (a, b) = (kept.solve().to_vec(), fresh.solve().to_vec());
+            let flat = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).map(f32::to_bits).collect::<Vec<_>>();
+            assert_eq!(flat(&a), flat(&b), "{case}: the cycle's solve");
+        }
+        assert_eq!(coarse.held_assemblies(), 3);
     }
 }
