@@ -279,6 +279,9 @@ pub(super) struct Coarse {
     held: Vec<Held>,
     /// How many coarse problems with held vertices were assembled.
     held_assemblies: usize,
+    /// The first level's sums by slot with nothing held, made at the first
+    /// held assembly, from which the held ones are summed again where they differ.
+    free_first: Option<SlotSums>,
 }
 
 /// A sparse matrix by vertex rows, `M`'s pattern.
@@ -437,7 +440,7 @@ impl Coarse {
             Some(k) => (k.member_offsets.clone(), k.members.clone()),
             None => group_members(&aggregate, count),
         };
-        Ok(Some(Coarse { aggregate, member_offsets, members, offsets, columns, values, m, pattern, sequence, free, held: Vec::new(), held_assemblies: 0 }))
+        Ok(Some(Coarse { aggregate, member_offsets, members, offsets, columns, values, m, pattern, sequence, free, held: Vec::new(), held_assemblies: 0, free_first: None }))
     }
 
     /// These coarse levels for `generated`, an `M` generated in the same
@@ -472,6 +475,7 @@ impl Coarse {
             free,
             held: Vec::new(),
             held_assemblies: 0,
+            free_first: None,
         })
     }
 
@@ -483,7 +487,12 @@ impl Coarse {
             self.held[..=k].rotate_right(1);
             return;
         }
-        let matrices = self.pattern.chain(&self.aggregate, &self.m, Some(mask));
+        if self.free_first.is_none() {
+            self.free_first = Some(self.pattern.first.sums(&self.aggregate, &self.m, None));
+        }
+        let free_first = self.free_first.as_ref().expect("made above");
+        let first = self.pattern.first.held_sums(free_first, &self.aggregate, &self.m, mask, vertices);
+        let matrices = self.pattern.chain_from(first);
         let downs = self.free.levels.iter().map(|l| l.down.clone()).collect();
         // The coarsest pattern changes only where a held set empties a
         // coarsest node or all the links between two: mostly it is one of
@@ -686,6 +695,14 @@ struct FirstLevelPattern {
     offsets: Vec<u32>,
     columns: Vec<u32>,
     slots: Vec<u32>,
+    /// The generated entries of each slot, in generation order (ascending
+    /// index): `by_slot[by_slot_offsets[s]..by_slot_offsets[s + 1]]`.
+    by_slot_offsets: Vec<u32>,
+    by_slot: Vec<u32>,
+    /// The row vertex of each entry of `M`.
+    entry_rows: Vec<u32>,
+    /// The slot of `(b, a)` for the slot of `(a, b)` (the pattern is symmetric).
+    transposed: Vec<u32>,
 }
 
 impl FirstLevelPattern {
@@ -697,13 +714,85 @@ impl FirstLevelPattern {
             let at = free.columns[start..end].binary_search(&b).expect("every generated entry has a slot");
             slots[index] = (start + at) as u32;
         });
-        FirstLevelPattern { offsets: free.offsets.clone(), columns: free.columns.clone(), slots }
+        // `first_level_entries` generates in ascending index, so a counting
+        // sort by slot keeps each slot's entries in generation order.
+        let mut by_slot_offsets = vec![0u32; free.columns.len() + 1];
+        for &slot in &slots {
+            by_slot_offsets[slot as usize + 1] += 1;
+        }
+        for s in 0..free.columns.len() {
+            by_slot_offsets[s + 1] += by_slot_offsets[s];
+        }
+        let mut filled = by_slot_offsets.clone();
+        let mut by_slot = vec![0u32; slots.len()];
+        for (index, &slot) in slots.iter().enumerate() {
+            by_slot[filled[slot as usize] as usize] = index as u32;
+            filled[slot as usize] += 1;
+        }
+        let mut entry_rows = vec![0u32; m.columns.len()];
+        for i in 0..aggregate.len() {
+            entry_rows[m.offsets[i] as usize..m.offsets[i + 1] as usize].fill(i as u32);
+        }
+        let transposed = (0..free.len())
+            .flat_map(|a| free.row(a).map(move |(b, _)| (a, b)))
+            .map(|(a, b)| {
+                let (start, end) = (free.offsets[b] as usize, free.offsets[b + 1] as usize);
+                (start + free.columns[start..end].binary_search(&(a as u32)).expect("a symmetric pattern")) as u32
+            })
+            .collect();
+        FirstLevelPattern { offsets: free.offsets.clone(), columns: free.columns.clone(), slots, by_slot_offsets, by_slot, entry_rows, transposed }
     }
 
     /// [`first_level`]'s sums by slot, with `held` fixed (`None`: nothing held).
     fn sums(&self, aggregate: &[u32], m: &VertexRows, held: Option<&[bool]>) -> SlotSums {
         let mut sums = SlotSums::new(self.columns.len());
         first_level_entries(aggregate, m, held, |index, _, _, value| sums.add(self.slots[index] as usize, value));
+        sums
+    }
+
+    /// [`Self::sums`] with the vertices `vertices` (`held` per vertex) fixed,
+    /// from `free`, the sums with nothing held: a slot no entry of a held
+    /// vertex falls in keeps all its entries, so its sum is `free`'s, to the
+    /// bit; only the slots of the held vertices' aggregates' rows and their
+    /// transposes are summed again, each over its surviving entries in
+    /// generation order, as [`Self::sums`] does. A contact's held set is a
+    /// small part of the skin, so this sums a small part of the entries.
+    fn held_sums(&self, free: &SlotSums, aggregate: &[u32], m: &VertexRows, held: &[bool], vertices: &[u32]) -> SlotSums {
+        let n = aggregate.len();
+        let mut sums = SlotSums { sums: free.sums.clone(), used: free.used.clone() };
+        let mut row_done = vec![false; self.offsets.len() - 1];
+        let start: f64 = std::iter::empty::<f64>().sum();
+        let sum_again = |slot: usize, sums: &mut SlotSums| {
+            let (mut sum, mut used) = (start, false);
+            for &index in &self.by_slot[self.by_slot_offsets[slot] as usize..self.by_slot_offsets[slot + 1] as usize] {
+                let index = index as usize;
+                let (i, j, value) = if index < n {
+                    (index, index, 1.0)
+                } else {
+                    let k = (index - n) / 2;
+                    (self.entry_rows[k] as usize, m.columns[k] as usize, -0.5 * m.values[k] as f64)
+                };
+                if !held[i] && !held[j] {
+                    sum += value;
+                    used = true;
+                }
+            }
+            sums.sums[slot] = sum;
+            sums.used[slot] = used;
+        };
+        for &v in vertices {
+            let a = aggregate[v as usize] as usize;
+            if std::mem::replace(&mut row_done[a], true) {
+                continue;
+            }
+            for slot in self.offsets[a] as usize..self.offsets[a + 1] as usize {
+                sum_again(slot, &mut sums);
+                let across = self.transposed[slot] as usize;
+                if across != slot {
+                    sum_again(across, &mut sums);
+                }
+            }
+        }
         sums
     }
 }
@@ -807,7 +896,11 @@ impl HierarchyPattern {
     /// (`None`: nothing held): [`first_level`] and then [`Csr::restricted`]
     /// level by level, to the bit.
     fn chain(&self, aggregate: &[u32], m: &VertexRows, held: Option<&[bool]>) -> Vec<Csr> {
-        let mut sums = self.first.sums(aggregate, m, held);
+        self.chain_from(self.first.sums(aggregate, m, held))
+    }
+
+    /// [`Self::chain`] from the first level's sums.
+    fn chain_from(&self, mut sums: SlotSums) -> Vec<Csr> {
         let mut matrices = vec![sums.matrix(&self.first.offsets, &self.first.columns)];
         for level in &self.coarser {
             let mut next = SlotSums::new(level.columns.len());
@@ -1021,9 +1114,13 @@ mod tests {
             let held: Vec<bool> = (0..n).map(|_| round > 0 && (next() % 20) < round).collect();
             let (sorted, _) = Hierarchy::chain(first_level(&aggregate, count, &m, Some(&held)), Some(&downs));
             let by_slot = pattern.chain(&aggregate, &m, Some(&held));
+            let vertices: Vec<u32> = (0..n as u32).filter(|&v| held[v as usize]).collect();
+            let again = pattern.chain_from(pattern.first.held_sums(&pattern.first.sums(&aggregate, &m, None), &aggregate, &m, &held, &vertices));
             assert_eq!(sorted.len(), by_slot.len());
-            for (l, (sorted, by_slot)) in sorted.iter().zip(&by_slot).enumerate() {
+            assert_eq!(sorted.len(), again.len());
+            for (l, ((sorted, by_slot), again)) in sorted.iter().zip(&by_slot).zip(&again).enumerate() {
                 assert_same(sorted, by_slot, &format!("round {round}, level {l}"));
+                assert_same(sorted, again, &format!("round {round}, level {l}, from the free sums"));
             }
         }
     }
