@@ -31,6 +31,10 @@
 //! rayon's work then never moves to another thread, so a profile's inclusive
 //! costs tell the step's phases apart (with two, work a phase hands to the
 //! other thread is counted under rayon's job, not under the phase).
+//! `TEGUMENT_BENCH_INSTRUMENT_FROM=<k>` with `valgrind --tool=callgrind
+//! --instr-atstart=no` instruments only the steps of frames `k` and on:
+//! the frames before run uninstrumented, several times faster, to the same
+//! state, so the timed frames' counts are the same as in a whole run.
 
 mod common;
 
@@ -112,6 +116,13 @@ fn bind(skin: &PolyMesh) -> Sequence {
     common::bind_sequence(skin.input(), converges())
 }
 
+/// The first frame whose step callgrind instruments, from
+/// `TEGUMENT_BENCH_INSTRUMENT_FROM`; `None` (unset): instrumentation is left
+/// as valgrind started it.
+fn instrumented_from() -> Option<usize> {
+    std::env::var("TEGUMENT_BENCH_INSTRUMENT_FROM").ok().map(|k| k.parse().expect("TEGUMENT_BENCH_INSTRUMENT_FROM is a frame number"))
+}
+
 /// Threads the rows run on: 2, or `TEGUMENT_BENCH_THREADS`.
 fn threads() -> usize {
     std::env::var("TEGUMENT_BENCH_THREADS").ok().and_then(|t| t.parse().ok()).filter(|&t| t > 0).unwrap_or(2)
@@ -182,9 +193,16 @@ fn main() {
                 collider.update(&at(k)).unwrap();
                 let started = std::time::Instant::now();
                 let cpu_started = process_cpu_ms();
+                let instrumented = instrumented_from().is_some_and(|from| k >= from);
+                if instrumented {
+                    callgrind::start_instrumentation();
+                }
                 callgrind::zero_stats();
                 let (x, step) = deformer.step(&skin.positions, &mut [&mut collider], &config.options).unwrap();
                 callgrind::dump_stats_at(&CString::new(format!("{} frame {k}", config.name)).unwrap());
+                if instrumented {
+                    callgrind::stop_instrumentation();
+                }
                 let ms = started.elapsed().as_secs_f64() * 1e3;
                 let cpu_ms = cpu_started.zip(process_cpu_ms()).map(|(a, b)| b - a);
                 let found = audit(MeshInput { positions: &x, ..skin.input() }, &[&collider], &AuditParams::default()).unwrap();

@@ -13,10 +13,13 @@
 use std::ffi::CStr;
 
 /// Callgrind's requests (`valgrind/callgrind.h`): the tool base `'C','T'`,
-/// then in order dump, zero, toggle collection, dump with a label.
+/// then in order dump, zero, toggle collection, dump with a label, start
+/// and stop instrumentation.
 const TOOL_BASE: u64 = ((b'C' as u64) << 24) | ((b'T' as u64) << 16);
 const ZERO_STATS: u64 = TOOL_BASE + 1;
 const DUMP_STATS_AT: u64 = TOOL_BASE + 3;
+const START_INSTRUMENTATION: u64 = TOOL_BASE + 4;
+const STOP_INSTRUMENTATION: u64 = TOOL_BASE + 5;
 
 /// Valgrind's client request on x86-64 (`valgrind/valgrind.h`,
 /// `VALGRIND_DO_CLIENT_REQUEST_EXPR`): the arguments' address in `rax`, the
@@ -57,4 +60,17 @@ pub fn zero_stats() {
 /// thread's, to the next `callgrind.out` file, labelled `label`, and zeroes them.
 pub fn dump_stats_at(label: &CStr) {
     request(DUMP_STATS_AT, label.as_ptr() as u64);
+}
+
+/// Callgrind counts from here on (a run started with `--instr-atstart=no`
+/// runs uninstrumented, several times faster, until this).
+#[allow(dead_code)]
+pub fn start_instrumentation() {
+    request(START_INSTRUMENTATION, 0);
+}
+
+/// Callgrind stops counting until [`start_instrumentation`].
+#[allow(dead_code)]
+pub fn stop_instrumentation() {
+    request(STOP_INSTRUMENTATION, 0);
 }

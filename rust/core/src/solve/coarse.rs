@@ -68,7 +68,7 @@ use std::sync::Arc;
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::coarsest::Coarsest;
+use super::coarsest::{Analysis, Coarsest};
 use super::contacts::MovedVertices;
 use super::system::RowBlock;
 use crate::mesh::{aggregate_once, group_members};
@@ -279,6 +279,9 @@ pub(super) struct Coarse {
     held: Vec<Held>,
     /// How many coarse problems with held vertices were assembled.
     held_assemblies: usize,
+    /// The first level's sums by slot with nothing held, made at the first
+    /// held assembly, from which the held ones are summed again where they differ.
+    free_first: Option<SlotSums>,
 }
 
 /// A sparse matrix by vertex rows, `M`'s pattern.
@@ -428,7 +431,8 @@ impl Coarse {
         let first = first_level(&aggregate, count, &m, None);
         let (matrices, downs) = Hierarchy::chain(first, downs.as_deref());
         let pattern = Arc::new(HierarchyPattern::new(&aggregate, &m, &matrices, &downs));
-        let Some(free) = Hierarchy::from_chain(matrices, downs) else {
+        // New weights often keep the coarsest pattern: then its analysis too.
+        let Some(free) = Hierarchy::from_chain(matrices, downs, kept.map(|k| k.free.coarsest.analysis())) else {
             return Ok(None);
         };
 
@@ -436,7 +440,7 @@ impl Coarse {
             Some(k) => (k.member_offsets.clone(), k.members.clone()),
             None => group_members(&aggregate, count),
         };
-        Ok(Some(Coarse { aggregate, member_offsets, members, offsets, columns, values, m, pattern, sequence, free, held: Vec::new(), held_assemblies: 0 }))
+        Ok(Some(Coarse { aggregate, member_offsets, members, offsets, columns, values, m, pattern, sequence, free, held: Vec::new(), held_assemblies: 0, free_first: None }))
     }
 
     /// These coarse levels for `generated`, an `M` generated in the same
@@ -457,7 +461,7 @@ impl Coarse {
         let m = VertexRows { offsets: self.m.offsets.clone(), columns: self.m.columns.clone(), values: sorted };
         let matrices = self.pattern.chain(&self.aggregate, &m, None);
         let downs = self.free.levels.iter().map(|l| l.down.clone()).collect();
-        let free = Hierarchy::from_chain(matrices, downs)?;
+        let free = Hierarchy::from_chain(matrices, downs, [self.free.coarsest.analysis()])?;
         Some(Coarse {
             aggregate: self.aggregate.clone(),
             member_offsets: self.member_offsets.clone(),
@@ -471,6 +475,7 @@ impl Coarse {
             free,
             held: Vec::new(),
             held_assemblies: 0,
+            free_first: None,
         })
     }
 
@@ -482,9 +487,18 @@ impl Coarse {
             self.held[..=k].rotate_right(1);
             return;
         }
-        let matrices = self.pattern.chain(&self.aggregate, &self.m, Some(mask));
+        if self.free_first.is_none() {
+            self.free_first = Some(self.pattern.first.sums(&self.aggregate, &self.m, None));
+        }
+        let free_first = self.free_first.as_ref().expect("made above");
+        let first = self.pattern.first.held_sums(free_first, &self.aggregate, &self.m, mask, vertices);
+        let matrices = self.pattern.chain_from(first);
         let downs = self.free.levels.iter().map(|l| l.down.clone()).collect();
-        let hierarchy = Hierarchy::from_chain(matrices, downs);
+        // The coarsest pattern changes only where a held set empties a
+        // coarsest node or all the links between two: mostly it is one of
+        // the cached sets' or the free problem's.
+        let known = self.held.iter().filter_map(|h| h.hierarchy.as_ref()).chain([&self.free]).map(|h| h.coarsest.analysis());
+        let hierarchy = Hierarchy::from_chain(matrices, downs, known);
         self.held.insert(0, Held { vertices: vertices.to_vec(), hierarchy });
         self.held.truncate(HELD_CACHED);
         self.held_assemblies += 1;
@@ -681,6 +695,14 @@ struct FirstLevelPattern {
     offsets: Vec<u32>,
     columns: Vec<u32>,
     slots: Vec<u32>,
+    /// The generated entries of each slot, in generation order (ascending
+    /// index): `by_slot[by_slot_offsets[s]..by_slot_offsets[s + 1]]`.
+    by_slot_offsets: Vec<u32>,
+    by_slot: Vec<u32>,
+    /// The row vertex of each entry of `M`.
+    entry_rows: Vec<u32>,
+    /// The slot of `(b, a)` for the slot of `(a, b)` (the pattern is symmetric).
+    transposed: Vec<u32>,
 }
 
 impl FirstLevelPattern {
@@ -692,13 +714,85 @@ impl FirstLevelPattern {
             let at = free.columns[start..end].binary_search(&b).expect("every generated entry has a slot");
             slots[index] = (start + at) as u32;
         });
-        FirstLevelPattern { offsets: free.offsets.clone(), columns: free.columns.clone(), slots }
+        // `first_level_entries` generates in ascending index, so a counting
+        // sort by slot keeps each slot's entries in generation order.
+        let mut by_slot_offsets = vec![0u32; free.columns.len() + 1];
+        for &slot in &slots {
+            by_slot_offsets[slot as usize + 1] += 1;
+        }
+        for s in 0..free.columns.len() {
+            by_slot_offsets[s + 1] += by_slot_offsets[s];
+        }
+        let mut filled = by_slot_offsets.clone();
+        let mut by_slot = vec![0u32; slots.len()];
+        for (index, &slot) in slots.iter().enumerate() {
+            by_slot[filled[slot as usize] as usize] = index as u32;
+            filled[slot as usize] += 1;
+        }
+        let mut entry_rows = vec![0u32; m.columns.len()];
+        for i in 0..aggregate.len() {
+            entry_rows[m.offsets[i] as usize..m.offsets[i + 1] as usize].fill(i as u32);
+        }
+        let transposed = (0..free.len())
+            .flat_map(|a| free.row(a).map(move |(b, _)| (a, b)))
+            .map(|(a, b)| {
+                let (start, end) = (free.offsets[b] as usize, free.offsets[b + 1] as usize);
+                (start + free.columns[start..end].binary_search(&(a as u32)).expect("a symmetric pattern")) as u32
+            })
+            .collect();
+        FirstLevelPattern { offsets: free.offsets.clone(), columns: free.columns.clone(), slots, by_slot_offsets, by_slot, entry_rows, transposed }
     }
 
     /// [`first_level`]'s sums by slot, with `held` fixed (`None`: nothing held).
     fn sums(&self, aggregate: &[u32], m: &VertexRows, held: Option<&[bool]>) -> SlotSums {
         let mut sums = SlotSums::new(self.columns.len());
         first_level_entries(aggregate, m, held, |index, _, _, value| sums.add(self.slots[index] as usize, value));
+        sums
+    }
+
+    /// [`Self::sums`] with the vertices `vertices` (`held` per vertex) fixed,
+    /// from `free`, the sums with nothing held: a slot no entry of a held
+    /// vertex falls in keeps all its entries, so its sum is `free`'s, to the
+    /// bit; only the slots of the held vertices' aggregates' rows and their
+    /// transposes are summed again, each over its surviving entries in
+    /// generation order, as [`Self::sums`] does. A contact's held set is a
+    /// small part of the skin, so this sums a small part of the entries.
+    fn held_sums(&self, free: &SlotSums, aggregate: &[u32], m: &VertexRows, held: &[bool], vertices: &[u32]) -> SlotSums {
+        let n = aggregate.len();
+        let mut sums = SlotSums { sums: free.sums.clone(), used: free.used.clone() };
+        let mut row_done = vec![false; self.offsets.len() - 1];
+        let start: f64 = std::iter::empty::<f64>().sum();
+        let sum_again = |slot: usize, sums: &mut SlotSums| {
+            let (mut sum, mut used) = (start, false);
+            for &index in &self.by_slot[self.by_slot_offsets[slot] as usize..self.by_slot_offsets[slot + 1] as usize] {
+                let index = index as usize;
+                let (i, j, value) = if index < n {
+                    (index, index, 1.0)
+                } else {
+                    let k = (index - n) / 2;
+                    (self.entry_rows[k] as usize, m.columns[k] as usize, -0.5 * m.values[k] as f64)
+                };
+                if !held[i] && !held[j] {
+                    sum += value;
+                    used = true;
+                }
+            }
+            sums.sums[slot] = sum;
+            sums.used[slot] = used;
+        };
+        for &v in vertices {
+            let a = aggregate[v as usize] as usize;
+            if std::mem::replace(&mut row_done[a], true) {
+                continue;
+            }
+            for slot in self.offsets[a] as usize..self.offsets[a + 1] as usize {
+                sum_again(slot, &mut sums);
+                let across = self.transposed[slot] as usize;
+                if across != slot {
+                    sum_again(across, &mut sums);
+                }
+            }
+        }
         sums
     }
 }
@@ -802,7 +896,11 @@ impl HierarchyPattern {
     /// (`None`: nothing held): [`first_level`] and then [`Csr::restricted`]
     /// level by level, to the bit.
     fn chain(&self, aggregate: &[u32], m: &VertexRows, held: Option<&[bool]>) -> Vec<Csr> {
-        let mut sums = self.first.sums(aggregate, m, held);
+        self.chain_from(self.first.sums(aggregate, m, held))
+    }
+
+    /// [`Self::chain`] from the first level's sums.
+    fn chain_from(&self, mut sums: SlotSums) -> Vec<Csr> {
         let mut matrices = vec![sums.matrix(&self.first.offsets, &self.first.columns)];
         for level in &self.coarser {
             let mut next = SlotSums::new(level.columns.len());
@@ -874,9 +972,10 @@ impl Hierarchy {
     }
 
     /// The cycle of `matrices` (first to coarsest) with the aggregations
-    /// `downs` between them; `None` if the coarsest level is not positive
-    /// definite.
-    fn from_chain(mut matrices: Vec<Csr>, downs: Vec<Vec<u32>>) -> Option<Self> {
+    /// `downs` between them, the coarsest factorised on the first of `known`
+    /// analyses that fits its pattern ([`Coarsest::new`]); `None` if the
+    /// coarsest level is not positive definite.
+    fn from_chain<'a>(mut matrices: Vec<Csr>, downs: Vec<Vec<u32>>, known: impl IntoIterator<Item = &'a Arc<Analysis>>) -> Option<Self> {
         let matrix = matrices.pop().expect("the first level");
         let levels = matrices
             .into_iter()
@@ -895,7 +994,7 @@ impl Hierarchy {
                 matrix.row(i).filter(move |&(j, _)| j <= i).map(move |(j, v)| (j as u32, i as u32, v as f64)).chain(identity)
             })
             .collect();
-        let coarsest = Coarsest::new(matrix.len(), lower)?;
+        let coarsest = Coarsest::new(matrix.len(), lower, known)?;
         let last = coarsest.len();
         Some(Hierarchy { levels, coarsest, coarsest_rhs: vec![Vec3::ZERO; last], coarsest_error: vec![Vec3::ZERO; last] })
     }
@@ -1015,9 +1114,13 @@ mod tests {
             let held: Vec<bool> = (0..n).map(|_| round > 0 && (next() % 20) < round).collect();
             let (sorted, _) = Hierarchy::chain(first_level(&aggregate, count, &m, Some(&held)), Some(&downs));
             let by_slot = pattern.chain(&aggregate, &m, Some(&held));
+            let vertices: Vec<u32> = (0..n as u32).filter(|&v| held[v as usize]).collect();
+            let again = pattern.chain_from(pattern.first.held_sums(&pattern.first.sums(&aggregate, &m, None), &aggregate, &m, &held, &vertices));
             assert_eq!(sorted.len(), by_slot.len());
-            for (l, (sorted, by_slot)) in sorted.iter().zip(&by_slot).enumerate() {
+            assert_eq!(sorted.len(), again.len());
+            for (l, ((sorted, by_slot), again)) in sorted.iter().zip(&by_slot).zip(&again).enumerate() {
                 assert_same(sorted, by_slot, &format!("round {round}, level {l}"));
+                assert_same(sorted, again, &format!("round {round}, level {l}, from the free sums"));
             }
         }
     }
@@ -1070,6 +1173,78 @@ mod tests {
             let (a, b) = (kept.free.solve().to_vec(), fresh.free.solve().to_vec());
             let flat = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).map(f32::to_bits).collect::<Vec<_>>();
             assert_eq!(flat(&a), flat(&b), "{case}: the cycle's solve");
+            if case == "same sequence" {
+                assert!(Arc::ptr_eq(kept.free.coarsest.analysis(), coarse.free.coarsest.analysis()), "new values of the same pattern keep its analysis");
+            }
         }
+    }
+
+    /// A held problem whose coarsest pattern is one already analysed (the
+    /// free problem's, or a cached held set's) is factorised on that
+    /// analysis, and must solve as one analysed afresh, to the bit; another
+    /// pattern gets its own analysis.
+    #[test]
+    fn held_coarsest_on_a_known_analysis_is_a_fresh_one_bit_for_bit() {
+        let side = 24u32;
+        let n = (side * side) as usize;
+        let mut next = xorshift(4242);
+        let mut random = move |low: f32, high: f32| low + (high - low) * (next() % 10_000) as f32 / 10_000.0;
+        let rows = Rows::identity(&(0..n as u32).collect::<Vec<_>>());
+        let mut coupling = Rows::new();
+        let mut neighbours_of = Vec::new();
+        for v in 0..n as u32 {
+            let (x, y) = (v % side, v / side);
+            let mut neighbours = Vec::new();
+            if x > 0 { neighbours.push(v - 1); }
+            if x + 1 < side { neighbours.push(v + 1); }
+            if y > 0 { neighbours.push(v - side); }
+            if y + 1 < side { neighbours.push(v + side); }
+            let share = 1.0 / neighbours.len() as f32;
+            coupling.push(neighbours.iter().map(|&j| (j, share * random(0.8, 1.2))).collect::<Vec<_>>());
+            neighbours_of.push(neighbours);
+        }
+        let weights: Vec<f32> = (0..n).map(|_| random(0.5, 1.5)).collect();
+        let inverse: Vec<f32> = (0..n).map(|_| random(0.2, 0.5)).collect();
+        let block = RowBlock { rows: &rows, weights: &weights, offset: 0 };
+        let mut coarse = Coarse::build(n, &[block], &[Some(&coupling)], &inverse).unwrap().expect("a coarse level");
+        // A vertex whose neighbours all share its aggregate: holding it
+        // leaves every link between aggregates, so the pattern stays.
+        let aggregate = coarse.aggregate.clone();
+        let interior = |v: usize| aggregate[v] != aggregate[0] && neighbours_of[v].iter().all(|&j| aggregate[j as usize] == aggregate[v]);
+        let inside = (0..n).find(|&v| interior(v)).expect("an aggregate with a vertex inside it");
+        // Every vertex of one aggregate: its node's row empties, so the pattern changes.
+        let whole: Vec<u32> = (0..n as u32).filter(|&v| aggregate[v as usize] == aggregate[0]).collect();
+        let mut whole_and_inside = whole.clone();
+        whole_and_inside.push(inside as u32);
+        whole_and_inside.sort_unstable();
+        let free_analysis = Arc::clone(coarse.free.coarsest.analysis());
+        let mut whole_analysis = None;
+        for (case, held) in [("one inside vertex", vec![inside as u32]), ("a whole aggregate", whole), ("the same and one inside vertex", whole_and_inside)] {
+            let mut mask = vec![false; n];
+            for &v in &held {
+                mask[v as usize] = true;
+            }
+            coarse.prepare_held(&held, &mask);
+            let matrices = coarse.pattern.chain(&coarse.aggregate, &coarse.m, Some(&mask));
+            let downs = coarse.free.levels.iter().map(|l| l.down.clone()).collect();
+            let mut fresh = Hierarchy::from_chain(matrices, downs, []).expect("positive definite");
+            let kept = coarse.held[0].hierarchy.as_mut().expect("positive definite");
+            let analysis = Arc::clone(kept.coarsest.analysis());
+            match case {
+                "one inside vertex" => assert!(Arc::ptr_eq(&analysis, &free_analysis), "{case}: the free problem's analysis"),
+                "a whole aggregate" => {
+                    assert!(!Arc::ptr_eq(&analysis, &free_analysis), "{case}: an analysis of its own");
+                    whole_analysis = Some(analysis);
+                }
+                _ => assert!(Arc::ptr_eq(&analysis, whole_analysis.as_ref().unwrap()), "{case}: the cached held set's analysis"),
+            }
+            let rhs: Vec<Vec3> = (0..kept.first_rhs().len()).map(|a| Vec3::new(a as f32, 1.0, -(a as f32).sqrt())).collect();
+            kept.first_rhs().copy_from_slice(&rhs);
+            fresh.first_rhs().copy_from_slice(&rhs);
+            let (a, b) = (kept.solve().to_vec(), fresh.solve().to_vec());
+            let flat = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).map(f32::to_bits).collect::<Vec<_>>();
+            assert_eq!(flat(&a), flat(&b), "{case}: the cycle's solve");
+        }
+        assert_eq!(coarse.held_assemblies(), 3);
     }
 }

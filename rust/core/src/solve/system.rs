@@ -452,25 +452,56 @@ fn cholesky<'a>(
 /// structure a caller can walk itself; otherwise faer chooses.
 pub(crate) fn factorize_lower(
     n: usize,
-    mut entries: Vec<(u32, u32, f64)>,
+    entries: Vec<(u32, u32, f64)>,
     symbolic: Option<Arc<SymbolicCholesky<usize>>>,
     simplicial: bool,
 ) -> Result<(Arc<SymbolicCholesky<usize>>, Vec<f64>)> {
-    // Stable sort: duplicates are summed in insertion order, deterministically.
-    entries.par_sort_by_key(|&(col, row, _)| (col, row));
-    let mut col_ptr = vec![0usize; n + 1];
-    let mut row_idx = Vec::with_capacity(entries.len());
-    let mut matrix = Vec::with_capacity(entries.len());
-    for group in entries.chunk_by(|a, b| a.0 == b.0 && a.1 == b.1) {
-        let sum: f64 = group.iter().map(|e| e.2).sum();
-        col_ptr[group[0].0 as usize + 1] += 1;
-        row_idx.push(group[0].1 as usize);
-        matrix.push(sum);
+    let lower = LowerColumns::new(n, entries);
+    factorize_columns(&lower, symbolic, simplicial)
+}
+
+/// A symmetric matrix's lower triangle in compressed columns, rows ascending
+/// in each column, duplicates summed.
+pub(crate) struct LowerColumns {
+    pub n: usize,
+    pub col_ptr: Vec<usize>,
+    pub row_idx: Vec<usize>,
+    pub values: Vec<f64>,
+}
+
+impl LowerColumns {
+    /// From the lower-triangle entries `(column, row, value)`, duplicates
+    /// summed in insertion order (deterministic).
+    pub(crate) fn new(n: usize, mut entries: Vec<(u32, u32, f64)>) -> Self {
+        // Stable sort: duplicates are summed in insertion order, deterministically.
+        entries.par_sort_by_key(|&(col, row, _)| (col, row));
+        let mut col_ptr = vec![0usize; n + 1];
+        let mut row_idx = Vec::with_capacity(entries.len());
+        let mut values = Vec::with_capacity(entries.len());
+        for group in entries.chunk_by(|a, b| a.0 == b.0 && a.1 == b.1) {
+            let sum: f64 = group.iter().map(|e| e.2).sum();
+            col_ptr[group[0].0 as usize + 1] += 1;
+            row_idx.push(group[0].1 as usize);
+            values.push(sum);
+        }
+        for k in 0..n {
+            col_ptr[k + 1] += col_ptr[k];
+        }
+        LowerColumns { n, col_ptr, row_idx, values }
     }
-    for k in 0..n {
-        col_ptr[k + 1] += col_ptr[k];
-    }
-    let pattern = SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
+}
+
+/// Factorises `lower` by sparse Cholesky, on `symbolic` when given (which
+/// must be the analysis of `lower`'s pattern, or at least of its size: the
+/// caller answers for the fit), else on a fresh analysis. `simplicial` as
+/// in [`factorize_lower`].
+pub(crate) fn factorize_columns(
+    lower: &LowerColumns,
+    symbolic: Option<Arc<SymbolicCholesky<usize>>>,
+    simplicial: bool,
+) -> Result<(Arc<SymbolicCholesky<usize>>, Vec<f64>)> {
+    let n = lower.n;
+    let pattern = SymbolicSparseColMatRef::new_checked(n, n, &lower.col_ptr, None, &lower.row_idx);
     let symbolic = match symbolic {
         Some(s) if s.nrows() == n => s,
         _ => Arc::new(
@@ -511,7 +542,7 @@ pub(crate) fn factorize_lower(
     symbolic
         .factorize_numeric_llt::<f64>(
             &mut values,
-            SparseColMatRef::new(pattern, &matrix),
+            SparseColMatRef::new(pattern, &lower.values),
             Side::Lower,
             LltRegularization { dynamic_regularization_delta: 0.0, dynamic_regularization_epsilon: 0.0 },
             Par::Seq,
