@@ -379,20 +379,23 @@ impl Candidates {
     /// How far each vertex strayed over `before → after`, from the
     /// reference and from `before`, once for all the pairs that ask.
     fn strays(&self, before: &[Vec3], after: &[Vec3]) -> Strays {
-        let (from_reference, from_before) = (0..self.reference.len())
-            .into_par_iter()
-            .with_min_len(4096)
-            .map(|v| {
-                let r = self.reference[v];
-                ((before[v] - r).length().max((after[v] - r).length()), (after[v] - before[v]).length())
-            })
-            .unzip();
+        let (from_reference, from_before) = (0..self.reference.len()).into_par_iter().with_min_len(4096).map(|v| self.stray(v, before, after)).unzip();
         Strays { from_reference, from_before }
     }
 
-    /// Whether pair `k` has a corner among the `open` vertices.
-    fn opens(&self, k: usize, open: &[bool]) -> bool {
-        self.pairs[k].corners.iter().any(|&v| open[v as usize])
+    /// How far vertex `v` strayed over `before → after`, from the reference
+    /// and from `before` ([`Strays`]).
+    fn stray(&self, v: usize, before: &[Vec3], after: &[Vec3]) -> (f32, f32) {
+        let r = self.reference[v];
+        ((before[v] - r).length().max((after[v] - r).length()), (after[v] - before[v]).length())
+    }
+
+    /// [`Self::strays`] again after only the vertices flagged in `changed`
+    /// moved or got another reference: the others' are what they were.
+    fn restray(&self, strays: &mut Strays, before: &[Vec3], after: &[Vec3], changed: &[bool]) {
+        for v in (0..changed.len()).filter(|&v| changed[v]) {
+            (strays.from_reference[v], strays.from_before[v]) = self.stray(v, before, after);
+        }
     }
 
     /// Drops the pairs for which `dropped` holds, keeping the others (with
@@ -450,11 +453,11 @@ impl Candidates {
         let tangles = Tangles::default();
         let pass = collision.pass(settings, &tangles, None).expect("prepared");
         let strays = self.strays(before, after);
-        let open = self.open(&strays);
+        let asks = Asks::new(&self.open(&strays), None);
         let (mut outside, mut missed, mut unproven) = (0, 0, 0);
         for k in 0..self.pairs.len() {
             let proven = self.proves_apart(k, &strays, &pass);
-            if self.opens(k, &open) {
+            if asks.about(&self.pairs[k]) {
                 unproven += usize::from(!proven);
             } else {
                 outside += 1;
@@ -485,19 +488,22 @@ impl Candidates {
     }
 
     /// The pairs the fail-safe's check over `before → after` tests: those
-    /// with a corner among the open vertices ([`Self::open`]) that neither
+    /// with a corner among `touching` (or all; the check's later rounds look
+    /// only round what the one before put back, and proving the others
+    /// apart first was work thrown away) and a corner among the open
+    /// vertices ([`Self::open`]) that neither
     /// the reference's proof nor the rounds' from `before` ([`AtStart`],
     /// where this check's `before` is theirs) puts apart. Both prove a pair
     /// stays farther apart than its separation, so farther than the
     /// crossing the check looks for.
-    fn unsettled(&self, before: &[Vec3], after: &[Vec3], pass: &Pass<'_>) -> Vec<ElementPair> {
+    fn unsettled(&self, before: &[Vec3], after: &[Vec3], touching: Option<&[bool]>, pass: &Pass<'_>) -> Vec<ElementPair> {
         let strays = self.strays(before, after);
-        let open = self.open(&strays);
+        let asks = Asks::new(&self.open(&strays), touching);
         let at_start = self.at_start.at(before);
         let settled = |k: usize| {
             self.proves_apart(k, &strays, pass) || at_start.and_then(|d| d.get(k)).is_some_and(|&d| apart(&self.pairs[k], d, &strays.from_before, self.threshold(k, pass)))
         };
-        (0..self.pairs.len()).into_par_iter().with_min_len(256).filter(|&k| self.opens(k, &open) && !settled(k)).map(|k| self.pairs[k]).collect()
+        (0..self.pairs.len()).into_par_iter().with_min_len(256).filter(|&k| asks.about(&self.pairs[k]) && !settled(k)).map(|k| self.pairs[k]).collect()
     }
 
     /// For the tests, over the motion `before → after`, after a first
@@ -516,9 +522,9 @@ impl Candidates {
         at_start.begin(before);
         at_start.chosen(self, before, &strays, &self.open(&strays), None, &pass);
         self.at_start = AtStart::default();
-        let by_reference = self.unsettled(before, after, &pass).len();
+        let by_reference = self.unsettled(before, after, None, &pass).len();
         self.at_start = at_start;
-        let tested = self.unsettled(before, after, &pass);
+        let tested = self.unsettled(before, after, None, &pass);
         let left_out: Vec<&ElementPair> = self.pairs.iter().filter(|pair| !tested.contains(pair)).collect();
         let in_contact = left_out.iter().filter(|pair| first_contact(pair, before, after, collision.pair_separation(pair), pass.params.tolerance).is_some()).count();
         (left_out.len(), in_contact, by_reference - tested.len())
@@ -636,25 +642,52 @@ impl AtStart {
     #[allow(clippy::too_many_arguments)]
     fn chosen(&mut self, c: &Candidates, before: &[Vec3], strays: &Strays, open: &[bool], moved: Option<&[bool]>, pass: &Pass<'_>) -> Vec<usize> {
         self.distance.resize(c.pairs.len(), f32::NAN);
+        let asks = Asks::new(open, moved);
+        let (tolerance, rounding) = (pass.params.tolerance, pass.collision.rounding as f64);
         self.distance
             .par_iter_mut()
+            .zip(&c.pairs)
+            .zip(&c.distance)
+            .zip(&c.separation)
             .enumerate()
             .with_min_len(1024)
-            .filter_map(|(k, d)| {
-                let pair = &c.pairs[k];
-                let looked_at = moved.is_none_or(|m| pair.corners.iter().any(|&v| m[v as usize]));
-                if !looked_at || !c.opens(k, open) {
+            .filter_map(|(k, (((d, pair), &at_reference), &separation))| {
+                if !asks.about(pair) {
                     return None;
                 }
+                // `Candidates::threshold`'s sum, in its order.
+                let threshold = separation as f64 + tolerance + rounding;
                 if d.is_nan() {
-                    if c.proves_apart(k, strays, pass) {
+                    if apart(pair, at_reference, &strays.from_reference, threshold) {
                         return None;
                     }
                     *d = distance(pair, before);
                 }
-                (!apart(pair, *d, &strays.from_before, c.threshold(k, pass))).then_some(k)
+                (!apart(pair, *d, &strays.from_before, threshold)).then_some(k)
             })
             .collect()
+    }
+}
+
+/// Per vertex, whether a round asks about its pairs, as one byte: bit 0
+/// that it moved (every vertex, where the round looks at every pair), bit 1
+/// that it is open ([`Candidates::open`]). A pair is asked about where some
+/// corner moved and some corner is open: the or of its four corners' bytes
+/// has both bits, four loads where the two tests apart read up to eight
+/// flags with a branch for each.
+struct Asks(Vec<u8>);
+
+impl Asks {
+    fn new(open: &[bool], moved: Option<&[bool]>) -> Self {
+        Asks(match moved {
+            Some(moved) => open.iter().zip(moved).map(|(&o, &m)| u8::from(m) | (u8::from(o) << 1)).collect(),
+            None => open.iter().map(|&o| 1 | (u8::from(o) << 1)).collect(),
+        })
+    }
+
+    fn about(&self, pair: &ElementPair) -> bool {
+        let [a, b, c, d] = pair.corners.map(|v| self.0[v as usize]);
+        a | b | c | d == 3
     }
 }
 
@@ -902,13 +935,22 @@ impl SelfCollision {
         stats.count(&gathered, ms);
         candidates.as_mut().expect("ensured").at_start.begin(before);
         let mut moved: Option<Vec<bool>> = None;
+        // How far each vertex strayed, kept from round to round where only
+        // the vertices a round moved (or gathered around) change theirs.
+        let mut strays: Option<Strays> = None;
         for _ in 0..SELF_ROUNDS {
             stats.rounds += 1;
             let current = candidates.as_mut().expect("ensured");
-            let strays = current.strays(before, after);
-            let open = current.open(&strays);
+            let strays = match (strays.as_mut(), moved.as_deref()) {
+                (Some(kept), Some(changed)) => {
+                    current.restray(kept, before, after, changed);
+                    kept
+                }
+                _ => strays.insert(current.strays(before, after)),
+            };
+            let open = current.open(strays);
             let mut at_start = std::mem::take(&mut current.at_start);
-            let chosen = at_start.chosen(current, before, &strays, &open, moved.as_deref(), &pass);
+            let chosen = at_start.chosen(current, before, strays, &open, moved.as_deref(), &pass);
             current.at_start = at_start;
             let (contacts, changes) = pass.round(&current.pairs, before, after, &chosen, &mut stats);
             stats.contacts += contacts;
@@ -965,7 +1007,7 @@ impl SelfCollision {
         stats.count(&gathered, ms);
         let began = Instant::now();
         let current = candidates.as_ref().expect("ensured");
-        let open = current.unsettled(before, after, &pass);
+        let open = current.unsettled(before, after, touching, &pass);
         let (bad, tested) = pass.crossing_corners(&open, before, after, touching);
         stats.pairs_scanned += current.pairs.len();
         stats.pairs_tested += tested;
