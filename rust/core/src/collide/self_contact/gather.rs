@@ -45,13 +45,6 @@ pub(super) struct ElementPair {
     pub corners: [u32; 4],
 }
 
-impl ElementPair {
-    /// The corners of the pair's two sides.
-    pub(super) fn sides(&self) -> (&[u32], &[u32]) {
-        if self.edge_edge { (&self.corners[..2], &self.corners[2..]) } else { (&self.corners[..1], &self.corners[1..]) }
-    }
-}
-
 /// Which corners (bits 0–2) and edges (bits 3–5, edge `k` from corner `k`
 /// to corner `k + 1`) each tree position owns.
 pub(super) fn ownership(tree: &PatchTree, vertex_count: usize) -> Vec<u8> {
