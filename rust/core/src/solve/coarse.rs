@@ -714,21 +714,9 @@ impl FirstLevelPattern {
             let at = free.columns[start..end].binary_search(&b).expect("every generated entry has a slot");
             slots[index] = (start + at) as u32;
         });
-        // `first_level_entries` generates in ascending index, so a counting
-        // sort by slot keeps each slot's entries in generation order.
-        let mut by_slot_offsets = vec![0u32; free.columns.len() + 1];
-        for &slot in &slots {
-            by_slot_offsets[slot as usize + 1] += 1;
-        }
-        for s in 0..free.columns.len() {
-            by_slot_offsets[s + 1] += by_slot_offsets[s];
-        }
-        let mut filled = by_slot_offsets.clone();
-        let mut by_slot = vec![0u32; slots.len()];
-        for (index, &slot) in slots.iter().enumerate() {
-            by_slot[filled[slot as usize] as usize] = index as u32;
-            filled[slot as usize] += 1;
-        }
+        // `first_level_entries` generates in ascending index, and grouping
+        // (a counting sort) keeps each slot's entries in that order.
+        let (by_slot_offsets, by_slot) = group_members(&slots, free.columns.len());
         let mut entry_rows = vec![0u32; m.columns.len()];
         for i in 0..aggregate.len() {
             entry_rows[m.offsets[i] as usize..m.offsets[i + 1] as usize].fill(i as u32);
@@ -1067,6 +1055,25 @@ mod tests {
         v.iter().map(|x| x.to_bits()).collect()
     }
 
+    /// A `side × side` grid: each vertex's 4-neighbours, and coupling rows
+    /// sharing 1 among them, each share scaled by `random(0.8, 1.2)`.
+    fn grid_coupling(side: u32, random: &mut impl FnMut(f32, f32) -> f32) -> (Rows, Vec<Vec<u32>>) {
+        let mut coupling = Rows::new();
+        let mut neighbours_of = Vec::new();
+        for v in 0..side * side {
+            let (x, y) = (v % side, v / side);
+            let mut neighbours = Vec::new();
+            if x > 0 { neighbours.push(v - 1); }
+            if x + 1 < side { neighbours.push(v + 1); }
+            if y > 0 { neighbours.push(v - side); }
+            if y + 1 < side { neighbours.push(v + side); }
+            let share = 1.0 / neighbours.len() as f32;
+            coupling.push(neighbours.iter().map(|&j| (j, share * random(0.8, 1.2))).collect::<Vec<_>>());
+            neighbours_of.push(neighbours);
+        }
+        (coupling, neighbours_of)
+    }
+
     fn assert_same(sorted: &Csr, by_slot: &Csr, what: &str) {
         assert_eq!(sorted.offsets, by_slot.offsets, "{what}");
         assert_eq!(sorted.columns, by_slot.columns, "{what}");
@@ -1135,17 +1142,7 @@ mod tests {
         let mut next = xorshift(777);
         let mut random = move |low: f32, high: f32| low + (high - low) * (next() % 10_000) as f32 / 10_000.0;
         let rows = Rows::identity(&(0..n as u32).collect::<Vec<_>>());
-        let mut coupling = Rows::new();
-        for v in 0..n as u32 {
-            let (x, y) = (v % side, v / side);
-            let mut neighbours = Vec::new();
-            if x > 0 { neighbours.push(v - 1); }
-            if x + 1 < side { neighbours.push(v + 1); }
-            if y > 0 { neighbours.push(v - side); }
-            if y + 1 < side { neighbours.push(v + side); }
-            let share = 1.0 / neighbours.len() as f32;
-            coupling.push(neighbours.into_iter().map(|j| (j, share * random(0.8, 1.2))).collect::<Vec<_>>());
-        }
+        let (coupling, _) = grid_coupling(side, &mut random);
         let weights: Vec<f32> = (0..n).map(|_| random(0.5, 1.5)).collect();
         let block = |weights| RowBlock { rows: &rows, weights, offset: 0 };
         let inverse: Vec<f32> = (0..n).map(|_| random(0.2, 0.5)).collect();
@@ -1190,19 +1187,7 @@ mod tests {
         let mut next = xorshift(4242);
         let mut random = move |low: f32, high: f32| low + (high - low) * (next() % 10_000) as f32 / 10_000.0;
         let rows = Rows::identity(&(0..n as u32).collect::<Vec<_>>());
-        let mut coupling = Rows::new();
-        let mut neighbours_of = Vec::new();
-        for v in 0..n as u32 {
-            let (x, y) = (v % side, v / side);
-            let mut neighbours = Vec::new();
-            if x > 0 { neighbours.push(v - 1); }
-            if x + 1 < side { neighbours.push(v + 1); }
-            if y > 0 { neighbours.push(v - side); }
-            if y + 1 < side { neighbours.push(v + side); }
-            let share = 1.0 / neighbours.len() as f32;
-            coupling.push(neighbours.iter().map(|&j| (j, share * random(0.8, 1.2))).collect::<Vec<_>>());
-            neighbours_of.push(neighbours);
-        }
+        let (coupling, neighbours_of) = grid_coupling(side, &mut random);
         let weights: Vec<f32> = (0..n).map(|_| random(0.5, 1.5)).collect();
         let inverse: Vec<f32> = (0..n).map(|_| random(0.2, 0.5)).collect();
         let block = RowBlock { rows: &rows, weights: &weights, offset: 0 };
