@@ -749,9 +749,8 @@ impl FirstLevelPattern {
         let n = aggregate.len();
         let mut sums = SlotSums { sums: free.sums.clone(), used: free.used.clone() };
         let mut row_done = vec![false; self.offsets.len() - 1];
-        let start: f64 = std::iter::empty::<f64>().sum();
         let sum_again = |slot: usize, sums: &mut SlotSums| {
-            let (mut sum, mut used) = (start, false);
+            let (mut sum, mut used) = (SlotSums::start(), false);
             for &index in &self.by_slot[self.by_slot_offsets[slot] as usize..self.by_slot_offsets[slot + 1] as usize] {
                 let index = index as usize;
                 let (i, j, value) = if index < n {
@@ -795,10 +794,13 @@ struct SlotSums {
 
 impl SlotSums {
     fn new(slots: usize) -> Self {
-        // The value `Iterator::sum` starts from, so that each slot's sum is
-        // the same fold as `Csr::from_entries`'.
-        let start: f64 = std::iter::empty::<f64>().sum();
-        SlotSums { sums: vec![start; slots], used: vec![false; slots] }
+        SlotSums { sums: vec![Self::start(); slots], used: vec![false; slots] }
+    }
+
+    /// The value `Iterator::sum` starts from, so that each slot's sum is
+    /// the same fold as `Csr::from_entries`'.
+    fn start() -> f64 {
+        std::iter::empty::<f64>().sum()
     }
 
     fn add(&mut self, slot: usize, value: f64) {
