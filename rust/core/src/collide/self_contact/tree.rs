@@ -492,23 +492,12 @@ fn node_vertices(nodes: &[Node], triangles: &[[u32; 3]], vertex_count: usize) ->
 }
 
 /// Per vertex (offsets, then tree positions ascending), the triangles with
-/// it as a corner.
+/// it as a corner: its corners grouped by vertex, each corner `3p + k`
+/// standing for position `p`.
 fn positions_at_vertices(triangles: &[[u32; 3]], vertex_count: usize) -> (Vec<u32>, Vec<u32>) {
-    let mut offsets = vec![0u32; vertex_count + 1];
-    for &v in triangles.iter().flatten() {
-        offsets[v as usize + 1] += 1;
-    }
-    for v in 0..vertex_count {
-        offsets[v + 1] += offsets[v];
-    }
-    let mut fill = offsets.clone();
-    let mut positions = vec![0u32; offsets[vertex_count] as usize];
-    for (p, t) in triangles.iter().enumerate() {
-        for &v in t {
-            positions[fill[v as usize] as usize] = p as u32;
-            fill[v as usize] += 1;
-        }
-    }
+    let corners: Vec<u32> = triangles.iter().flatten().copied().collect();
+    let (offsets, mut positions) = crate::mesh::group_members(&corners, vertex_count);
+    positions.iter_mut().for_each(|corner| *corner /= 3);
     (offsets, positions)
 }
 
