@@ -34,6 +34,12 @@ import extension  # noqa: E402  (demo/extension.py)
 ADDON_MODULE = extension.ADDON_MODULE
 
 
+def pytest_configure(config):
+    # As in the wheel's tests: the add-on and these tests use the current API;
+    # a deprecated spelling fails here instead of warning.
+    config.addinivalue_line("filterwarnings", "error:.*is deprecated and goes away:DeprecationWarning")
+
+
 def _extension_zip() -> pathlib.Path:
     given = os.environ.get("TEGUMENT_EXTENSION_ZIP")
     candidates = [pathlib.Path(given)] if given else sorted((ROOT / "dist").glob("tegument-*-linux_x64.zip"))

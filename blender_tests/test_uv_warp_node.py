@@ -189,7 +189,7 @@ def test_create_bake_save_reload_matches_the_wheel_and_plays_as_a_sequence(saved
     assert [f.name for f in files] == [f"Skin_Tegument_UV_Warp_1001_{f:04d}.exr" for f in range(1, 6)]
 
     rest, corners, sizes, uvs = mesh_inputs(obj)
-    warp = tegument.UvWarp(RES, RES, rest, corners, sizes, uvs, disc(RIGID_RADIUS), warm_start=True, **SOLVER)
+    warp = tegument.UvWarp(rest, corners, sizes, uvs, disc(RIGID_RADIUS), warm_start=True, **SOLVER)
     expected = {}
     for frame in range(1, 6):
         expected[frame] = warp.solve(evaluated(obj, frame))

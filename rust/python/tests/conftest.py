@@ -17,6 +17,14 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[3] / "testkit"))
 SHARED_DATA = pathlib.Path(__file__).resolve().parents[4] / "shared" / "data"  # ../shared/data beside the checkout
 
 
+def pytest_configure(config):
+    # The deprecated spellings are tested on purpose, each under
+    # pytest.warns (test_api_results.py, test_api_warp.py); everywhere else a
+    # test uses the API a user should write, so one that drifts back to a
+    # deprecated spelling fails instead of adding to a wall of warnings.
+    config.addinivalue_line("filterwarnings", "error:.*is deprecated and goes away:DeprecationWarning")
+
+
 def cube_arrays():
     """Blender's default cube: positions (8, 3) float32, corner_verts, polygon_sizes."""
     positions = np.array(

@@ -45,11 +45,11 @@ def test_collider_properties_and_update_keeps_last_frame():
     assert collider.kinetic_friction == pytest.approx(0.5)
     moved = positions + np.float32(0.25)
     report = collider.update(moved)
-    assert set(report) == {"cost_ratio", "rebuilt"}
+    assert set(report.to_dict()) == {"cost_ratio", "rebuilt"}
     np.testing.assert_array_equal(collider.previous_positions, positions)
     np.testing.assert_array_equal(collider.positions, moved)
     np.testing.assert_array_equal(collider.triangles, triangles)
-    assert collider.edges().shape == (len(triangles) * 3 // 2, 2)
+    assert collider.edges.shape == (len(triangles) * 3 // 2, 2)
     assert "Collider(" in repr(collider)
     collider.hold()
     np.testing.assert_array_equal(collider.previous_positions, moved)
@@ -61,7 +61,7 @@ def test_bvh_is_rebuilt_when_refitting_degrades_it():
     rng = np.random.default_rng(1)
     scrambled = rng.permutation(positions).astype(np.float32) * np.float32(5.0)
     report = collider.update(np.ascontiguousarray(scrambled))
-    assert report["rebuilt"] and report["cost_ratio"] > 1.0
+    assert report.rebuilt and report.cost_ratio > 1.0
     assert collider.bvh_rebuilds == 1
 
 
@@ -116,22 +116,22 @@ def test_audit_counts_vertices_inside_and_edges_crossing_both_ways():
     result = tegument.audit(positions, corner_verts, polygon_sizes, [sphere])
     radius = np.linalg.norm(positions, axis=1)
     deep = int(np.sum(radius < 0.95))
-    assert deep <= result["vertices_inside"] <= int(np.sum(radius < 1.0))
-    assert result["edges_crossing"] > 0
-    assert result["collider_edges_crossing"] > 0
-    assert result["vertices_inside_indices"].dtype == np.int32
-    assert len(result["vertices_inside_indices"]) == result["vertices_inside"]
-    assert result["edges_crossing_indices"].shape == (result["edges_crossing"], 2)
-    assert result["collider_edges_crossing_indices"].shape == (result["collider_edges_crossing"], 2)
-    assert result["open_colliders"] == []
+    assert deep <= result.vertices_inside <= int(np.sum(radius < 1.0))
+    assert result.edges_crossing > 0
+    assert result.collider_edges_crossing > 0
+    assert result.vertices_inside_indices.dtype == np.int32
+    assert len(result.vertices_inside_indices) == result.vertices_inside
+    assert result.edges_crossing_indices.shape == (result.edges_crossing, 2)
+    assert result.collider_edges_crossing_indices.shape == (result.collider_edges_crossing, 2)
+    assert result.open_colliders == []
     # Every crossing edge has one end inside and one outside the sphere.
-    for a, b in result["edges_crossing_indices"]:
+    for a, b in result.edges_crossing_indices:
         assert (radius[a] < 1.0) != (radius[b] < 1.0)
     # Lifted clear of the sphere: nothing.
     lifted = positions.copy()
     lifted[:, 2] = 3.0
     clear = tegument.audit(lifted, corner_verts, polygon_sizes, (sphere,))
-    assert (clear["vertices_inside"], clear["edges_crossing"], clear["collider_edges_crossing"]) == (0, 0, 0)
+    assert (clear.vertices_inside, clear.edges_crossing, clear.collider_edges_crossing) == (0, 0, 0)
 
 
 def test_audit_sees_colliders_after_update_and_skips_open_ones_for_inside():
@@ -140,11 +140,11 @@ def test_audit_sees_colliders_after_update_and_skips_open_ones_for_inside():
     open_cap = tegument.Collider(sphere_p, sphere_t[:-10].copy(), thickness=0.0, friction=0.0)
     positions, corner_verts, polygon_sizes = grid_arrays(6, 6)
     positions[:, 2] = 3.0
-    assert tegument.audit(positions, corner_verts, polygon_sizes, [sphere])["vertices_inside"] == 0
+    assert tegument.audit(positions, corner_verts, polygon_sizes, [sphere]).vertices_inside == 0
     sphere.update(sphere_p + np.array([0, 0, 3.0], dtype=np.float32))
-    assert tegument.audit(positions, corner_verts, polygon_sizes, [sphere])["vertices_inside"] > 0
+    assert tegument.audit(positions, corner_verts, polygon_sizes, [sphere]).vertices_inside > 0
     result = tegument.audit(positions, corner_verts, polygon_sizes, [open_cap])
-    assert result["open_colliders"] == [0] and result["vertices_inside"] == 0
+    assert result.open_colliders == [0] and result.vertices_inside == 0
 
 
 def test_audit_refuses_bad_arguments():
@@ -165,7 +165,7 @@ def test_audit_refuses_bad_arguments():
 def test_no_colliders_means_a_clean_audit():
     positions, corner_verts, polygon_sizes = grid_arrays(3, 3)
     result = tegument.audit(positions, corner_verts, polygon_sizes, [])
-    assert (result["vertices_inside"], result["edges_crossing"], result["collider_edges_crossing"]) == (0, 0, 0)
+    assert (result.vertices_inside, result.edges_crossing, result.collider_edges_crossing) == (0, 0, 0)
 
 
 def _skin(n: int = 24):
@@ -184,12 +184,12 @@ def test_step_keeps_skin_outside_a_sphere_pushed_through_it_and_remembers():
         out = deformer.step(positions, [collider], iterations=10, closeness=0.05)
         assert out.dtype == np.float32 and out.shape == positions.shape and np.isfinite(out).all()
         found = tegument.audit(out, corner_verts, polygon_sizes, [collider])
-        assert (found["vertices_inside"], found["edges_crossing"], found["collider_edges_crossing"]) == (0, 0, 0)
-        assert len(deformer.last_step["pinched"]) == 0
+        assert (found.vertices_inside, found.edges_crossing, found.collider_edges_crossing) == (0, 0, 0)
+        assert len(deformer.last_step.pinched) == 0
         raised.append(out[:, 2].max())
     # The skin rides over the sphere's top (0.3 + 0.4 + thickness).
     assert raised[-1] > 0.7
-    assert deformer.last_step["first_pass_contacts"] > 0
+    assert deformer.last_step.first_pass_contacts > 0
     # Without colliders a step is the plain solve from the input; reset forgets the history.
     deformer.reset()
     assert deformer.last_step is None

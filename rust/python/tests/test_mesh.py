@@ -17,22 +17,22 @@ def test_error_is_a_value_error():
 
 def test_cube_is_closed(cube):
     mesh = tegument.Mesh(*cube)
-    report = mesh.report()
-    assert report["is_closed_manifold"]
+    report = mesh.report
+    assert report.is_closed_manifold
     assert mesh.vertex_count == 8 and mesh.polygon_count == 6
-    edges = mesh.edges()
+    edges = mesh.edges
     assert edges.dtype == np.int32 and edges.shape == (12, 2)
     assert (edges[:, 0] < edges[:, 1]).all()
-    assert len(mesh.boundary_vertices()) == 0
+    assert len(mesh.boundary_vertices) == 0
     for key in ("non_manifold_edges", "boundary_vertices", "degenerate_polygons", "isolated_vertices"):
-        assert report[key] == 0
+        assert getattr(report, key) == 0
 
 
 def test_grid_boundary_and_ordered_rings(grid):
     positions = grid[0]
     mesh = tegument.Mesh(*grid)
-    assert mesh.report()["boundary_vertices"] == 14
-    assert sorted(mesh.boundary_vertices()) == sorted({*range(5), *range(15, 20), 5, 10, 9, 14})
+    assert mesh.report.boundary_vertices == 14
+    assert sorted(mesh.boundary_vertices) == sorted({*range(5), *range(15, 20), 5, 10, 9, 14})
     for v in range(mesh.vertex_count):
         ring = mesh.one_ring(v)
         d = positions[ring] - positions[v]
@@ -47,10 +47,10 @@ def test_defects_are_counted(grid):
     # a third quad on the boundary edge 0-1 makes it non-manifold; vertex 20 is loose
     corners = np.concatenate([corners, [1, 0, 21, 22], [0, 1, 0]]).astype(np.int32)
     sizes = np.concatenate([sizes, [4, 3]]).astype(np.int32)
-    report = tegument.Mesh(positions, corners, sizes).report()
-    assert report["isolated_vertices"] == 1
-    assert report["degenerate_polygons"] == 1
-    assert not report["is_clean"]
+    report = tegument.Mesh(positions, corners, sizes).report
+    assert report.isolated_vertices == 1
+    assert report.degenerate_polygons == 1
+    assert not report.is_clean
     mesh = tegument.Mesh(positions, corners, sizes)
     assert 20 in mesh.problem_vertices()
 
@@ -90,7 +90,7 @@ def test_many_threads_at_once():
 
     def work():
         for _ in range(20):
-            results.append(tegument.Mesh(*cube_arrays()).report()["edge_count"])
+            results.append(tegument.Mesh(*cube_arrays()).report.edge_count)
 
     threads = [threading.Thread(target=work) for _ in range(4)]
     for t in threads:
@@ -113,7 +113,7 @@ def test_large_mesh_releases_the_gil():
     sizes = np.full(n * n, 4, np.int32)
     meshes = []
     during = ticks_of_another_thread_during(lambda: meshes.append(tegument.Mesh(positions, corners, sizes)))
-    assert meshes[0].report()["boundary_vertices"] == 4 * n
+    assert meshes[0].report.boundary_vertices == 4 * n
     numbers = np.random.default_rng(0).permutation(1_000_000).tolist()
     held = ticks_of_another_thread_during(lambda: sorted(numbers))
     assert held == 0, f"control: the other thread ran {held} times during a call that holds the GIL"

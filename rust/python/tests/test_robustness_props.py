@@ -244,13 +244,13 @@ def test_mesh_constructor(args):
         return
     positions, corners, sizes = (np.asarray(a) for a in args)
     assert mesh.vertex_count == len(positions) and mesh.polygon_count == len(sizes)
-    edges = mesh.edges()
+    edges = mesh.edges
     assert edges.dtype == np.int32 and edges.ndim == 2 and edges.shape[1] == 2
     assert ((edges >= 0) & (edges < mesh.vertex_count)).all()
     problems = mesh.problem_vertices()
     assert ((problems >= 0) & (problems < mesh.vertex_count)).all()
-    report = mesh.report()
-    assert report["vertex_count"] == mesh.vertex_count
+    report = mesh.report
+    assert report.vertex_count == mesh.vertex_count
     repr(mesh)
 
 
@@ -265,7 +265,7 @@ def test_mesh_one_ring_any_index(which, i):
         return
     assert 0 <= i < mesh.vertex_count
     assert ((ring >= 0) & (ring < mesh.vertex_count)).all()
-    mesh.boundary_vertices()
+    mesh.boundary_vertices
 
 
 # ---------------------------------------------------------------- PyramidDeformer
@@ -378,7 +378,7 @@ def test_collider_constructor(data):
     assert np.isfinite(collider.friction) and np.isfinite(collider.kinetic_friction)
     t = collider.triangles
     assert ((t >= 0) & (t < collider.vertex_count)).all()
-    collider.edges()
+    collider.edges
     repr(collider)
 
 
@@ -394,7 +394,7 @@ def test_collider_update_hold(data):
         report = expect_tegument_error(collider.update, positions, valid=valid)
         VALID_ACCEPTED["collider_update"] += valid
         if report is not None:
-            assert set(report) == {"cost_ratio", "rebuilt"}
+            assert set(report.to_dict()) == {"cost_ratio", "rebuilt"}
         if data.draw(st.booleans()):
             collider.hold()
             np.testing.assert_array_equal(collider.positions, collider.previous_positions)
@@ -415,8 +415,8 @@ def test_audit(data):
     if report is None:
         return
     n = len(np.asarray(args[0]))
-    inside = report["vertices_inside_indices"]
-    assert report["vertices_inside"] == len(inside) and ((inside >= 0) & (inside < n)).all()
+    inside = report.vertices_inside_indices
+    assert report.vertices_inside == len(inside) and ((inside >= 0) & (inside < n)).all()
 
 
 # -------------------------------------------------------------------------- UvWarp
@@ -450,6 +450,10 @@ def uv_corruption(draw, uvs):
 SIZES = st.one_of(st.sampled_from([8, 16]), st.sampled_from([0, -8, 7, 12, 4, 32768, 2**40, -(2**63)]))
 
 
+# Corrupted positions and corners can come out as two integers, which is the
+# deprecated UvWarp(width, height, ...) spelling: its warning is the API's
+# answer there, not a test drifting back to it.
+@pytest.mark.filterwarnings(r"ignore:UvWarp\(width, height:DeprecationWarning")
 @budget(BUDGETS["uvwarp_new"])
 @given(data=st.data())
 def test_uvwarp_constructor(data):
@@ -491,7 +495,7 @@ def test_uvwarp_constructor(data):
         and kwargs["memory_limit"] in (None, 2**62)
     )
     try:
-        warp = expect_tegument_error(tegument.UvWarp, w, h, *mesh, rigidity, **kwargs, valid=valid, counted="uvwarp_new")
+        warp = expect_tegument_error(tegument.UvWarp, *mesh, rigidity, shape=(h, w), **kwargs, valid=valid, counted="uvwarp_new")
     except ACCEPTED_SCALAR_ERRORS:
         return
     if warp is None:
@@ -502,7 +506,7 @@ def test_uvwarp_constructor(data):
     assert redirection.shape == (warp.height, warp.width, 2) and np.isfinite(redirection).all()
 
 
-_WARP = tegument.UvWarp(16, 16, *UV_MESH, np.full((16, 16), 1.0, np.float32), iterations=2)
+_WARP = tegument.UvWarp(*UV_MESH, np.full((16, 16), 1.0, np.float32), iterations=2)
 
 
 @budget(BUDGETS["uvwarp_methods"])
@@ -516,7 +520,7 @@ def test_uvwarp_methods(data, tmp_path_factory):
         assert out.shape == (16, 16, 2) and np.isfinite(out).all()
     metrics = expect_tegument_error(_WARP.metrics, deformed, valid=valid)
     if metrics is not None:
-        assert metrics["udim"] == 1001
+        assert metrics.udim == 1001
     assert np.isfinite(_WARP.displacement()).all() and _WARP.validity().shape == (16, 16)
     if data.draw(st.booleans()):
         _WARP.reset()

@@ -20,7 +20,7 @@ def _skin(n: int):
 def _audit(positions, corner_verts, polygon_sizes, colliders):
     """The product's own audit: its output, checked against the independent checker below."""
     found = tegument.audit(positions, corner_verts, polygon_sizes, colliders)
-    return found["vertices_inside"], found["edges_crossing"], found["collider_edges_crossing"]
+    return found.vertices_inside, found.edges_crossing, found.collider_edges_crossing
 
 
 def _penetrations(positions, corner_verts, polygon_sizes, colliders, spheres=()):
@@ -44,7 +44,7 @@ def test_dynamics_overshoot_then_settle_and_energy_is_reported():
         shift = 0.5 * min(frame, 6) / 6
         out = deformer.step(positions + np.float32([shift, 0, 0]), closeness=0.1, dynamics=dynamics)
         xs.append(float(out[:, 0].mean() - positions[:, 0].mean()))
-        energies.append(deformer.last_step["kinetic_energy"])
+        energies.append(deformer.last_step.kinetic_energy)
     assert max(xs) > 0.52, f"no overshoot: peak {max(xs)}"
     assert abs(xs[-1] - 0.5) < 0.005, f"not settled: {xs[-1]}"
     assert max(energies) > 0 and energies[-1] < 1e-3 * max(energies)
@@ -106,7 +106,7 @@ def test_strain_limits_unified_hold_with_no_penetration_and_post_leaves_some():
     assert all(not any(counts.values()) for counts in found), found
     assert all(a == (0, 0, 0) for a in audits), audits
     assert stretch <= 1.1 * 1.01
-    assert report["worst_stretch"] == pytest.approx(stretch, abs=1e-4)
+    assert report.worst_stretch == pytest.approx(stretch, abs=1e-4)
     post_audits, post_found, post_stretch, _ = _drag("post")
     assert post_stretch <= 1.1 * 1.01
     assert any(any(counts.values()) for counts in post_found), "post-collision limiting left no penetration"
@@ -128,7 +128,7 @@ def test_a_compliant_collider_recedes_instead_of_pinching_the_skin():
         for k in range(9):
             arm.update(arm_mesh + np.float32([0, 0, 0.5 - 0.05 * k]))
             out = deformer.step(positions, [torso, arm], closeness=0.2)
-            pinched = max(pinched, len(deformer.last_step["pinched"]))
+            pinched = max(pinched, len(deformer.last_step.pinched))
         return out, arm, pinched, deformer.last_step
 
     _, kinematic_arm, pinched, _ = run(None)
@@ -142,7 +142,7 @@ def test_a_compliant_collider_recedes_instead_of_pinching_the_skin():
     torso = tegument.Collider(torso_mesh, tris, thickness=0.01)
     assert _audit(out, corner_verts, polygon_sizes, [torso, arm]) == (0, 0, 0)
     recession = np.linalg.norm(arm.positions - arm.goal_positions, axis=1).max()
-    assert recession > 0.1 and report["max_recession"] == pytest.approx(recession, rel=1e-4)
+    assert recession > 0.1 and report.max_recession == pytest.approx(recession, rel=1e-4)
     np.testing.assert_array_equal(arm.goal_positions, arm_mesh + np.float32([0, 0, 0.1]))
 
 
