@@ -158,7 +158,8 @@ fn main() {
     let read = n * 12 * 2 + scene.collider.vertex_count() * 12 * 2;
     let write = n * 12;
     // Whole frames are slow (see docs/performance.md): one timed run, 2 threads.
-    for threads in [2usize] {
+    {
+        let threads = 2usize;
         let state = (scene.collider.clone(), scene.output.clone());
         let k = FRAMES;
         let whole = with_threads(threads, || {

@@ -199,6 +199,16 @@ pub fn ray_up_crosses(p: [f32; 3], a: [f32; 3], b: [f32; 3], c: [f32; 3]) -> boo
     z > p.z
 }
 
+/// Points spread over triangle `a b c` (corners, edge midpoints, centroid):
+/// where the property tests sample a skin triangle's distance.
+#[cfg(test)]
+pub(crate) fn triangle_samples(a: DVec3, b: DVec3, c: DVec3) -> Vec<DVec3> {
+    [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0 / 3.0, 1.0 / 3.0), (0.5, 0.5), (0.5, 0.0), (0.0, 0.5)]
+        .iter()
+        .map(|&(u, v)| a * (1.0 - u - v) + b * u + c * v)
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -235,14 +245,4 @@ mod tests {
         assert_eq!(ray_up_crosses([0.5, 0.5, 0.0], a, b, c) as u32 + ray_up_crosses([0.5, 0.5, 0.0], a, c, d) as u32, 1);
         assert!(!ray_up_crosses([0.5, 0.5, 2.0], a, b, c) && !ray_up_crosses([0.5, 0.5, 2.0], a, c, d));
     }
-}
-
-/// Points spread over triangle `a b c` (corners, edge midpoints, centroid):
-/// where the property tests sample a skin triangle's distance.
-#[cfg(test)]
-pub(crate) fn triangle_samples(a: DVec3, b: DVec3, c: DVec3) -> Vec<DVec3> {
-    [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0 / 3.0, 1.0 / 3.0), (0.5, 0.5), (0.5, 0.0), (0.0, 0.5)]
-        .iter()
-        .map(|&(u, v)| a * (1.0 - u - v) + b * u + c * v)
-        .collect()
 }

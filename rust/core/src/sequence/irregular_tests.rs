@@ -102,7 +102,7 @@ fn bow_tie_tubes() -> PolyMesh {
     let upper_zero = mesh.positions.len() - upper.positions.len();
     for c in &mut mesh.corner_verts {
         if *c as usize == upper_zero {
-            *c = top_of_lower as i32;
+            *c = top_of_lower;
         }
     }
     mesh

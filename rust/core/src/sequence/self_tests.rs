@@ -95,7 +95,7 @@ fn converge_bend(converge: bool, blender: bool) -> Vec<(f32, f32, usize)> {
             let input = scene.input(frame);
             let (x, _) = sequence.step(&input, &mut [], &options).unwrap();
             assert!(x.iter().all(|p| p.is_finite()), "frame {frame}: non-finite output");
-            (spike_max(&tube, &x), spike_max(&tube, &input), sequence.deformer_mut().last_iterations())
+            (spike_max(tube, &x), spike_max(tube, &input), sequence.deformer_mut().last_iterations())
         })
         .collect()
 }

@@ -308,7 +308,7 @@ impl System {
                     Err(_) => accumulate(&mut Vec::new()),
                 });
                 for (o, &inv) in o.iter_mut().zip(&inverse[base..]) {
-                    *o = *o * inv;
+                    *o *= inv;
                 }
             });
             return true;

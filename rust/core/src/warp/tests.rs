@@ -182,7 +182,7 @@ fn layout_is_watertight_and_finds_the_chart() {
         for x in 0..N {
             let (u, v) = ((x as f32 + 0.5) / N as f32, (y as f32 + 0.5) / N as f32);
             let inside = u > 0.1 && u < 0.9 && v > 0.1 && v < 0.9;
-            let outside = u < 0.1 || u > 0.9 || v < 0.1 || v > 0.9;
+            let outside = !(0.1..=0.9).contains(&u) || !(0.1..=0.9).contains(&v);
             if inside {
                 assert_eq!(l.covered[y * N + x], 1, "({x}, {y})");
             }

@@ -414,7 +414,7 @@ impl<'a> ColliderSet<'a> {
         };
         let lifted = AtomicUsize::new(0);
         // Anchors hold where the colliders stand still.
-        let mut anchors = anchors.filter(|_| still);
+        let anchors = anchors.filter(|_| still);
         let mut anchored = AnchorPass { anchors: anchors.as_deref(), held: HashMap::new() };
         let mut converged = false;
         for _ in 0..params.max_rounds.max(1) {
@@ -559,7 +559,7 @@ impl<'a> ColliderSet<'a> {
                     next.insert(i, anchor);
                 }
             }
-            if let Some(anchors) = anchors.as_deref_mut() {
+            if let Some(anchors) = anchors {
                 anchors.replace(next);
             }
         }
