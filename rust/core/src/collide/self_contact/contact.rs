@@ -42,9 +42,13 @@ fn d(v: Vec3) -> DVec3 {
     v.as_dvec3()
 }
 
-/// The pair's corners at the start and the end of the step.
+/// The pair's corners at the start and the end of the step. Written out,
+/// not `corners.map(…)`, which some builds left an out-of-line
+/// `array::try_map` call (issue 30, twenty-sixth round).
+#[inline]
 fn ends(pair: &ElementPair, start: &[Vec3], end: &[Vec3]) -> ([DVec3; 4], [DVec3; 4]) {
-    (pair.corners.map(|v| d(start[v as usize])), pair.corners.map(|v| d(end[v as usize])))
+    let [a, b, c, e] = [pair.corners[0] as usize, pair.corners[1] as usize, pair.corners[2] as usize, pair.corners[3] as usize];
+    ([d(start[a]), d(start[b]), d(start[c]), d(start[e])], [d(end[a]), d(end[b]), d(end[c]), d(end[e])])
 }
 
 /// The earliest contact of `pair` within `separation` over `start → end`.

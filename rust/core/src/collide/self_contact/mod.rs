@@ -23,9 +23,12 @@
 //! patches meeting at a corner or a ring apart), `hinge` and `star` (the
 //! near pairs that are never contacts, whatever the tree: one hinge apart,
 //! two polygons apart round a vertex), `gather` (the candidate
-//! pairs), `contact` (one pair's CCD and projection with friction),
+//! pairs), `pair_index` (where each vertex's pairs are in the candidates'
+//! list, kept through the gatherings around a few vertices), `contact` (one pair's CCD and projection with friction),
 //! `collision` ([`SelfCollision`]: the bind, the separations at rest, the
-//! intersections of a state), `held` (which vertices the fail-safe puts
+//! intersections of a state), `fit` (at which time along the
+//! gathered paths the in-loop positions fit them, kept from round to
+//! round), `held` (which vertices the fail-safe puts
 //! back: a held patch moves as a patch), `ramp` (how far the skin round
 //! a held patch goes without Converge: a slope, not a step), `resolve` (the passes, the
 //! fail-safe, [`Tangles`]).
@@ -34,10 +37,12 @@ mod bounds;
 mod collision;
 mod contact;
 mod exclusion;
+mod fit;
 mod gather;
 mod held;
 mod ramp;
 mod hinge;
+mod pair_index;
 mod resolve;
 mod separation;
 mod star;

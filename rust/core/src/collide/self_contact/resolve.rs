@@ -62,8 +62,10 @@ use rayon::prelude::*;
 use super::bounds::{Motion, NodeBounds};
 use super::collision::{distance, SelfCollision};
 use super::contact::{correction, first_contact, ContactParams};
+use super::fit::{PathFits, Paths};
 use super::gather::{ElementPair, Focus};
 use super::held::Held;
+use super::pair_index::{compact, PairIndex};
 use super::ramp::{self, HeldBorder};
 use super::settings::{SelfSettings, SelfStats};
 use crate::mesh::validate_positions;
@@ -110,15 +112,6 @@ const IN_LOOP_MARGIN_SEPARATIONS: f32 = 4.0;
 /// times, no frame after it did, and frames 1–6 cost 12.53G instructions
 /// against twice's 13.04G (issue 30, seventeenth round).
 const WARM_MARGIN_MOVES: f32 = 4.0;
-
-/// How finely [`Candidates::fitted`] looks for the time along the gathered
-/// paths at which positions fit them best (1/n of the paths).
-const FIT_STEPS: usize = 32;
-
-/// The `k`-th of the times [`Candidates::best_fit`] tries.
-fn fit_time(k: usize) -> f32 {
-    k as f32 / FIT_STEPS as f32
-}
 
 /// The vertices of the triangles that intersected (or touched) at the start
 /// of a frame.
@@ -235,6 +228,14 @@ pub struct Candidates {
     /// in step with the list, for the fail-safe's check of the same
     /// iteration ([`SelfCollision::in_loop_crossings`]).
     at_start: AtStart,
+    /// The fits of the last positions the in-loop passes asked about
+    /// ([`Self::fitted`]), kept to be worked out again only where those
+    /// positions or the paths changed.
+    fits: PathFits,
+    /// Where the pairs of each vertex are in the list, made at the first
+    /// gathering around a few vertices ([`Self::drop_pairs_of`]) and kept
+    /// in step with the list from then on.
+    index: Option<PairIndex>,
 }
 
 impl Candidates {
@@ -266,61 +267,12 @@ impl Candidates {
         (&self.start, &self.reference, &self.margin, &self.pairs)
     }
 
-    /// Where vertex `v`'s gathered path is at time `t`.
-    fn path_at(&self, v: usize, t: f32) -> Vec3 {
-        self.start[v] + t * (self.reference[v] - self.start[v])
-    }
-
-    /// Whether `x`, a position of vertex `v`, is beyond its margin of its
-    /// path at time `t`.
-    fn outside(&self, x: Vec3, v: usize, t: f32) -> bool {
-        (x - self.path_at(v, t)).length() > self.margin[v]
-    }
-
-    /// Per vertex, whether `x` is beyond its margin of its path at time `t`.
-    fn outside_at(&self, x: &[Vec3], t: f32) -> Vec<bool> {
-        (0..x.len()).into_par_iter().with_min_len(4096).map(|v| self.outside(x[v], v, t)).collect()
-    }
-
     /// The vertices of `x` beyond their margins of the gathered paths at the
-    /// one time (for every vertex) that leaves out the fewest, and how many.
-    /// The end and the start of the paths are tried first (an iteration
-    /// after the one that gathered ends near the end; the rounds of the one
-    /// that gathered start at the start); then every 1/[`FIT_STEPS`].
-    fn best_fit(&self, x: &[Vec3]) -> (Vec<bool>, usize) {
-        let within = |t: f32| (0..x.len()).into_par_iter().with_min_len(4096).all(|v| (x[v] - self.path_at(v, t)).length() <= self.margin[v]);
-        if within(1.0) || within(0.0) {
-            return (vec![false; x.len()], 0);
-        }
-        // How many vertices each time leaves out, counted in one pass over
-        // the vertices, each vertex's path read once for all the times: a
-        // pass over the skin per time, each making its flags, cost more
-        // than the in-loop gatherings around a few vertices themselves on
-        // the MakeHuman character's frames 1–8 (1.26G instructions against
-        // 0.99G, issue 30, twenty-third round). The same test as
-        // `outside_at`, so the same counts and the same time.
-        let counts = (0..x.len())
-            .into_par_iter()
-            .with_min_len(4096)
-            .fold(
-                || [0usize; FIT_STEPS + 1],
-                |mut counts, v| {
-                    for (k, count) in counts.iter_mut().enumerate() {
-                        *count += usize::from(self.outside(x[v], v, fit_time(k)));
-                    }
-                    counts
-                },
-            )
-            .reduce(
-                || [0usize; FIT_STEPS + 1],
-                |mut a, b| {
-                    a.iter_mut().zip(b).for_each(|(a, b)| *a += b);
-                    a
-                },
-            );
-        // The first of the times that leave out the fewest.
-        let best = (0..=FIT_STEPS).min_by_key(|&k| counts[k]).expect("FIT_STEPS + 1 times");
-        (self.outside_at(x, fit_time(best)), counts[best])
+    /// one time (for every vertex) that leaves out the fewest, and how many
+    /// ([`PathFits::best`]).
+    fn best_fit(&mut self, x: &[Vec3]) -> (Vec<bool>, usize) {
+        let paths = Paths { start: &self.start, reference: &self.reference, margin: &self.margin };
+        self.fits.best(&paths, x)
     }
 
     /// Per vertex, whether the in-loop motion `before → after` leaves what
@@ -337,7 +289,7 @@ impl Candidates {
     /// every vertex not flagged. A flagged vertex is gathered around as a
     /// ball about `before` holding `after` ([`Pass::ensure`]), which no time
     /// enters, so the mix stays covered.
-    fn fitted(&self, before: &[Vec3], after: &[Vec3]) -> (Vec<bool>, usize) {
+    fn fitted(&mut self, before: &[Vec3], after: &[Vec3]) -> (Vec<bool>, usize) {
         let (mut left, count) = self.best_fit(before);
         let (out, more) = self.best_fit(after);
         if more == 0 {
@@ -398,35 +350,28 @@ impl Candidates {
         }
     }
 
-    /// Drops the pairs for which `dropped` holds, keeping the others (with
-    /// their distances and separations) in their order; returns how many
-    /// are kept. In place: a
+    /// Drops the pairs with a corner among `vertices` (`flags` the same,
+    /// per vertex), keeping the others (with their distances and
+    /// separations) in their order; returns how many are kept. In place: a
     /// gathering around a few vertices drops a few pairs of a list of up to
     /// millions, which copying made a pass over the whole list in new
-    /// memory for each such gathering (issue 30, twenty-third round).
-    /// The rounds' distances at `before` ([`AtStart::kept_with`]) are
-    /// compacted alike.
-    fn drop_pairs(&mut self, dropped: impl Fn(&ElementPair) -> bool) -> usize {
-        let mut by_pair = self.at_start.kept_with(self.pairs.len());
-        let mut kept = 0;
-        for k in 0..self.pairs.len() {
-            if !dropped(&self.pairs[k]) {
-                self.pairs[kept] = self.pairs[k];
-                self.distance[kept] = self.distance[k];
-                self.separation[kept] = self.separation[k];
-                if let Some(values) = by_pair.as_deref_mut() {
-                    values[kept] = values[k];
-                }
-                kept += 1;
-            }
+    /// memory for each such gathering (issue 30, twenty-third round); and
+    /// found by the list's [`PairIndex`], made at the first such gathering,
+    /// not by a pass testing every pair. The rounds' distances at `before`
+    /// ([`AtStart::kept_with`]) are compacted alike.
+    fn drop_pairs_of(&mut self, vertices: &[u32], flags: &[bool]) -> usize {
+        let index = match &mut self.index {
+            Some(index) if !index.stale() => index,
+            _ => self.index.insert(PairIndex::new(&self.pairs, self.start.len())),
+        };
+        let dropped = index.drop_pairs_of(vertices, flags);
+        if let Some(values) = self.at_start.kept_with(self.pairs.len()) {
+            compact(values, &dropped);
         }
-        self.pairs.truncate(kept);
-        self.distance.truncate(kept);
-        self.separation.truncate(kept);
-        if let Some(values) = by_pair {
-            values.truncate(kept);
-        }
-        kept
+        compact(&mut self.pairs, &dropped);
+        compact(&mut self.distance, &dropped);
+        compact(&mut self.separation, &dropped);
+        self.pairs.len()
     }
 
     /// Lowers the clearances of the corners of pairs `from..` to what those
@@ -567,10 +512,21 @@ struct Strays {
 /// loops, 70 without (issue 30, twenty-fourth round). The same maxima in
 /// the same order, so the same room.
 fn apart(pair: &ElementPair, distance: f32, strayed: &[f32], threshold: f64) -> bool {
-    let [s0, s1, s2, s3] = pair.corners.map(|v| strayed[v as usize]);
+    let [s0, s1, s2, s3] = at_corners(&pair.corners, strayed);
     let (a, b) = if pair.edge_edge { (0.0f32.max(s0).max(s1), 0.0f32.max(s2).max(s3)) } else { (0.0f32.max(s0), 0.0f32.max(s1).max(s2).max(s3)) };
     let room = distance - a - b;
     room as f64 > threshold
+}
+
+/// `values` at the four `corners`, written out: as `corners.map(…)` the
+/// rounds' per-pair tests (`apart`, [`Asks::about`], millions of times a
+/// fold frame) went through an out-of-line `array::try_map` in some builds
+/// and not in others, 125M instructions of the MakeHuman character's frame
+/// 8 moving with unrelated changes to the crate (issue 30, twenty-sixth
+/// round).
+#[inline(always)]
+fn at_corners<T: Copy>(corners: &[u32; 4], values: &[T]) -> [T; 4] {
+    [values[corners[0] as usize], values[corners[1] as usize], values[corners[2] as usize], values[corners[3] as usize]]
 }
 
 /// The listed pairs' distances at the start of an in-loop pass (`before`),
@@ -619,7 +575,7 @@ impl AtStart {
     }
 
     /// The distances to compact along with the list a gathering around a
-    /// few vertices keeps ([`Candidates::drop_pairs`]): a kept pair is the
+    /// few vertices keeps ([`Candidates::drop_pairs_of`]): a kept pair is the
     /// same pair at the same `before`, so its distance there still holds
     /// (the new pairs, appended, get theirs when a round asks). None where
     /// they are not one per pair of the `listed` (no round has asked since
@@ -685,8 +641,12 @@ impl Asks {
         })
     }
 
+    /// Inlined: asked of every listed pair at every round, where the call
+    /// was about a fifth of its 25 instructions (issue 30, twenty-fifth
+    /// round (b)).
+    #[inline]
     fn about(&self, pair: &ElementPair) -> bool {
-        let [a, b, c, d] = pair.corners.map(|v| self.0[v as usize]);
+        let [a, b, c, d] = at_corners(&pair.corners, &self.0);
         a | b | c | d == 3
     }
 }
@@ -1098,6 +1058,8 @@ impl Pass<'_> {
             bounds,
             clearance: vec![f64::INFINITY; start.len()],
             at_start: AtStart::default(),
+            fits: PathFits::default(),
+            index: None,
         };
         c.tighten(0, self);
         c
@@ -1113,7 +1075,7 @@ impl Pass<'_> {
     /// fail-safe moving skin far) carrying them into every in-loop gathering
     /// paired up millions of elements of the fold (issue 30, seventh round).
     fn ensure(&self, candidates: &mut Option<Candidates>, before: &[Vec3], after: &[Vec3]) -> Gathered {
-        let fit = candidates.as_ref().map(|c| c.fitted(before, after));
+        let fit = candidates.as_mut().map(|c| c.fitted(before, after));
         if fit.as_ref().is_some_and(|(_, count)| *count == 0) {
             return Gathered::Nothing;
         }
@@ -1158,15 +1120,18 @@ impl Pass<'_> {
     /// one of them (the triangle owning that corner or edge, or the
     /// vertex–triangle pair's triangle), which the focus looks at.
     fn gather_around(&self, c: &mut Candidates, left: &[bool], start: &[Vec3], end: &[Vec3], margin: &[f32]) {
-        for v in (0..left.len()).filter(|&v| left[v]) {
+        let vertices: Vec<u32> = (0..left.len() as u32).filter(|&v| left[v as usize]).collect();
+        for &v in &vertices {
+            let v = v as usize;
             c.start[v] = start[v];
             c.reference[v] = end[v];
             c.margin[v] = margin[v];
             // Its reference moved: its pairs are all listed again below.
             c.clearance[v] = f64::INFINITY;
         }
+        c.fits.repathed(&vertices);
         let touches = |pair: &ElementPair| pair.corners.iter().any(|&v| left[v as usize]);
-        let kept = c.drop_pairs(touches);
+        let kept = c.drop_pairs_of(&vertices, left);
         let focus = self.collision.focus_around(left);
         // Only the vertices `left` changed path or margin: the bounds of the
         // leaves without one of them as a corner, and of the nodes above
@@ -1176,6 +1141,9 @@ impl Pass<'_> {
         let found: Vec<ElementPair> = self.gather_with(Some(&c.bounds), &motion, Some(&focus)).into_iter().filter(|p| touches(p)).collect();
         let reference = &c.reference;
         let found_distance: Vec<f32> = found.par_iter().map(|pair| distance(pair, reference)).collect();
+        if let Some(index) = &mut c.index {
+            index.append(&found);
+        }
         c.pairs.extend(found);
         c.distance.extend(found_distance);
         c.separation.extend(self.pair_separations(&c.pairs[kept..]));

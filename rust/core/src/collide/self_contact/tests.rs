@@ -592,6 +592,134 @@ fn the_in_loop_fail_safe_check_leaves_out_only_pairs_not_in_contact() {
     assert!(by_start > 0 && left_out > 0, "{left_out} pairs left out over 40 trials, {by_start} of them settled by the proof from before alone");
 }
 
+/// The coverage check kept from round to round ([`super::fit::PathFits`])
+/// answers what working every vertex out at every time answers, over
+/// random sequences of asks as an in-loop pass makes them: a round moving a
+/// few vertices, a gathering around a few changing their paths and
+/// margins, the next iteration's positions new, and the iteration's start
+/// asked between its ends.
+#[test]
+fn the_coverage_check_kept_from_round_to_round_is_the_full_checks() {
+    use super::fit::{PathFits, Paths};
+    let n = 96;
+    let (mut incremental_answers, mut left_out, mut none_left) = (0, 0, 0);
+    for trial in 0..60 {
+        let unit = |v: usize, k: usize| offset(v, trial * 31 + k, 1.0);
+        let mut start: Vec<Vec3> = (0..n).map(|v| unit(v, 0)).collect();
+        let mut reference: Vec<Vec3> = (0..n).map(|v| start[v] + 0.5 * unit(v, 1)).collect();
+        // Margins from a tenth of the paths' length to more than it.
+        let mut margin: Vec<f32> = (0..n).map(|v| 0.05 + 0.3 * (unit(v, 2).x + 1.0)).collect();
+        let mut fits = PathFits::default();
+        let along = |start: &[Vec3], reference: &[Vec3], t: f32, k: usize| -> Vec<Vec3> {
+            (0..n).map(|v| start[v] + t * (reference[v] - start[v]) + 0.2 * unit(v, k)).collect::<Vec<Vec3>>()
+        };
+        let mut before = along(&start, &reference, 0.1 * (trial % 10) as f32, 3);
+        let mut after = along(&start, &reference, 0.1 * (trial % 7 + 3) as f32, 4);
+        for step in 0..40 {
+            let salt = 100 + 10 * step;
+            match step % 8 {
+                // A gathering around a few vertices: new paths and margins.
+                3 => {
+                    let few: Vec<u32> = (0..3).map(|k| ((unit(k, salt).x + 1.0) * 0.5 * (n - 1) as f32) as u32).collect();
+                    for &v in &few {
+                        let v = v as usize;
+                        start[v] = before[v];
+                        reference[v] = after[v];
+                        margin[v] = 0.1 + 0.2 * (unit(v, salt + 1).y + 1.0);
+                    }
+                    fits.repathed(&few);
+                }
+                // The next iteration: new positions everywhere.
+                7 => {
+                    before = after.clone();
+                    after = along(&start, &reference, 0.5 + 0.05 * (step % 10) as f32, salt);
+                }
+                // A round moving a few vertices.
+                _ => {
+                    for k in 0..1 + step % 5 {
+                        let v = ((unit(k, salt + 2).x + 1.0) * 0.5 * (n - 1) as f32) as usize;
+                        after[v] += 0.3 * unit(v, salt + 3);
+                    }
+                }
+            }
+            let paths = Paths { start: &start, reference: &reference, margin: &margin };
+            for x in [&before, &after] {
+                let expected = PathFits::best_in_full(&paths, x);
+                let kept_before = fits.kept_positions().iter().any(|kept| kept.iter().zip(x.iter()).filter(|(a, b)| a != b).count() <= n / 8);
+                let got = fits.best(&paths, x);
+                assert_eq!(got, expected, "trial {trial}, step {step}");
+                incremental_answers += usize::from(kept_before);
+                if expected.1 == 0 {
+                    none_left += 1;
+                } else {
+                    left_out += 1;
+                }
+            }
+        }
+    }
+    // Not idle: the kept fits answered most asks, and the answers were both
+    // kinds.
+    assert!(incremental_answers > 60 * 80 / 2 && left_out > 0 && none_left > 0, "{incremental_answers} kept answers, {left_out} with vertices left out, {none_left} without");
+}
+
+/// The pairs a gathering around a few vertices drops, found by the list's
+/// index ([`super::pair_index::PairIndex`]) and compacted run by run, leave
+/// the list a pass over every pair leaves, in the same order, over random
+/// sequences of drops and appends (the index made again from the list
+/// part of the way, as when it grows stale).
+#[test]
+fn the_pairs_dropped_through_the_index_are_those_a_pass_over_the_list_drops() {
+    use super::gather::ElementPair;
+    use super::pair_index::{compact, PairIndex};
+    let n = 200;
+    let pick = |k: usize, salt: usize| ((offset(k, salt, 1.0).x + 1.0) * 0.5 * (n - 1) as f32) as u32;
+    let random_pairs = |count: usize, salt: usize| -> Vec<ElementPair> {
+        (0..count)
+            .map(|k| {
+                let a = pick(k, salt);
+                let corners = [a, (a + 1 + pick(k, salt + 1) % 7) % n as u32, (a + 9) % n as u32, pick(k, salt + 2)];
+                ElementPair { corners, edge_edge: k % 3 == 0 }
+            })
+            .collect()
+    };
+    let mut dropped_total = 0;
+    for trial in 0..20 {
+        let mut list = random_pairs(500 + 50 * trial, 1000 * trial);
+        let mut tags: Vec<usize> = (0..list.len()).collect();
+        let mut next_tag = tags.len();
+        let mut index = PairIndex::new(&list, n);
+        for step in 0..30 {
+            let salt = 1000 * trial + 10 * step + 7;
+            let vertices: Vec<u32> = {
+                let mut v: Vec<u32> = (0..1 + step % 6).map(|k| pick(k, salt)).collect();
+                v.sort_unstable();
+                v.dedup();
+                v
+            };
+            let mut flags = vec![false; n];
+            vertices.iter().for_each(|&v| flags[v as usize] = true);
+            let touches = |p: &ElementPair| p.corners.iter().any(|&v| flags[v as usize]);
+            let expected: Vec<(ElementPair, usize)> = list.iter().copied().zip(tags.iter().copied()).filter(|(p, _)| !touches(p)).collect();
+            if step == 15 {
+                index = PairIndex::new(&list, n);
+            }
+            let dropped = index.drop_pairs_of(&vertices, &flags);
+            dropped_total += dropped.len();
+            compact(&mut list, &dropped);
+            compact(&mut tags, &dropped);
+            let got: Vec<(ElementPair, usize)> = list.iter().copied().zip(tags.iter().copied()).collect();
+            assert_eq!(got, expected, "trial {trial}, step {step}");
+            // Their new pairs, appended.
+            let found: Vec<ElementPair> = random_pairs(40, salt + 3).into_iter().filter(|p| touches(p)).collect();
+            index.append(&found);
+            tags.extend(next_tag..next_tag + found.len());
+            next_tag += found.len();
+            list.extend(found);
+        }
+    }
+    assert!(dropped_total > 1000, "{dropped_total} pairs dropped in all");
+}
+
 /// A 16 × 16 grid of side 1 rolled three quarters round a cylinder (its
 /// normals fit no cone: the tree cannot accept it whole), at rest and with
 /// its quads squeezed along one diagonal to a quarter (in the unrolled
