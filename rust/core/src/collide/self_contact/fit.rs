@@ -170,16 +170,18 @@ impl Fit {
     }
 }
 
-fn add(counts: &mut [usize; MARKS], mut marks: u64) {
-    while marks != 0 {
-        counts[marks.trailing_zeros() as usize] += 1;
-        marks &= marks - 1;
-    }
+fn add(counts: &mut [usize; MARKS], marks: u64) {
+    for_each_mark(marks, |k| counts[k] += 1);
 }
 
-fn remove(counts: &mut [usize; MARKS], mut marks: u64) {
+fn remove(counts: &mut [usize; MARKS], marks: u64) {
+    for_each_mark(marks, |k| counts[k] -= 1);
+}
+
+/// Calls `f` with the number of each bit set in `marks`.
+fn for_each_mark(mut marks: u64, mut f: impl FnMut(usize)) {
     while marks != 0 {
-        counts[marks.trailing_zeros() as usize] -= 1;
+        f(marks.trailing_zeros() as usize);
         marks &= marks - 1;
     }
 }

@@ -41,23 +41,11 @@ pub(super) struct PairIndex {
 impl PairIndex {
     /// The index of `pairs` over `vertex_count` vertices.
     pub(super) fn new(pairs: &[ElementPair], vertex_count: usize) -> Self {
-        let mut starts = vec![0u32; vertex_count + 1];
-        for pair in pairs {
-            for &v in &pair.corners {
-                starts[v as usize + 1] += 1;
-            }
-        }
-        for v in 0..vertex_count {
-            starts[v + 1] += starts[v];
-        }
-        let mut at = starts.clone();
-        let mut ids = vec![0u32; starts[vertex_count] as usize];
-        for (id, pair) in pairs.iter().enumerate() {
-            for &v in &pair.corners {
-                ids[at[v as usize] as usize] = id as u32;
-                at[v as usize] += 1;
-            }
-        }
+        // The pairs' corners grouped by vertex, each corner `4 id + k`
+        // standing for pair `id`.
+        let corners: Vec<u32> = pairs.iter().flat_map(|pair| pair.corners).collect();
+        let (starts, mut ids) = crate::mesh::group_members(&corners, vertex_count);
+        ids.iter_mut().for_each(|corner| *corner /= 4);
         let mut index = PairIndex { starts, ids, appended: Vec::new(), live: Vec::new(), live_below: Vec::new(), next: 0 };
         index.give_ids(pairs.len());
         index
